@@ -1,0 +1,323 @@
+"""Load an MJCF scene and answer "where is it?" by name.
+
+A :class:`Scene` owns one ``MjModel``/``MjData`` pair, checks once that every element
+the code needs exists (one error listing all that are missing), and reads the routes,
+lanes and start poses from the model. Poses are ``[x, y, theta, v]``: rear-axle position
+[m] and heading [rad] in the world frame (x east, y north), speed [m/s] along the
+heading. ::
+
+    from cdf_mj.scene import Scene
+    scene = Scene.load()                       # models/xml/scene.xml
+    scene.reset(ego=scene.ego_start, obstacle=scene.obstacle_start)
+    scene.set_controls("ego", accel=0.0, steer=0.0)
+    collision = scene.step(20)                 # 20 physics steps = 0.1 s
+    poses = scene.poses()                      # (2, 4): ego, obstacle
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+from cdf_mj.config import SceneNames
+from cdf_mj.geometry import OrientedBox, Polyline, box_corners
+
+__all__ = ["Scene", "SceneError", "SimulationDivergedError", "Car", "DEFAULT_SCENE", "MODELS_DIR"]
+
+MODELS_DIR = Path(__file__).resolve().parent.parent / "models" / "xml"
+DEFAULT_SCENE = MODELS_DIR / "scene.xml"
+
+_OBJ = {
+    "body": mujoco.mjtObj.mjOBJ_BODY,
+    "site": mujoco.mjtObj.mjOBJ_SITE,
+    "actuator": mujoco.mjtObj.mjOBJ_ACTUATOR,
+    "joint": mujoco.mjtObj.mjOBJ_JOINT,
+    "geom": mujoco.mjtObj.mjOBJ_GEOM,
+}
+
+
+class SceneError(ValueError):
+    """A scene file that cannot be loaded or lacks an element the code needs."""
+
+
+class SimulationDivergedError(FloatingPointError):
+    """MuJoCo found a NaN, Inf or huge value in the state (and reset it)."""
+
+
+def _yaw(mat9: np.ndarray) -> float:
+    """Heading [rad] of a frame's x axis projected on the ground, from a row-major 3x3."""
+    return math.atan2(mat9[3], mat9[0])
+
+
+@dataclass(frozen=True)
+class Car:
+    """Indices and dimensions of one placed car, read from the model."""
+
+    prefix: str
+    body: int  # chassis body id (origin on the rear axle)
+    accel: int  # actuator id, ctrl [m/s^2]
+    steer: int  # actuator id, ctrl [rad]
+    accel_act: int  # index in data.act of the speed state [m/s]
+    qpos: np.ndarray  # qpos addresses of the planar joints x, y, yaw
+    qvel: np.ndarray  # dof addresses of the planar joints x, y, yaw
+    steer_qpos: int  # qpos address of the steering hinge
+    steer_dof: int
+    frame_pos: np.ndarray  # (2,) origin of the joints' frame in the world [m]
+    frame_yaw: float  # heading of the joints' frame [rad]
+    wheelbase: float  # [m] rear axle to front axle
+    hull_offset: np.ndarray  # (2,) centre of the collision box in the chassis frame [m]
+    hull_half: np.ndarray  # (2,) half length and half width of the collision box [m]
+    hull_height: float  # [m] top of the collision box above the ground
+    eye_offset: np.ndarray  # (3,) driver's eye in the chassis frame [m]
+    accel_range: tuple[float, float]  # [m/s^2] (maximum braking as negative, maximum accel)
+    steer_range: tuple[float, float]  # [rad]
+
+    @property
+    def max_brake(self) -> float:
+        """Maximum braking deceleration [m/s^2], positive."""
+        return -self.accel_range[0]
+
+    def footprint(self, pose: np.ndarray) -> np.ndarray:
+        """Corners ``(..., 4, 2)`` [m] of the collision box for pose(s) ``(..., 4)``."""
+        pose = np.asarray(pose, dtype=float)
+        c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
+        ox, oy = self.hull_offset
+        center = np.stack([pose[..., 0] + c * ox - s * oy, pose[..., 1] + s * ox + c * oy], axis=-1)
+        return box_corners(center, pose[..., 2], self.hull_half)
+
+    def eye(self, pose: np.ndarray) -> np.ndarray:
+        """World position(s) ``(..., 3)`` [m] of the driver's eye for pose(s) ``(..., 4)``."""
+        pose = np.asarray(pose, dtype=float)
+        c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
+        ex, ey, ez = self.eye_offset
+        return np.stack([pose[..., 0] + c * ex - s * ey, pose[..., 1] + s * ex + c * ey,
+                         np.full_like(pose[..., 0], ez)], axis=-1)
+
+
+class Scene:
+    """An MJCF scene with two cars, its routes and lanes, read by name.
+
+    Args:
+        model: compiled model; use :meth:`load` to read a file.
+        names: the element names to read (defaults match ``models/xml``).
+        source: where the model came from, for error messages.
+    """
+
+    def __init__(self, model: mujoco.MjModel, names: SceneNames | None = None,
+                 source: str = "<model>") -> None:
+        self.model = model
+        self.names = names or SceneNames()
+        self.source = source
+        self._validate()
+        self.data = mujoco.MjData(model)
+        mujoco.mj_kinematics(model, self.data)
+        n = self.names
+        self.ego = self._car(n.ego_prefix)
+        self.obstacle = self._car(n.obstacle_prefix)
+        self.cars = {"ego": self.ego, "obstacle": self.obstacle}
+        self.ego_start = self._site_pose(n.ego_start)
+        self.obstacle_start = self._site_pose(n.obstacle_start)
+        self.ego_lane = self._site_box(n.ego_lane)
+        self.stop_line = self._site_box(n.stop_line)
+        self.conflict = self._site_xy(n.conflict)
+        self.commit = self._site_xy(n.commit)
+        self.route_ego = self._route(n.route_ego)
+        self.route_left = self._route(n.route_left)
+        self.route_right = self._route(n.route_right)
+        self.buildings = np.array([i for i in range(model.ngeom)
+                                   if (model.geom(i).name or "").startswith(n.building_prefix)],
+                                  dtype=int)
+        self._root = model.body_rootid[model.geom_bodyid]  # geom -> root body
+        # Ray filter for sight lines: buildings (group 1) and car collision boxes (group 3).
+        self.ray_groups = np.array([0, 1, 0, 1, 0, 0], dtype=np.uint8)
+
+    # ----------------------------------------------------------------- loading
+    @classmethod
+    def load(cls, path: str | Path = DEFAULT_SCENE, names: SceneNames | None = None) -> "Scene":
+        """Compile an MJCF file into a scene; errors name the file."""
+        path = Path(path)
+        if not path.is_file():
+            raise SceneError(f"scene file not found: {path}")
+        try:
+            model = mujoco.MjModel.from_xml_path(str(path))
+        except ValueError as exc:  # MuJoCo reports parse and compile errors as ValueError
+            msg = " ".join(str(exc).split())
+            raise SceneError(f"cannot load scene {path}: {msg}") from None
+        return cls(model, names, source=str(path))
+
+    def _required(self) -> list[tuple[str, str]]:
+        n = self.names
+        req = [("site", s) for s in (n.ego_start, n.obstacle_start, n.stop_line, n.ego_lane,
+                                     n.conflict, n.commit)]
+        req += [("body", b) for b in (n.route_ego, n.route_left, n.route_right)]
+        for p in (n.ego_prefix, n.obstacle_prefix):
+            req += [("body", p + n.chassis), ("body", p + n.front_axle), ("geom", p + n.hull),
+                    ("site", p + n.eye), ("actuator", p + n.accel), ("actuator", p + n.steer)]
+            req += [("joint", p + j) for j in ("x", "y", "yaw", n.steer)]
+        return req
+
+    def _validate(self) -> None:
+        m = self.model
+        problems = [f"{kind} '{name}'" for kind, name in self._required()
+                    if mujoco.mj_name2id(m, _OBJ[kind], name) < 0]
+        if problems:
+            raise SceneError(f"scene {self.source} lacks {', '.join(problems)} "
+                             "(see docs/SCENES.md for the names a scene must have)")
+        for route in (self.names.route_ego, self.names.route_left, self.names.route_right):
+            if np.count_nonzero(m.site_bodyid == m.body(route).id) < 2:
+                problems.append(f"body '{route}' has fewer than 2 waypoint sites")
+        for p in (self.names.ego_prefix, self.names.obstacle_prefix):
+            types = [int(m.joint(p + j).type[0]) for j in ("x", "y", "yaw")]
+            if types != [mujoco.mjtJoint.mjJNT_SLIDE, mujoco.mjtJoint.mjJNT_SLIDE,
+                               mujoco.mjtJoint.mjJNT_HINGE]:
+                problems.append(f"joints {p}x, {p}y, {p}yaw must be slide, slide, hinge")
+            acc = m.actuator(p + self.names.accel)
+            if acc.dyntype[0] != mujoco.mjtDyn.mjDYN_INTEGRATOR or not acc.ctrllimited[0]:
+                problems.append(f"actuator '{p}{self.names.accel}' must be a ctrl-limited "
+                                "integrator (ctrl = acceleration, act = speed)")
+        if problems:
+            raise SceneError(f"scene {self.source}: {'; '.join(problems)}")
+
+    def _car(self, prefix: str) -> Car:
+        m, n = self.model, self.names
+        body = m.body(prefix + n.chassis)
+        joints = [m.joint(prefix + j) for j in ("x", "y", "yaw")]
+        steer_joint = m.joint(prefix + n.steer)
+        accel = m.actuator(prefix + n.accel)
+        steer = m.actuator(prefix + n.steer)
+        hull = m.geom(prefix + n.hull)
+        quat = body.quat
+        frame_yaw = 2.0 * math.atan2(quat[3], quat[0])  # the chassis frame is level
+        return Car(
+            prefix=prefix,
+            body=body.id,
+            accel=accel.id,
+            steer=steer.id,
+            accel_act=int(m.actuator_actadr[accel.id]),
+            qpos=np.array([j.qposadr[0] for j in joints]),
+            qvel=np.array([j.dofadr[0] for j in joints]),
+            steer_qpos=int(steer_joint.qposadr[0]),
+            steer_dof=int(steer_joint.dofadr[0]),
+            frame_pos=np.array(body.pos[:2], dtype=float),
+            frame_yaw=frame_yaw,
+            wheelbase=float(m.body(prefix + n.front_axle).pos[0]),
+            hull_offset=np.array(hull.pos[:2], dtype=float),
+            hull_half=np.array(hull.size[:2], dtype=float),
+            hull_height=float(hull.pos[2] + hull.size[2]),
+            eye_offset=np.array(m.site(prefix + n.eye).pos, dtype=float),
+            accel_range=(float(accel.ctrlrange[0]), float(accel.ctrlrange[1])),
+            steer_range=(float(steer.ctrlrange[0]), float(steer.ctrlrange[1])),
+        )
+
+    def _site_pose(self, name: str) -> np.ndarray:
+        s = self.data.site(name)
+        return np.array([s.xpos[0], s.xpos[1], _yaw(s.xmat), 0.0])
+
+    def _site_xy(self, name: str) -> np.ndarray:
+        return np.array(self.data.site(name).xpos[:2], dtype=float)
+
+    def _site_box(self, name: str) -> OrientedBox:
+        s = self.data.site(name)
+        return OrientedBox(np.array(s.xpos[:2]), _yaw(s.xmat), np.array(self.model.site(name).size[:2]))
+
+    def _route(self, body: str) -> Polyline:
+        m = self.model
+        ids = np.flatnonzero(m.site_bodyid == m.body(body).id)
+        return Polyline(self.data.site_xpos[ids, :2].copy())
+
+    # ----------------------------------------------------------------- state
+    def car(self, which: str) -> Car:
+        """The car called ``"ego"`` or ``"obstacle"``."""
+        try:
+            return self.cars[which]
+        except KeyError:
+            raise KeyError(f"unknown car {which!r}: expected 'ego' or 'obstacle'") from None
+
+    def reset(self, ego: np.ndarray, obstacle: np.ndarray) -> None:
+        """Clear the simulation and place both cars at poses ``[x, y, theta, v]``."""
+        mujoco.mj_resetData(self.model, self.data)
+        for car, pose in ((self.ego, ego), (self.obstacle, obstacle)):
+            self.set_pose(car, pose)
+        mujoco.mj_forward(self.model, self.data)
+
+    def set_pose(self, car: Car, pose: np.ndarray) -> None:
+        """Put a car at pose ``[x, y, theta, v]`` (world frame) with straight wheels."""
+        x, y, th, v = (float(p) for p in pose)
+        if not all(math.isfinite(p) for p in (x, y, th, v)):
+            raise ValueError(f"pose of {car.prefix.rstrip('_')} is not finite: {list(pose)}")
+        d = self.data
+        c, s = math.cos(car.frame_yaw), math.sin(car.frame_yaw)
+        dx, dy = x - car.frame_pos[0], y - car.frame_pos[1]
+        rel = th - car.frame_yaw
+        d.qpos[car.qpos] = (c * dx + s * dy, -s * dx + c * dy, rel)
+        d.qvel[car.qvel] = (v * math.cos(rel), v * math.sin(rel), 0.0)
+        d.qpos[car.steer_qpos] = 0.0
+        d.qvel[car.steer_dof] = 0.0
+        d.act[car.accel_act] = v
+        d.ctrl[car.accel] = 0.0
+        d.ctrl[car.steer] = 0.0
+
+    def pose(self, car: Car) -> np.ndarray:
+        """Current pose ``[x, y, theta, v]`` of one car, from its joints (exact after a step)."""
+        d = self.data
+        qx, qy, qyaw = d.qpos[car.qpos]
+        vx, vy, _ = d.qvel[car.qvel]
+        c, s = math.cos(car.frame_yaw), math.sin(car.frame_yaw)
+        v = vx * math.cos(qyaw) + vy * math.sin(qyaw)
+        return np.array([car.frame_pos[0] + c * qx - s * qy, car.frame_pos[1] + s * qx + c * qy,
+                         math.remainder(car.frame_yaw + qyaw, 2 * math.pi), v])
+
+    def poses(self) -> np.ndarray:
+        """System pose ``S_t`` as ``(2, 4)``: row 0 the ego, row 1 the obstacle."""
+        return np.stack([self.pose(self.ego), self.pose(self.obstacle)])
+
+    def set_controls(self, which: str, accel: float, steer: float) -> None:
+        """Command a car: acceleration [m/s^2] and steering angle [rad], clipped to the
+        actuator ranges as MuJoCo does."""
+        car = self.car(which)
+        self.data.ctrl[car.accel] = accel
+        self.data.ctrl[car.steer] = steer
+
+    def step(self, nstep: int) -> str | None:
+        """Advance ``nstep`` physics steps; stop at the first contact of the ego.
+
+        Returns ``"obstacle"`` or ``"building"`` for the ego's first contact, else ``None``.
+        Contacts of the obstacle with a building are ignored here (they do not end the
+        ego's episode) but stay in ``data.contact``.
+        """
+        m, d = self.model, self.data
+        bad_before = self._instability_count()
+        for _ in range(nstep):
+            mujoco.mj_step(m, d)
+            if self._instability_count() != bad_before:
+                raise SimulationDivergedError(
+                    f"MuJoCo reported an unstable simulation (NaN, Inf or huge value in qpos, "
+                    f"qvel or qacc) in {self.source}; it reset the state, so the run is void")
+            if d.ncon:
+                hit = self._ego_contact()
+                if hit is not None:
+                    return hit
+        return None
+
+    def _instability_count(self) -> int:
+        w = self.data.warning
+        return (w[mujoco.mjtWarning.mjWARN_BADQPOS].number + w[mujoco.mjtWarning.mjWARN_BADQVEL].number
+                + w[mujoco.mjtWarning.mjWARN_BADQACC].number)
+
+    def _ego_contact(self) -> str | None:
+        d = self.data
+        roots = self._root[d.contact.geom[: d.ncon]]  # (ncon, 2)
+        ego, obs = self.ego.body, self.obstacle.body
+        if np.any(((roots[:, 0] == ego) & (roots[:, 1] == obs)) | ((roots[:, 0] == obs) & (roots[:, 1] == ego))):
+            return "obstacle"
+        if np.any(((roots[:, 0] == ego) & (roots[:, 1] == 0)) | ((roots[:, 0] == 0) & (roots[:, 1] == ego))):
+            return "building"
+        return None
+
+    def sync(self) -> None:
+        """Recompute positions of all geoms and sites from ``qpos`` (for rays and drawing)."""
+        mujoco.mj_kinematics(self.model, self.data)
