@@ -1,0 +1,205 @@
+"""Drivers: the obstacle's intent-and-belief controller and the ego's nominal controller.
+
+The obstacle's control ``u1 = h(x1, B, I)`` (paper eq. 4) is a finite state machine over
+arrays of shape ``(N, ...)``: the same function drives the one simulated obstacle
+(N = 1) and every particle of the filter. Its belief ``B`` is a point estimate of the
+ego's pose ``[x, y, theta, v]`` or nothing (``has_belief`` false); it is updated by
+:func:`update_belief` (paper's ``g``): a new observation replaces it, otherwise it is
+dead-reckoned at the believed speed.
+
+Modes (``Mode``):
+
+========== ===========================================================================
+WAITING    at the stop line; goes as soon as its belief says the road is clear
+GOING      pulling out along its route; yields if its belief says not clear
+YIELDING   braking (then stopped); goes again once its belief says clear
+COMMITTED  past the commit point: keeps going whatever it believes
+========== ===========================================================================
+
+"Clear" for a left-turner: no belief, or the believed ego is past the conflict point,
+or the believed ego needs more than the critical gap [s] to reach it. A right-turner
+does not cross the ego's lane and is always clear.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import IntEnum
+
+import numpy as np
+
+from cdf_mj.config import ScenarioConfig
+from cdf_mj.geometry import Polyline
+
+__all__ = ["Mode", "Intent", "DriverModel", "obstacle_control", "update_belief",
+           "ego_control", "pure_pursuit", "bicycle_step"]
+
+
+class Mode(IntEnum):
+    """Discrete mode of the obstacle driver's finite state machine."""
+
+    WAITING = 0
+    GOING = 1
+    YIELDING = 2
+    COMMITTED = 3
+
+
+class Intent(IntEnum):
+    """The obstacle's intent, constant during an episode."""
+
+    LEFT = 0
+    RIGHT = 1
+
+
+@dataclass(frozen=True)
+class DriverModel:
+    """Everything the drivers need, from the scene (geometry) and the config (behaviour)."""
+
+    routes: tuple[Polyline, Polyline]  # obstacle route per Intent
+    route_ego: Polyline
+    s_commit: np.ndarray  # (2,) arc length of the commit point on each obstacle route [m]
+    conflict: np.ndarray  # (2,) conflict point [m]
+    wheelbase: float  # [m]
+    max_steer: float  # [rad]
+    max_brake: float  # [m/s^2], positive
+    max_accel: float  # [m/s^2]
+    config: ScenarioConfig
+
+    @classmethod
+    def from_scene(cls, scene, config: ScenarioConfig) -> "DriverModel":
+        """Build from a :class:`cdf_mj.scene.Scene` (obstacle geometry) and a config."""
+        routes = (scene.route_left, scene.route_right)
+        s_commit = np.array([r.project(scene.commit)[0] for r in routes])
+        car = scene.obstacle
+        return cls(routes=routes, route_ego=scene.route_ego, s_commit=s_commit,
+                   conflict=scene.conflict, wheelbase=car.wheelbase,
+                   max_steer=min(-car.steer_range[0], car.steer_range[1]),
+                   max_brake=car.max_brake, max_accel=car.accel_range[1], config=config)
+
+
+def bicycle_step(x: np.ndarray, u: np.ndarray, dt: float, wheelbase: float) -> np.ndarray:
+    """The paper's kinematic bicycle ``f``: one explicit Euler step of length ``dt`` [s].
+
+    ``x`` is ``(..., 4)`` = [x, y, theta, v] (rear axle, world frame); ``u`` is ``(..., 2)`` =
+    [acceleration m/s^2, steering angle rad], noise already added. Speed stays >= 0,
+    as the cars' actuators cannot reverse.
+    """
+    x = np.asarray(x, dtype=float)
+    px, py, th, v = x[..., 0], x[..., 1], x[..., 2], x[..., 3]
+    step = v * dt
+    out = np.empty(np.broadcast_shapes(x.shape, u.shape[:-1] + (4,)))
+    out[..., 0] = px + step * np.cos(th)
+    out[..., 1] = py + step * np.sin(th)
+    out[..., 2] = th + step / wheelbase * np.tan(u[..., 1])
+    out[..., 3] = np.maximum(v + u[..., 0] * dt, 0.0)
+    return out
+
+
+def pure_pursuit(route: Polyline, pose: np.ndarray, s: np.ndarray, lookahead: np.ndarray,
+                 wheelbase: float, max_steer: float) -> np.ndarray:
+    """Steering angle(s) [rad] that point the rear axle at the route point ``lookahead``
+    metres ahead of arc length ``s``. ``pose`` is ``(..., 4)``."""
+    target = route.point_at(s + lookahead)
+    dx = target[..., 0] - pose[..., 0]
+    dy = target[..., 1] - pose[..., 1]
+    alpha = np.arctan2(dy, dx) - pose[..., 2]
+    dist = np.maximum(np.hypot(dx, dy), 1e-6)
+    steer = np.arctan(2.0 * wheelbase * np.sin(alpha) / dist)
+    return np.clip(steer, -max_steer, max_steer)
+
+
+def _project_by_intent(model: DriverModel, xy: np.ndarray, intent: np.ndarray) -> np.ndarray:
+    """Arc length on each sample's own route [m]."""
+    s = np.empty(xy.shape[:-1])
+    for k, route in enumerate(model.routes):
+        mask = intent == k
+        if mask.any():
+            s[mask] = route.project(xy[mask])[0]
+    return s
+
+
+def road_clear(model: DriverModel, belief: np.ndarray, has_belief: np.ndarray,
+               intent: np.ndarray) -> np.ndarray:
+    """Whether each driver believes it may pull out (see the module docstring)."""
+    cfg = model.config
+    dx = model.conflict[0] - belief[..., 0]
+    dy = model.conflict[1] - belief[..., 1]
+    ahead = dx * np.cos(belief[..., 2]) + dy * np.sin(belief[..., 2])  # [m] to the conflict
+    passed = ahead < -cfg.passed_margin
+    tta = ahead / np.maximum(belief[..., 3], 0.1)  # [s] believed time to arrive
+    return (~has_belief) | passed | (tta > cfg.critical_gap) | (intent == Intent.RIGHT)
+
+
+def obstacle_control(model: DriverModel, pose: np.ndarray, mode: np.ndarray, belief: np.ndarray,
+                     has_belief: np.ndarray, intent: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The obstacle driver ``h(x1, B, I)`` for ``N`` samples at once.
+
+    Args:
+        pose: ``(N, 4)`` own rear-axle pose [x m, y m, theta rad, v m/s], world frame.
+        mode: ``(N,)`` current :class:`Mode`.
+        belief: ``(N, 4)`` believed ego pose (ignored where ``has_belief`` is false).
+        has_belief: ``(N,)`` whether the driver has ever seen the ego.
+        intent: ``(N,)`` :class:`Intent`.
+
+    Returns:
+        ``u`` ``(N, 2)`` = [acceleration m/s^2, steering rad] without process noise, and the
+        new mode ``(N,)``.
+    """
+    cfg = model.config
+    s = _project_by_intent(model, pose[:, :2], intent)
+    clear = road_clear(model, belief, has_belief, intent)
+    past_commit = s >= model.s_commit[intent]
+
+    new = mode.copy()
+    waiting, going, yielding = (mode == Mode.WAITING), (mode == Mode.GOING), (mode == Mode.YIELDING)
+    new[(waiting | yielding) & clear] = Mode.GOING
+    new[(new == Mode.GOING) & past_commit] = Mode.COMMITTED  # before yielding: past it, no yield
+    new[going & ~clear & ~past_commit] = Mode.YIELDING
+
+    v = pose[:, 3]
+    moving = (new == Mode.GOING) | (new == Mode.COMMITTED)
+    accel = np.where(moving, np.clip((cfg.obstacle_turn_speed - v) / cfg.dt, -model.max_brake,
+                                     cfg.obstacle_accel), 0.0)
+    accel = np.where(new == Mode.YIELDING, -cfg.obstacle_yield_brake, accel)
+    accel = np.where(new == Mode.WAITING, -model.max_brake, accel)
+
+    lookahead = cfg.lookahead + cfg.lookahead_gain * v
+    steer = np.empty_like(v)
+    for k, route in enumerate(model.routes):
+        mask = intent == k
+        if mask.any():
+            steer[mask] = pure_pursuit(route, pose[mask], s[mask], lookahead[mask],
+                                       model.wheelbase, model.max_steer)
+    return np.stack([accel, steer], axis=-1), new
+
+
+def update_belief(belief: np.ndarray, has_belief: np.ndarray, observed: np.ndarray,
+                  observation: np.ndarray, dt: float, wheelbase: float) -> tuple[np.ndarray, np.ndarray]:
+    """The belief update ``g(B, O)``: take the observation where there is one, else carry
+    the old belief forward by dead reckoning at its believed speed and heading.
+
+    Shapes: ``belief``/``observation`` ``(N, 4)``, ``has_belief``/``observed`` ``(N,)``.
+    """
+    straight = np.zeros(belief.shape[:-1] + (2,))
+    carried = bicycle_step(belief, straight, dt, wheelbase)
+    new = np.where(observed[..., None], observation, np.where(has_belief[..., None], carried, belief))
+    return new, has_belief | observed
+
+
+def ego_control(model: DriverModel, car, pose: np.ndarray, brake: np.ndarray | bool) -> np.ndarray:
+    """The ego's nominal controller ``h(x2, x1, I2)``: follow its route at the nominal
+    speed, or brake at the car's maximum rate where ``brake``.
+
+    ``car`` is the ego's :class:`cdf_mj.scene.Car` (wheelbase, actuator limits);
+    ``pose`` ``(..., 4)``; returns ``(..., 2)`` = [acceleration m/s^2, steering rad].
+    """
+    cfg = model.config
+    pose = np.asarray(pose, dtype=float)
+    max_steer = min(-car.steer_range[0], car.steer_range[1])
+    s, _ = model.route_ego.project(pose[..., :2])
+    steer = pure_pursuit(model.route_ego, pose, s, cfg.lookahead + cfg.lookahead_gain * pose[..., 3],
+                         car.wheelbase, max_steer)
+    accel = np.clip(cfg.ego_speed_gain * (cfg.ego_speed - pose[..., 3]), -car.max_brake,
+                    car.accel_range[1])
+    accel = np.where(brake, -car.max_brake, accel)
+    return np.stack([accel, steer], axis=-1)
