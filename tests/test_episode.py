@@ -1,0 +1,132 @@
+"""Episodes: reproducible records, planners, labels, bad input, metrics."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from cdf_mj.config import ScenarioConfig
+from cdf_mj.episode import Labels, NonFiniteStateError, run_episode
+from cdf_mj.metrics import scenario_summary, wilson_interval
+from cdf_mj.planners import Planner, make_planner
+
+
+def test_same_seed_same_record(scene):
+    a = run_episode(seed=11, planner="reactive", scene=scene, trace=True).to_dict()
+    b = run_episode(seed=11, planner="reactive", scene=scene, trace=True).to_dict()
+    assert json.dumps(a, sort_keys=True) == json.dumps(b, sort_keys=True)
+    c = run_episode(seed=12, planner="reactive", scene=scene, trace=True).to_dict()
+    assert c["trace"]["poses"] != a["trace"]["poses"]
+
+
+def test_record_is_json_serialisable_and_consistent(scene):
+    rec = run_episode(seed=5, planner="reactive", scene=scene).to_dict()
+    back = json.loads(json.dumps(rec))
+    assert back["seed"] == 5 and back["planner"] == "reactive"
+    assert back["label"] in (Labels.CUTOFF, Labels.YIELD, Labels.RIGHT)
+    assert back["min_gap"] >= 0.0 and back["end_time"] > 0.0
+
+
+def _first_cutoff(scene, planner):
+    for seed in range(40):
+        rec = run_episode(seed=seed, planner=planner, scene=scene)
+        if rec.label == Labels.CUTOFF:
+            return rec
+    raise AssertionError("no Cutoff episode in seeds 0-39")
+
+
+def test_reactive_planner_brakes_on_entry(scene):
+    rec = _first_cutoff(scene, "reactive")
+    assert rec.brake_time is not None
+    assert rec.brake_time == rec.entered_lane_time
+
+
+def test_constant_planner_never_brakes_and_labels_itself(scene):
+    rec = _first_cutoff(scene, "constant")
+    assert rec.brake_time is None
+    assert rec.collision_with == "obstacle" and rec.counterfactual_collision
+
+
+def test_planners_share_the_obstacle_world(scene):
+    """Common random numbers: the obstacle's intent and the label do not depend on the planner."""
+    for seed in range(6):
+        a = run_episode(seed=seed, planner="constant", scene=scene)
+        b = run_episode(seed=seed, planner="reactive", scene=scene)
+        assert (a.intent, a.label, a.ego_start_offset) == (b.intent, b.label, b.ego_start_offset)
+
+
+def test_braking_reduces_progress(scene):
+    rec = _first_cutoff(scene, "reactive")
+    assert rec.time_lost > 0.5
+    free = run_episode(ScenarioConfig(p_left=0.0), seed=0, planner="constant", scene=scene)
+    assert abs(free.time_lost) < 0.1
+
+
+class _Corrupting(Planner):
+    """Stands for a diverging user model: writes NaN into the ego's state at t = 1 s."""
+
+    name = "corrupting"
+
+    def reset(self, scene, config, rng):
+        self.scene = scene
+
+    def brake(self, obs):
+        if obs.t >= 1.0:
+            self.scene.data.qvel[self.scene.ego.qvel[0]] = math.nan
+        return False
+
+
+def test_nan_pose_raises_a_clear_error(scene):
+    with pytest.raises(NonFiniteStateError, match="non-finite system pose"):
+        run_episode(seed=0, planner=_Corrupting(), scene=scene, label=False)
+
+
+@pytest.mark.parametrize("field, value, fragment", [
+    ("beta", 1.5, "in [0, 1]"),
+    ("beta", float("nan"), "in [0, 1]"),
+    ("ego_speed", -1.0, "> 0"),
+    ("dt", 0.0, "> 0"),
+    ("p_left", -0.1, "in [0, 1]"),
+    ("ego_start_spread", (5.0, -5.0), "low <= high"),
+])
+def test_out_of_range_config_is_refused(field, value, fragment):
+    with pytest.raises(ValueError, match=field) as err:
+        ScenarioConfig(**{field: value})
+    assert fragment in str(err.value)
+
+
+def test_unknown_planner_and_bad_seed_are_refused(scene):
+    with pytest.raises(ValueError, match="reactive"):
+        make_planner("psychic")
+    with pytest.raises(ValueError, match="seed"):
+        run_episode(seed=-1, scene=scene)
+
+
+def test_dt_must_be_a_multiple_of_the_timestep(scene):
+    with pytest.raises(ValueError, match="multiple"):
+        run_episode(ScenarioConfig(dt=0.0123), seed=0, scene=scene)
+
+
+def test_wilson_interval_is_the_score_interval():
+    z = 1.959963984540054
+    for k, n in ((0, 10), (3, 10), (10, 10), (417, 1000)):
+        lo, hi = wilson_interval(k, n)
+        assert 0.0 <= lo <= k / n <= hi <= 1.0
+        for p in (lo, hi):  # the end points solve |k/n - p| = z sqrt(p (1 - p) / n)
+            if 0.0 < p < 1.0:
+                assert abs(k / n - p) == pytest.approx(z * math.sqrt(p * (1 - p) / n), rel=1e-9)
+    with pytest.raises(ValueError):
+        wilson_interval(5, 3)
+
+
+def test_scenario_summary_counts(scene):
+    recs = [run_episode(seed=s, planner="reactive", scene=scene) for s in range(12)]
+    summary = scenario_summary(recs)
+    assert sum(summary[lab].k for lab in (Labels.CUTOFF, Labels.YIELD, Labels.RIGHT)) == 12
+    cut = [r for r in recs if r.label == Labels.CUTOFF]
+    assert summary["avoided"].n == len(cut)
+    assert summary["avoided"].k == sum(r.collision_with != "obstacle" for r in cut)
+    assert np.isclose(summary[Labels.RIGHT].value, np.mean([r.intent == "right" for r in recs]))
