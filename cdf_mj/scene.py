@@ -293,15 +293,19 @@ class Scene:
         bad_before = self._instability_count()
         for _ in range(nstep):
             mujoco.mj_step(m, d)
-            if self._instability_count() != bad_before:
-                raise SimulationDivergedError(
-                    f"MuJoCo reported an unstable simulation (NaN, Inf or huge value in qpos, "
-                    f"qvel or qacc) in {self.source}; it reset the state, so the run is void")
-            if d.ncon:
+            if d.ncon:  # after a reset the cars overlap: rule that out before reporting
+                self._check_stable(bad_before)
                 hit = self._ego_contact()
                 if hit is not None:
                     return hit
+        self._check_stable(bad_before)
         return None
+
+    def _check_stable(self, bad_before: int) -> None:
+        if self._instability_count() != bad_before:
+            raise SimulationDivergedError(
+                f"MuJoCo reported an unstable simulation (NaN, Inf or huge value in qpos, "
+                f"qvel or qacc) in {self.source}; it reset the state, so the run is void")
 
     def _instability_count(self) -> int:
         w = self.data.warning
