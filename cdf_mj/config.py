@@ -41,6 +41,9 @@ class SceneNames:
     obstacle_prefix: str = "obstacle_"
     chassis: str = "chassis"  # body, origin on the rear axle
     front_axle: str = "front_axle"  # body; its x offset is the wheelbase
+    joint_x: str = "x"  # slide joint of the chassis along its frame's x [m]
+    joint_y: str = "y"  # slide joint of the chassis along its frame's y [m]
+    joint_yaw: str = "yaw"  # hinge joint of the chassis about z [rad]
     hull: str = "hull"  # collision box of a car
     eye: str = "eye"  # site: the driver's eye point
     accel: str = "accel"  # actuator [m/s^2]
@@ -55,6 +58,11 @@ class SceneNames:
     route_left: str = "route_obstacle_left"
     route_right: str = "route_obstacle_right"
     building_prefix: str = "building"  # geoms whose name starts with it occlude
+
+    @property
+    def planar_joints(self) -> tuple[str, str, str]:
+        """The chassis joints x, y, yaw (unprefixed)."""
+        return (self.joint_x, self.joint_y, self.joint_yaw)
 
 
 @dataclass(frozen=True)

@@ -132,6 +132,8 @@ class Scene:
                                    if (model.geom(i).name or "").startswith(n.building_prefix)],
                                   dtype=int)
         self._root = model.body_rootid[model.geom_bodyid]  # geom -> root body
+        self._is_building = np.zeros(model.ngeom, dtype=bool)
+        self._is_building[self.buildings] = True
         # Ray filter for sight lines: buildings (group 1) and car collision boxes (group 3).
         self.ray_groups = np.array([0, 1, 0, 1, 0, 0], dtype=np.uint8)
 
@@ -157,7 +159,7 @@ class Scene:
         for p in (n.ego_prefix, n.obstacle_prefix):
             req += [("body", p + n.chassis), ("body", p + n.front_axle), ("geom", p + n.hull),
                     ("site", p + n.eye), ("actuator", p + n.accel), ("actuator", p + n.steer)]
-            req += [("joint", p + j) for j in ("x", "y", "yaw", n.steer)]
+            req += [("joint", p + j) for j in (*n.planar_joints, n.steer)]
         return req
 
     def _validate(self) -> None:
@@ -166,15 +168,16 @@ class Scene:
                     if mujoco.mj_name2id(m, _OBJ[kind], name) < 0]
         if problems:
             raise SceneError(f"scene {self.source} lacks {', '.join(problems)} "
-                             "(see docs/SCENES.md for the names a scene must have)")
+                             "(models/xml/README.md lists the names a scene must have)")
         for route in (self.names.route_ego, self.names.route_left, self.names.route_right):
             if np.count_nonzero(m.site_bodyid == m.body(route).id) < 2:
                 problems.append(f"body '{route}' has fewer than 2 waypoint sites")
         for p in (self.names.ego_prefix, self.names.obstacle_prefix):
-            types = [int(m.joint(p + j).type[0]) for j in ("x", "y", "yaw")]
+            types = [int(m.joint(p + j).type[0]) for j in self.names.planar_joints]
             if types != [mujoco.mjtJoint.mjJNT_SLIDE, mujoco.mjtJoint.mjJNT_SLIDE,
                                mujoco.mjtJoint.mjJNT_HINGE]:
-                problems.append(f"joints {p}x, {p}y, {p}yaw must be slide, slide, hinge")
+                problems.append(f"joints {', '.join(p + j for j in self.names.planar_joints)} "
+                                "must be slide, slide, hinge")
             acc = m.actuator(p + self.names.accel)
             if acc.dyntype[0] != mujoco.mjtDyn.mjDYN_INTEGRATOR or not acc.ctrllimited[0]:
                 problems.append(f"actuator '{p}{self.names.accel}' must be a ctrl-limited "
@@ -185,7 +188,7 @@ class Scene:
     def _car(self, prefix: str) -> Car:
         m, n = self.model, self.names
         body = m.body(prefix + n.chassis)
-        joints = [m.joint(prefix + j) for j in ("x", "y", "yaw")]
+        joints = [m.joint(prefix + j) for j in n.planar_joints]
         steer_joint = m.joint(prefix + n.steer)
         accel = m.actuator(prefix + n.accel)
         steer = m.actuator(prefix + n.steer)
@@ -245,7 +248,8 @@ class Scene:
         mujoco.mj_forward(self.model, self.data)
 
     def set_pose(self, car: Car, pose: np.ndarray) -> None:
-        """Put a car at pose ``[x, y, theta, v]`` (world frame) with straight wheels."""
+        """Put a car at pose ``[x, y, theta, v]`` (world frame) with straight wheels and its
+        controls at zero; refuses a non-finite pose without touching the state."""
         x, y, th, v = (float(p) for p in pose)
         if not all(math.isfinite(p) for p in (x, y, th, v)):
             raise ValueError(f"pose of {car.prefix.rstrip('_')} is not finite: {list(pose)}")
@@ -285,7 +289,8 @@ class Scene:
     def step(self, nstep: int) -> str | None:
         """Advance ``nstep`` physics steps; stop at the first contact of the ego.
 
-        Returns ``"obstacle"`` or ``"building"`` for the ego's first contact, else ``None``.
+        Returns ``"obstacle"`` or ``"building"`` (a geom named ``building*``) for the ego's
+        first such contact, else ``None``.
         Contacts of the obstacle with a building are ignored here (they do not end the
         ego's episode) but stay in ``data.contact``.
         """
@@ -314,11 +319,14 @@ class Scene:
 
     def _ego_contact(self) -> str | None:
         d = self.data
-        roots = self._root[d.contact.geom[: d.ncon]]  # (ncon, 2)
+        geoms = d.contact.geom[: d.ncon]  # (ncon, 2)
+        roots = self._root[geoms]
         ego, obs = self.ego.body, self.obstacle.body
-        if np.any(((roots[:, 0] == ego) & (roots[:, 1] == obs)) | ((roots[:, 0] == obs) & (roots[:, 1] == ego))):
+        with_ego = roots == ego
+        if np.any((with_ego[:, 0] & (roots[:, 1] == obs)) | (with_ego[:, 1] & (roots[:, 0] == obs))):
             return "obstacle"
-        if np.any(((roots[:, 0] == ego) & (roots[:, 1] == 0)) | ((roots[:, 0] == 0) & (roots[:, 1] == ego))):
+        building = self._is_building[geoms]
+        if np.any((with_ego[:, 0] & building[:, 1]) | (with_ego[:, 1] & building[:, 0])):
             return "building"
         return None
 
