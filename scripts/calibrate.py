@@ -13,11 +13,9 @@ import argparse
 import sys
 import time
 
-from cdf_mj.cli import parse_overrides
-from cdf_mj.config import ScenarioConfig
+from cdf_mj.cli import add_scenario_arguments, config_from_args
 from cdf_mj.experiment import run_many
 from cdf_mj.metrics import format_scenario_summary, scenario_summary
-from cdf_mj.scene import DEFAULT_SCENE
 
 
 def _seed_range(text: str) -> range:
@@ -34,13 +32,11 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--seeds", type=_seed_range, default=range(0, 1000), help="START:STOP (default 0:1000)")
     p.add_argument("--planner", default="reactive")
-    p.add_argument("--scene", default=str(DEFAULT_SCENE))
-    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a ScenarioConfig field (repeatable)")
+    add_scenario_arguments(p)
     args = p.parse_args(argv)
     try:
-        config = ScenarioConfig(**parse_overrides(args.overrides))
-    except (TypeError, ValueError) as exc:
+        config = config_from_args(args)
+    except ValueError as exc:
         p.error(str(exc))
     t0 = time.perf_counter()
     records = run_many(args.seeds, args.planner, config, args.scene)
