@@ -1,0 +1,229 @@
+"""The ``cdf-mj`` command line.
+
+::
+
+    cdf-mj episode --seed 7 --planner reactive            # one episode, record as JSON
+    cdf-mj episode --seed 7 --set beta=0.1 --set ego_start_spread='[-4, 4]'
+    python -m cdf_mj.cli episode --seed 7                  # the same without the script
+
+Bad input (unknown planner, negative seed, out-of-range parameter, unreadable scene,
+a simulation that diverges) ends with one line ``cdf-mj: error: ...`` on stderr and exit
+status 2; ``--debug`` shows the traceback instead.
+
+Adding a subcommand: write ``_add_<name>(subparsers)``, which builds its parser (use
+:func:`add_scenario_arguments` for ``--scene`` and ``--set``) and sets ``func`` to a
+function ``(args) -> int``; append it to ``_SUBCOMMANDS``. Raise :class:`CLIError` (or
+any ``ValueError``) for bad input; logic lives in the package, not here. Scripts that take
+``--set`` too can call :func:`parse_overrides`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+from typing import Any, Callable, Iterable, NoReturn, Sequence
+
+import numpy as np
+
+from cdf_mj import __version__
+from cdf_mj.config import ScenarioConfig
+from cdf_mj.episode import run_episode
+from cdf_mj.planners import PLANNERS
+from cdf_mj.scene import DEFAULT_SCENE, Scene
+
+__all__ = ["main", "build_parser", "add_scenario_arguments", "parse_overrides",
+           "config_from_args", "scene_from_args", "CLIError"]
+
+PROG = "cdf-mj"
+EXIT_USAGE = 2  # argparse's status for bad input
+
+#: ScenarioConfig fields that ``--set`` may change (``names`` is a nested object).
+SETTABLE = tuple(f.name for f in dataclasses.fields(ScenarioConfig) if f.name != "names")
+
+
+class CLIError(ValueError):
+    """Bad input, reported as one line on stderr with exit status 2."""
+
+
+class _Exit(Exception):
+    """argparse asked to exit (``--help``, ``--version``) with this status."""
+
+    def __init__(self, status: int) -> None:
+        super().__init__(status)
+        self.status = status
+
+
+class _Parser(argparse.ArgumentParser):
+    """An ArgumentParser that raises instead of exiting, so that ``main`` returns."""
+
+    def error(self, message: str) -> NoReturn:
+        raise CLIError(message)
+
+    def exit(self, status: int = 0, message: str | None = None) -> NoReturn:
+        if message:
+            sys.stderr.write(message)
+        raise _Exit(status)
+
+
+# ----------------------------------------------------------------- shared arguments
+def _non_negative_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {value}")
+    return value
+
+
+def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add ``--scene PATH`` and repeatable ``--set key=value`` (read by the helpers below)."""
+    parser.add_argument("--scene", metavar="PATH", default=DEFAULT_SCENE,
+                        help="MJCF scene file (default: models/xml/scene.xml)")
+    parser.add_argument("--set", dest="overrides", metavar="KEY=VALUE", action="append",
+                        default=[],
+                        help="override a ScenarioConfig field, e.g. beta=0.1 or "
+                             "ego_start_spread=[-4,4]; values are JSON, else strings; "
+                             "repeatable. Fields: " + ", ".join(SETTABLE))
+
+
+def _parse_value(text: str) -> Any:
+    """JSON if it parses (lists become tuples), else the text itself."""
+    try:
+        value = json.loads(text)
+    except ValueError:
+        return text
+    return tuple(value) if isinstance(value, list) else value
+
+
+def _coerce(name: str, value: Any, default: Any) -> Any:
+    """``value`` in the type of the field's default; CLIError if it cannot be."""
+    def number(v: Any) -> float:
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise CLIError(f"--set {name}: expected a number, got {v!r}")
+        return float(v)
+
+    if isinstance(default, float):
+        return number(value)
+    if isinstance(default, tuple):
+        if not isinstance(value, tuple) or len(value) != len(default):
+            raise CLIError(f"--set {name}: expected a list of {len(default)} numbers, "
+                           f"e.g. {json.dumps(list(default))}, got {value!r}")
+        return tuple(number(v) for v in value)
+    if not isinstance(value, type(default)):
+        raise CLIError(f"--set {name}: expected {type(default).__name__}, got {value!r}")
+    return value
+
+
+def parse_overrides(items: Iterable[str]) -> dict[str, Any]:
+    """``["beta=0.1", "ego_start_spread=[-4, 4]"]`` -> ``{"beta": 0.1, ...}``, each value in
+    its ScenarioConfig field's type; later items win. CLIError (a ValueError) on an unknown
+    field, a missing ``=`` or a value of the wrong type; ranges are checked by the config."""
+    base = ScenarioConfig()
+    changes: dict[str, Any] = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise CLIError(f"--set: expected key=value, got {item!r}")
+        if key not in SETTABLE:
+            raise CLIError(f"--set {key}: unknown parameter; choose from {', '.join(SETTABLE)}")
+        changes[key] = _coerce(key, _parse_value(text), getattr(base, key))
+    return changes
+
+
+def config_from_args(args: argparse.Namespace) -> ScenarioConfig:
+    """The default ScenarioConfig with the ``--set`` overrides applied (validated)."""
+    return ScenarioConfig(**parse_overrides(args.overrides))  # ValueError names field and range
+
+
+def scene_from_args(args: argparse.Namespace, config: ScenarioConfig) -> Scene:
+    """The scene named by ``--scene`` (SceneError if it cannot be loaded)."""
+    return Scene.load(args.scene, names=config.names)
+
+
+def _json_default(obj: Any) -> Any:
+    """NumPy values in records (planner summaries, traces) as plain JSON."""
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
+
+
+def _print_json(obj: Any) -> None:
+    # allow_nan=False: stdout is strict JSON or nothing (NaN is not JSON).
+    sys.stdout.write(json.dumps(obj, indent=2, allow_nan=False, default=_json_default) + "\n")
+
+
+# ----------------------------------------------------------------- subcommands
+def _cmd_episode(args: argparse.Namespace) -> int:
+    config = config_from_args(args)
+    scene = scene_from_args(args, config)
+    record = run_episode(config, seed=args.seed, planner=args.planner, scene=scene,
+                         label=args.label, trace=args.trace)
+    _print_json(record.to_dict())
+    return 0
+
+
+def _add_episode(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "episode", help="run one episode and print its record as JSON",
+        description="Run one episode of the T-intersection scenario and print its record "
+                    "as JSON on stdout. The same seed gives the same record.")
+    p.add_argument("--seed", type=_non_negative_int, default=0,
+                   help="episode seed, a non-negative integer (default: 0)")
+    p.add_argument("--planner", choices=sorted(PLANNERS), default="reactive",
+                   help="ego planner (default: reactive)")
+    add_scenario_arguments(p)
+    p.add_argument("--no-label", dest="label", action="store_false",
+                   help="skip the counterfactual run that labels the episode Cutoff/Yield/Right")
+    p.add_argument("--trace", action="store_true", help="include per-tick poses, modes and beliefs")
+    p.set_defaults(func=_cmd_episode)
+
+
+_SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [_add_episode]
+
+
+# ----------------------------------------------------------------- entry point
+def build_parser() -> argparse.ArgumentParser:
+    """The ``cdf-mj`` parser with every subcommand."""
+    parser = _Parser(prog=PROG, description="MuJoCo port of the Cognitive Driving Framework "
+                                            "T-intersection scenario.")
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    parser.add_argument("--debug", action="store_true",
+                        help="on error, show the full traceback instead of one line")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for add in _SUBCOMMANDS:
+        add(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``cdf-mj`` with ``argv`` (default ``sys.argv[1:]``); returns the exit status."""
+    try:
+        args = build_parser().parse_args(argv)
+    except _Exit as exc:  # --help, --version
+        return exc.status
+    except CLIError as exc:
+        return _fail(exc)
+    try:
+        return args.func(args)
+    # ValueError: bad parameters or seed (SceneError, CLIError are ValueErrors too);
+    # FloatingPointError: a diverged simulation (NonFiniteStateError, SimulationDivergedError).
+    except (ValueError, FloatingPointError) as exc:
+        if args.debug:
+            raise
+        return _fail(exc)
+
+
+def _fail(exc: Exception) -> int:
+    message = " ".join(str(exc).split()) or type(exc).__name__  # one line
+    print(f"{PROG}: error: {message}", file=sys.stderr)
+    return EXIT_USAGE
+
+
+if __name__ == "__main__":
+    sys.exit(main())

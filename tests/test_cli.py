@@ -1,0 +1,129 @@
+"""The ``cdf-mj`` command line: JSON on success, one line and exit status 2 on bad input."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from cdf_mj import cli
+from cdf_mj.episode import EpisodeRecord
+
+REPO = Path(__file__).resolve().parent.parent
+RECORD_KEYS = {f.name for f in dataclasses.fields(EpisodeRecord)}
+
+
+def run_cli(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
+    status = cli.main(list(argv))
+    out, err = capsys.readouterr()
+    return status, out, err
+
+
+def assert_one_line_error(status: int, out: str, err: str, *needles: str) -> None:
+    assert status == 2
+    assert out == ""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("cdf-mj: error: ")
+    assert "Traceback" not in err
+    for needle in needles:
+        assert needle in lines[0], (needle, lines[0])
+
+
+def test_episode_prints_record_as_json(capsys):
+    status, out, err = run_cli(capsys, "episode", "--seed", "3", "--planner", "constant")
+    assert status == 0, err
+    record = json.loads(out)
+    assert set(record) == RECORD_KEYS
+    assert record["seed"] == 3
+    assert record["planner"] == "constant"
+    assert record["label"] in {"Cutoff", "Yield", "Right"}
+    assert record["trace"] is None
+
+
+def test_same_seed_same_json(capsys):
+    argv = ("episode", "--seed", "5", "--planner", "reactive")
+    first = run_cli(capsys, *argv)
+    second = run_cli(capsys, *argv)
+    assert first[0] == 0
+    assert first == second
+
+
+def test_flags_and_overrides_reach_the_episode(capsys):
+    status, out, err = run_cli(capsys, "episode", "--seed", "2", "--no-label", "--trace",
+                               "--set", "ego_start_spread=[1.5, 1.5]", "--set", "beta=0")
+    assert status == 0, err
+    record = json.loads(out)
+    assert record["label"] is None
+    assert record["ego_start_offset"] == pytest.approx(1.5)  # a zero-width spread
+    assert record["first_seen_time"] is None  # beta = 0: never observes the ego
+    assert len(record["trace"]["t"]) > 0
+
+
+def test_unknown_planner_lists_choices(capsys):
+    assert_one_line_error(*run_cli(capsys, "episode", "--planner", "nosuch"),
+                          "nosuch", "constant", "reactive")
+
+
+def test_negative_seed(capsys):
+    assert_one_line_error(*run_cli(capsys, "episode", "--seed", "-1"), "--seed", "non-negative")
+
+
+def test_out_of_range_parameter_names_it_and_its_range(capsys):
+    assert_one_line_error(*run_cli(capsys, "episode", "--set", "beta=1.5"), "beta", "[0, 1]")
+
+
+@pytest.mark.parametrize("assignment, needle", [
+    ("nosuch=1", "nosuch"),
+    ("beta=abc", "beta"),
+    ("ego_start_spread=[1,2,3]", "ego_start_spread"),
+    ("beta", "key=value"),
+])
+def test_bad_override(capsys, assignment, needle):
+    assert_one_line_error(*run_cli(capsys, "episode", "--set", assignment), needle)
+
+
+def test_missing_scene_file(capsys):
+    assert_one_line_error(*run_cli(capsys, "episode", "--scene", "/nonexistent.xml"),
+                          "/nonexistent.xml")
+
+
+def test_scene_without_cars(capsys):
+    """A scene that compiles but lacks the cars (SceneError) is bad input too."""
+    scene = REPO / "models" / "xml" / "intersection.xml"
+    assert_one_line_error(*run_cli(capsys, "episode", "--scene", str(scene)), "ego_chassis")
+
+
+def test_no_subcommand(capsys):
+    assert_one_line_error(*run_cli(capsys))
+
+
+def test_version(capsys):
+    status, out, _ = run_cli(capsys, "--version")
+    assert status == 0
+    assert out.strip() == f"cdf-mj {cli.__version__}"
+
+
+def test_module_entry_point_runs_in_a_subprocess():
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH")]))
+    proc = subprocess.run(
+        [sys.executable, "-m", "cdf_mj.cli", "episode", "--seed", "1", "--planner", "reactive"],
+        cwd=REPO, env=env, capture_output=True, text=True, timeout=120,
+    )
+    assert proc.returncode == 0, proc.stderr
+    record = json.loads(proc.stdout)
+    assert record["seed"] == 1
+    assert record["planner"] == "reactive"
+
+
+def test_parse_overrides_types_values_like_the_config():
+    assert cli.parse_overrides(["beta=0", "ego_start_spread=[-4, 4]", "beta=0.1"]) == {
+        "beta": 0.1, "ego_start_spread": (-4.0, 4.0)}
+    with pytest.raises(ValueError, match="names"):
+        cli.parse_overrides(["names=x"])  # the nested SceneNames is not a --set field
