@@ -7,7 +7,8 @@ Each 0.1 s tick (``config.dt``), in this order:
    with probability ``beta`` it observes the ego's pose with Gaussian noise; its belief
    is updated (``g``);
 3. the obstacle driver's state machine gives its controls (``h``), plus process noise;
-4. the ego's planner decides whether to brake (latched), the ego's controller gives its
+4. the ego's planner is asked whether to brake (the first yes is latched: the ego then
+   brakes at the maximum rate to the end), the ego's controller gives its
    controls, plus process noise;
 5. MuJoCo steps ``dt / timestep`` physics steps; the episode ends at the ego's first contact.
 
@@ -177,7 +178,8 @@ def _simulate(scene: Scene, config: ScenarioConfig, seed: int, planner: Planner,
         in_lane = bool(scene.ego_lane.contains(obstacle_hull).any())
         if in_lane and run.entered is None:
             run.entered = t
-        if not braking and planner.brake(PlannerInput(t=t, poses=poses, obstacle_in_lane=in_lane)):
+        wants_brake = planner.brake(PlannerInput(t=t, poses=poses, obstacle_in_lane=in_lane))
+        if wants_brake and not braking:
             braking = True
             run.brake_time = t
         u2 = ego_control(model, scene.ego, ego, braking)

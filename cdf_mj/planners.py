@@ -7,7 +7,11 @@ Braking, once decided, is held to the end of the episode at the maximum rate
 ==========  =================================================================
 constant    never brakes: the ego holds its speed (the counterfactual run)
 reactive    brakes as soon as any part of the obstacle is inside the ego lane
+cdf         brakes when the particle filter's P(cutoff) reaches tau
 ==========  =================================================================
+
+``brake`` is called at every tick, also after the ego has started braking, so that a
+filter keeps filtering to the end of the episode.
 
 New planners subclass :class:`Planner` and register with :func:`register`.
 """
@@ -19,10 +23,10 @@ from typing import Callable
 
 import numpy as np
 
-from cdf_mj.config import ScenarioConfig
+from cdf_mj.config import CDFConfig, ScenarioConfig
 
-__all__ = ["Planner", "PlannerInput", "ConstantPlanner", "ReactivePlanner", "make_planner",
-           "register", "PLANNERS"]
+__all__ = ["Planner", "PlannerInput", "ConstantPlanner", "ReactivePlanner", "CDFPlanner",
+           "make_planner", "register", "PLANNERS"]
 
 
 @dataclass(frozen=True)
@@ -43,7 +47,7 @@ class Planner:
         """Called at the start of every episode with the episode's planner Generator."""
 
     def brake(self, obs: PlannerInput) -> bool:
-        """Whether to start braking now."""
+        """Whether the planner wants to brake now (the episode latches the first yes)."""
         raise NotImplementedError
 
     def summary(self) -> dict:
@@ -69,6 +73,53 @@ class ReactivePlanner(Planner):
         return obs.obstacle_in_lane
 
 
+class CDFPlanner(Planner):
+    """The Cognitive Driving Framework: brake when P(cutoff) >= tau.
+
+    Its prediction for the episode (DESIGN.md): ``Cutoff`` if it braked, else its most
+    probable intent at the end (left -> ``Yield``, right -> ``Right``). ``summary()``
+    holds the prediction, the decision time and the posterior history.
+    """
+
+    name = "cdf"
+
+    def __init__(self, cdf: CDFConfig | None = None) -> None:
+        self.cdf = cdf or CDFConfig()
+
+    def reset(self, scene, config: ScenarioConfig, rng: np.random.Generator) -> None:
+        from cdf_mj.inference import ParticleFilter  # the filter's import cost only when used
+
+        self.filter = ParticleFilter.from_scene(scene, config, self.cdf, rng)
+        self.decision_time: float | None = None
+        self.history: dict[str, list] = {k: [] for k in ("t", "p_left", "p_seen", "p_cutoff", "ess")}
+        self._started = False
+
+    def brake(self, obs: PlannerInput) -> bool:
+        pf = self.filter
+        if not self._started:
+            post = pf.reset(obs.poses)
+            self._started = True
+        else:
+            post = pf.update(obs.poses)
+        pf.predict(obs.poses)
+        h = self.history
+        h["t"].append(obs.t)
+        for key in ("p_left", "p_seen", "p_cutoff", "ess"):
+            h[key].append(round(getattr(post, key), 5))
+        if post.p_cutoff >= self.cdf.tau and self.decision_time is None:
+            self.decision_time = obs.t
+        return self.decision_time is not None
+
+    def summary(self) -> dict:
+        if self.decision_time is not None:
+            prediction = "Cutoff"
+        else:
+            prediction = "Yield" if self.history["p_left"] and self.history["p_left"][-1] >= 0.5 else "Right"
+        return {"prediction": prediction, "decision_time": self.decision_time,
+                "skipped_updates": self.filter.skipped_updates, "reinits": self.filter.reinits,
+                "history": self.history}
+
+
 PLANNERS: dict[str, Callable[[], Planner]] = {}
 
 
@@ -79,6 +130,7 @@ def register(name: str, factory: Callable[[], Planner]) -> None:
 
 register("constant", ConstantPlanner)
 register("reactive", ReactivePlanner)
+register("cdf", CDFPlanner)
 
 
 def make_planner(name: str | Planner) -> Planner:
