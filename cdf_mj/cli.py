@@ -184,7 +184,74 @@ def _add_episode(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_cmd_episode)
 
 
-_SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [_add_episode]
+def _positive_int(text: str) -> int:
+    value = _non_negative_int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {value}")
+    return value
+
+
+def _planner_list(text: str) -> list[str]:
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    unknown = [n for n in names if n not in PLANNERS]
+    if not names or unknown:
+        raise argparse.ArgumentTypeError(
+            f"unknown planner(s) {', '.join(unknown) or text!r}: choose from {', '.join(sorted(PLANNERS))}")
+    return names
+
+
+def _cmd_experiment(args: argparse.Namespace) -> int:
+    from cdf_mj.config import CDFConfig
+    from cdf_mj.experiment import experiment_tables, run_experiment
+
+    config = config_from_args(args)
+    cdf = CDFConfig(n_particles=args.particles, tau=args.tau, cutoff_rule=args.cutoff_rule)
+    seeds = range(args.seed0, args.seed0 + args.episodes)
+    records = run_experiment(args.out, seeds, args.planners, config, cdf, args.scene,
+                             progress=not args.quiet)
+    print(f"{args.episodes} episodes from seed {args.seed0}, planners {','.join(args.planners)}; "
+          f"records in {args.out}/episodes.jsonl\n")
+    print(experiment_tables(records))
+    return 0
+
+
+def _add_experiment_arguments(p: argparse.ArgumentParser, episodes: int, out: str) -> None:
+    from cdf_mj.config import CDFConfig
+
+    d = CDFConfig()
+    p.add_argument("--episodes", type=_positive_int, default=episodes, help=f"default {episodes}")
+    p.add_argument("--seed0", type=_non_negative_int, default=0, help="first seed (default 0)")
+    p.add_argument("--planners", type=_planner_list, default=["cdf", "reactive"],
+                   help="comma-separated planners run on the same seeds (default cdf,reactive)")
+    p.add_argument("--out", default=out, help=f"result directory (default {out})")
+    p.add_argument("--particles", type=_positive_int, default=d.n_particles,
+                   help=f"CDF particle count N (default {d.n_particles})")
+    p.add_argument("--tau", type=float, default=d.tau, help=f"CDF braking threshold (default {d.tau})")
+    p.add_argument("--cutoff-rule", choices=("predictive", "paper"), default=d.cutoff_rule,
+                   help=f"how P(cutoff) is computed (default {d.cutoff_rule}; see docs/RESULTS.md)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_scenario_arguments(p)
+    p.set_defaults(func=_cmd_experiment)
+
+
+def _add_experiment(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "experiment", help="run planners on the same seeds; print the paper's tables beside ours",
+        description="Run each planner on the same seeds, write one JSON line per episode and "
+                    "planner to OUT/episodes.jsonl, and print the paper's two tables beside ours.")
+    _add_experiment_arguments(p, episodes=100, out="results/experiment")
+
+
+def _add_reproduce(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "reproduce", help="the paper's experiment: 1000 episodes, CDF and reactive",
+        description="The paper's experiment with the default settings: seeds 0-999, the CDF "
+                    "and the reactive planner on the same seeds, both tables.")
+    _add_experiment_arguments(p, episodes=1000, out="results/reproduce")
+
+
+_SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [_add_episode, _add_experiment,
+                                                                    _add_reproduce]
 
 
 # ----------------------------------------------------------------- entry point
