@@ -48,17 +48,19 @@ class Polyline:
         """Arc length ``s`` [m] of the closest point on the path, and the signed lateral
         offset [m] (positive to the left of the direction of travel), for points ``(..., 2)``."""
         xy = np.asarray(xy, dtype=float)
-        d = xy[..., None, :] - self.points[:-1]  # (..., S, 2)
-        t = np.clip(np.einsum("...sk,sk->...s", d, self._unit), 0.0, self._len)
-        foot = self.points[:-1] + t[..., None] * self._unit  # (..., S, 2)
-        r = xy[..., None, :] - foot
-        dist2 = np.einsum("...sk,...sk->...s", r, r)
-        k = np.argmin(dist2, axis=-1)
-        t_k = np.take_along_axis(t, k[..., None], axis=-1)[..., 0]
-        r_k = np.take_along_axis(r, k[..., None, None], axis=-2)[..., 0, :]
-        u = self._unit[k]
-        lateral = u[..., 0] * r_k[..., 1] - u[..., 1] * r_k[..., 0]
-        return self._s0[k] + t_k, lateral
+        lead = xy.shape[:-1]
+        flat = xy.reshape(-1, 2)
+        ux, uy = self._unit[:, 0], self._unit[:, 1]
+        px = flat[:, 0, None] - self.points[:-1, 0]  # (M, S) from each segment's start
+        py = flat[:, 1, None] - self.points[:-1, 1]
+        t = np.clip(px * ux + py * uy, 0.0, self._len)
+        rx = px - t * ux
+        ry = py - t * uy
+        k = np.argmin(rx * rx + ry * ry, axis=1)
+        rows = np.arange(len(flat))
+        s = self._s0[k] + t[rows, k]
+        lateral = ux[k] * ry[rows, k] - uy[k] * rx[rows, k]
+        return s.reshape(lead), lateral.reshape(lead)
 
     def point_at(self, s: np.ndarray) -> np.ndarray:
         """Point(s) at arc length ``s`` [m], shape ``(..., 2)``; clamped to the ends."""
