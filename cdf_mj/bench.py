@@ -20,7 +20,7 @@ from cdf_mj.episode import run_episode
 from cdf_mj.scene import Scene
 from cdf_mj.visibility import ego_visible, isovist
 
-__all__ = ["median_time", "bench_core", "format_rows"]
+__all__ = ["median_time", "bench_core", "bench_filter", "format_rows"]
 
 
 def median_time(fn: Callable[[int], object], repeats: int) -> float:
@@ -69,3 +69,45 @@ def format_rows(rows: list[tuple[str, float, str]]) -> str:
         val = f"{sec * 1e6:.1f} µs" if sec < 1e-3 else f"{sec * 1e3:.2f} ms"
         out.append(f"| {what} | {val} | {note} |")
     return "\n".join(out)
+
+
+def bench_filter(n_values: tuple[int, ...] = (250, 1000, 4000), repeats: int = 3) -> list[tuple[str, float, str]]:
+    """Median time of one particle-filter tick (predict + update) at each N, with its
+    parts, driven by the measured poses of a recorded cut-off episode, and a CDF episode."""
+    from cdf_mj.config import CDFConfig
+    from cdf_mj.inference import ParticleFilter
+    from cdf_mj.planners import CDFPlanner
+
+    scene = Scene.load()
+    cfg = ScenarioConfig()
+    rec = run_episode(cfg.replace(beta=0.0, p_left=1.0), 3, "constant", scene, label=False, trace=True)
+    poses = np.array(rec.trace["poses"])
+    rows: list[tuple[str, float, str]] = []
+    for n in n_values:
+        pf = ParticleFilter.from_scene(scene, cfg, CDFConfig(n_particles=n), np.random.default_rng(0))
+        t_pred, t_upd = [], []
+        for _ in range(repeats):
+            pf.reset(poses[0])
+            for k in range(1, len(poses)):
+                t0 = time.perf_counter()
+                pf.predict(poses[k - 1])
+                t1 = time.perf_counter()
+                pf.update(poses[k])
+                t_pred.append(t1 - t0)
+                t_upd.append(time.perf_counter() - t1)
+        pred, upd = statistics.median(t_pred), statistics.median(t_upd)
+        note = f"target <= 1 ms: {'met' if pred + upd <= 1e-3 else 'MISSED'}" if n == 1000 else ""
+        rows.append((f"filter tick N={n} (predict + update)", pred + upd, note))
+        rows.append((f"  predict N={n} (looks, belief, driver FSM, bicycle)", pred, ""))
+        rows.append((f"  update N={n} (likelihood, P(cutoff), resample)", upd, ""))
+    walls, factors = [], []
+    for i in range(20):
+        t0 = time.perf_counter()
+        rec = run_episode(cfg, 1000 + i, CDFPlanner(), scene, label=False)
+        walls.append(time.perf_counter() - t0)
+        factors.append(rec.end_time / walls[-1])
+    speed = statistics.median(factors)
+    rows.append(("episode, cdf (N=1000, no counterfactual)", statistics.median(walls),
+                 f"{speed:.0f}x faster than real time (median; target >= 50x: "
+                 f"{'met' if speed >= 50 else 'MISSED'})"))
+    return rows
