@@ -29,13 +29,20 @@ _EXPORTS = {
     "SceneError": "cdf_mj.scene",
     "run_episode": "cdf_mj.episode",
     "EpisodeRecord": "cdf_mj.episode",
+    "CDFConfig": "cdf_mj.config",
+    "CDFPlanner": "cdf_mj.planners",
+    "ParticleFilter": "cdf_mj.inference",
+    "run_experiment": "cdf_mj.experiment",
 }
 
 __all__ = ["__version__", *_EXPORTS]
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time see __getattr__
-    from cdf_mj.config import ScenarioConfig
+    from cdf_mj.config import CDFConfig, ScenarioConfig
     from cdf_mj.episode import EpisodeRecord, run_episode
+    from cdf_mj.experiment import run_experiment
+    from cdf_mj.inference import ParticleFilter
+    from cdf_mj.planners import CDFPlanner
     from cdf_mj.scene import Scene, SceneError
 
 
