@@ -177,7 +177,8 @@ class CDFConfig:
     process_noise_scale: float = 1.5
 
     def __post_init__(self) -> None:
-        _check(isinstance(self.n_particles, int) and self.n_particles >= 1, "n_particles",
+        _check(isinstance(self.n_particles, int) and not isinstance(self.n_particles, bool)
+               and self.n_particles >= 1, "n_particles",
                self.n_particles, "an integer >= 1")
         _check(_finite(self.tau) and 0.0 < self.tau <= 1.0, "tau", self.tau, "in (0, 1]")
         _check(self.cutoff_rule in ("predictive", "paper"), "cutoff_rule", self.cutoff_rule,

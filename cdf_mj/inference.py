@@ -47,6 +47,11 @@ from cdf_mj.resampling import effective_sample_size, stratified_resample
 __all__ = ["ParticleFilter", "Posterior"]
 
 
+def _unit(p: float) -> float:
+    """A probability summed from weights, clipped into [0, 1] against rounding."""
+    return float(min(max(p, 0.0), 1.0))
+
+
 @dataclass(frozen=True)
 class Posterior:
     """The filter's answer at one tick. Probabilities in [0, 1]; ESS in [1, N]."""
@@ -123,11 +128,10 @@ class ParticleFilter:
         w = self.weights
         left = self.intent == Intent.LEFT
         pulling_out = (self.mode == Mode.GOING) | (self.mode == Mode.COMMITTED)
-        p_left = float(w[left].sum())
-        p_cutoff = float(w @ self.cutoff_probability()) if self.ego_exposed() else 0.0
-        return Posterior(p_left=p_left, p_right=float(1.0 - p_left),
-                         p_seen=float(w[self.has_belief].sum()), p_cutoff=p_cutoff,
-                         ess=float(effective_sample_size(w)))
+        p_left = _unit(w[left].sum())
+        p_cutoff = _unit(w @ self.cutoff_probability()) if self.ego_exposed() else 0.0
+        return Posterior(p_left=p_left, p_right=1.0 - p_left, p_seen=_unit(w[self.has_belief].sum()),
+                         p_cutoff=p_cutoff, ess=float(effective_sample_size(w)))
 
     def cutoff_probability(self) -> np.ndarray:
         """Per particle, the probability that it cuts the ego off (N,), see ``cutoff_rule``."""
