@@ -165,8 +165,9 @@ class CDFConfig:
     # P(cutoff) rule. "predictive": a left-turner that is pulling out but not yet past its
     # commit point still cuts off only if it does not see the ego on the r ticks it has
     # left before the commit point, probability (1 - beta)^r (the DBN's own forecast of
-    # its observation process, in closed form). "paper": every left-turner whose belief
-    # says clear counts fully (the paper's rule: intent left and belief clear).
+    # its observation process, in closed form). "paper": every left-turner pulling out
+    # counts fully: those whose belief says clear (the paper's rule: intent left and
+    # belief clear) and those already committed, which go whatever they believe.
     cutoff_rule: str = "predictive"
     # Resample when ESS < fraction * N; 1.0 resamples every step, as in the paper.
     resample_ess_fraction: float = 1.0

@@ -127,7 +127,6 @@ class ParticleFilter:
         """P(left), P(right), P(seen), P(cutoff) and ESS of the current weights."""
         w = self.weights
         left = self.intent == Intent.LEFT
-        pulling_out = (self.mode == Mode.GOING) | (self.mode == Mode.COMMITTED)
         p_left = _unit(w[left].sum())
         p_cutoff = _unit(w @ self.cutoff_probability()) if self.ego_exposed() else 0.0
         return Posterior(p_left=p_left, p_right=1.0 - p_left, p_seen=_unit(w[self.has_belief].sum()),
@@ -198,7 +197,10 @@ class ParticleFilter:
         the particles' poses are re-initialised at the measurement, keeping their
         discrete hypotheses (counted in ``reinits``).
         """
-        meas = np.asarray(system_pose, dtype=float)[1]
+        system_pose = np.asarray(system_pose, dtype=float)
+        if np.all(np.isfinite(system_pose[0])):
+            self._ego = system_pose[0].copy()  # the ego's pose now, for P(cutoff)
+        meas = system_pose[1]
         if not np.all(np.isfinite(meas)):
             self.skipped_updates += 1
             return self.posterior()
