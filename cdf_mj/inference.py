@@ -166,28 +166,50 @@ class ParticleFilter:
         """Propagate every particle through one tick of the DBN from ``S_t``.
 
         The ego's pose comes from ``system_pose[0]`` when it is finite, else the last one.
+        The stages are methods of their own (``look``, ``believe``, ``act``, ``move``),
+        called in this order, so that a benchmark can time the real code.
         """
+        self.set_ego(system_pose)
+        self.believe(*self.look())
+        self.move(self.act())
+
+    def set_ego(self, system_pose: np.ndarray | None) -> None:
+        """Take the ego's pose from ``system_pose[0]`` where it is finite."""
         if system_pose is not None:
             ego = np.asarray(system_pose, dtype=float)[0]
             if np.all(np.isfinite(ego)):
                 self._ego = ego.copy()
+
+    def look(self) -> tuple[np.ndarray, np.ndarray]:
+        """Observation events ``(N,)`` (beta draw, then line of sight only where it matters)
+        and the noisy observations ``(N, 4)`` of the ego (``k``)."""
         cfg, n, rng = self.scenario, self.n, self.rng
-        # Observation events: beta first, line of sight only where it matters.
         observed = rng.random(n) < cfg.beta
         idx = np.flatnonzero(observed)
         if idx.size:
             corners = self.ego.footprint(self._ego)
             targets = np.vstack([corners, corners.mean(axis=0)])
             observed[idx] = self.occluders.visible(self.obstacle.eye(self.pose[idx]), targets)
-        obs = self._ego + rng.standard_normal((n, 4)) * self._obs_std
-        self.belief, self.has_belief = update_belief(self.belief, self.has_belief, observed, obs,
-                                                     cfg.dt, self.ego.wheelbase)
+        return observed, self._ego + rng.standard_normal((n, 4)) * self._obs_std
+
+    def believe(self, observed: np.ndarray, observation: np.ndarray) -> None:
+        """Each particle's belief update ``g``."""
+        self.belief, self.has_belief = update_belief(self.belief, self.has_belief, observed,
+                                                     observation, self.scenario.dt, self.ego.wheelbase)
+
+    def act(self) -> np.ndarray:
+        """The driver ``h`` of every particle (updates its mode) plus process noise,
+        clipped to the actuator ranges; returns ``u`` ``(N, 2)``."""
         u, self.mode = obstacle_control(self.model, self.pose, self.mode, self.belief,
                                         self.has_belief, self.intent)
-        u = u + rng.standard_normal((n, 2)) * self._nu_std
+        u = u + self.rng.standard_normal((self.n, 2)) * self._nu_std
         u[:, 0] = np.clip(u[:, 0], self.obstacle.accel_range[0], self.obstacle.accel_range[1])
         u[:, 1] = np.clip(u[:, 1], self.obstacle.steer_range[0], self.obstacle.steer_range[1])
-        self.pose = bicycle_step(self.pose, u, cfg.dt, self.obstacle.wheelbase)
+        return u
+
+    def move(self, u: np.ndarray) -> None:
+        """The bicycle ``f`` for every particle."""
+        self.pose = bicycle_step(self.pose, u, self.scenario.dt, self.obstacle.wheelbase)
 
     def update(self, system_pose: np.ndarray) -> Posterior:
         """Weight by the measured obstacle pose, resample, and return the posterior.
@@ -195,11 +217,18 @@ class ParticleFilter:
         A non-finite measurement is skipped (counted in ``skipped_updates``). If every
         particle is implausible (all Mahalanobis distances above ``reinit_mahalanobis``),
         the particles' poses are re-initialised at the measurement, keeping their
-        discrete hypotheses (counted in ``reinits``).
+        discrete hypotheses (counted in ``reinits``). Stages: ``weigh``, ``resample``.
         """
+        post = self.weigh(system_pose)
+        if post.ess < self.cdf.resample_ess_fraction * self.n:
+            self.resample()
+        return post
+
+    def weigh(self, system_pose: np.ndarray) -> Posterior:
+        """The likelihood of the measured obstacle pose, normalised log-weights, and the
+        posterior of these weights (before any resampling)."""
         system_pose = np.asarray(system_pose, dtype=float)
-        if np.all(np.isfinite(system_pose[0])):
-            self._ego = system_pose[0].copy()  # the ego's pose now, for P(cutoff)
+        self.set_ego(system_pose)  # the ego's pose now, for P(cutoff)
         meas = system_pose[1]
         if not np.all(np.isfinite(meas)):
             self.skipped_updates += 1
@@ -214,10 +243,11 @@ class ParticleFilter:
             return self.posterior()
         self.logw = self.logw - 0.5 * maha2
         self.logw -= self.logw.max()
-        post = self.posterior()
-        if post.ess < self.cdf.resample_ess_fraction * self.n:
-            keep = stratified_resample(self.weights, self.rng)
-            self.pose, self.mode, self.belief = self.pose[keep], self.mode[keep], self.belief[keep]
-            self.has_belief, self.intent = self.has_belief[keep], self.intent[keep]
-            self.logw = np.zeros(self.n)
-        return post
+        return self.posterior()
+
+    def resample(self) -> None:
+        """Stratified resampling of every particle array; weights back to uniform."""
+        keep = stratified_resample(self.weights, self.rng)
+        self.pose, self.mode, self.belief = self.pose[keep], self.mode[keep], self.belief[keep]
+        self.has_belief, self.intent = self.has_belief[keep], self.intent[keep]
+        self.logw = np.zeros(self.n)

@@ -10,19 +10,14 @@ import argparse
 import sys
 
 from cdf_mj.bench import bench_core, bench_filter, format_rows
-from cdf_mj.bench import bench_filter_parts
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--episodes", type=int, default=60, help="episodes timed per planner")
-    p.add_argument("--filter", action="store_true", help="also time the particle filter and a CDF episode")
-    p.add_argument("--filter-parts", action="store_true",
-                   help="print only the filter tick split into its parts (looks, g, h, f, likelihood, resample)")
+    p.add_argument("--filter", action="store_true",
+                   help="also time the particle filter stage by stage and a CDF episode")
     args = p.parse_args(argv)
-    if args.filter_parts:
-        print(format_rows(bench_filter_parts()))
-        return 0
     rows = bench_core(args.episodes)
     if args.filter:
         rows += bench_filter()
