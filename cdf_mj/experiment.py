@@ -98,8 +98,14 @@ def run_experiment(out_dir: str | Path, seeds: Sequence[int], planners: Sequence
             tqdm(total=len(seeds) * len(planners), unit="ep", disable=not progress,
                  desc="episodes") as bar:
         for seed in seeds:
+            labelled = None  # the label depends on the seed only: one counterfactual per seed
             for name in planners:
-                rec = run_episode(config, seed, _planner(name, cdf), sc).to_dict()
+                rec = run_episode(config, seed, _planner(name, cdf), sc, label=labelled is None).to_dict()
+                if labelled is None:
+                    labelled = rec
+                else:
+                    rec["label"] = labelled["label"]
+                    rec["counterfactual_collision"] = labelled["counterfactual_collision"]
                 fh.write(json.dumps(rec, allow_nan=False) + "\n")
                 fh.flush()
                 records.append(rec)
