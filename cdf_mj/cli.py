@@ -31,6 +31,7 @@ from cdf_mj import __version__
 from cdf_mj.config import ScenarioConfig
 from cdf_mj.episode import run_episode
 from cdf_mj.planners import PLANNERS
+from cdf_mj.runner import WorkerDiedError
 from cdf_mj.scene import DEFAULT_SCENE, Scene
 
 __all__ = ["main", "build_parser", "add_scenario_arguments", "parse_overrides",
@@ -38,6 +39,7 @@ __all__ = ["main", "build_parser", "add_scenario_arguments", "parse_overrides",
 
 PROG = "cdf-mj"
 EXIT_USAGE = 2  # argparse's status for bad input
+EXIT_FAILED_EPISODES = 1  # an experiment finished, but some of its episodes raised
 
 #: ScenarioConfig fields that ``--set`` may change (``names`` is a nested object).
 SETTABLE = tuple(f.name for f in dataclasses.fields(ScenarioConfig) if f.name != "names")
@@ -207,11 +209,25 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     cdf = CDFConfig(n_particles=args.particles, tau=args.tau, cutoff_rule=args.cutoff_rule)
     seeds = range(args.seed0, args.seed0 + args.episodes)
-    records = run_experiment(args.out, seeds, args.planners, config, cdf, args.scene,
-                             progress=not args.quiet)
-    print(f"{args.episodes} episodes from seed {args.seed0}, planners {','.join(args.planners)}; "
+    try:
+        result = run_experiment(args.out, seeds, args.planners, config, cdf, args.scene,
+                                progress=not args.quiet, workers=args.workers, backend=args.backend,
+                                resume=args.resume, address=args.address)
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted; the finished episodes are saved in {args.out}/episodes.jsonl: "
+              f"continue with the same command and --resume", file=sys.stderr)
+        return 130
+    resumed = f", {result.resumed} already on disk" if result.resumed else ""
+    print(f"{args.episodes} episodes from seed {args.seed0}, planners {','.join(args.planners)}: "
+          f"{result.ran} run in {result.wall_time:.1f} s on {result.workers} worker(s) ({result.backend})"
+          f"{resumed}; peak memory per worker {result.peak_worker_rss_mb:.0f} MiB; "
           f"records in {args.out}/episodes.jsonl\n")
-    print(experiment_tables(records))
+    print(experiment_tables(result.records))
+    if result.failed:
+        print(f"{PROG}: {result.failed} of {len(result)} episodes failed; their records in "
+              f"{args.out}/episodes.jsonl hold the error and traceback (\"status\": \"failed\")",
+              file=sys.stderr)
+        return EXIT_FAILED_EPISODES
     return 0
 
 
@@ -229,6 +245,16 @@ def _add_experiment_arguments(p: argparse.ArgumentParser, episodes: int, out: st
     p.add_argument("--tau", type=float, default=d.tau, help=f"CDF braking threshold (default {d.tau})")
     p.add_argument("--cutoff-rule", choices=("predictive", "paper"), default=d.cutoff_rule,
                    help=f"how P(cutoff) is computed (default {d.cutoff_rule}; see docs/RESULTS.md)")
+    p.add_argument("--workers", type=_positive_int, default=None,
+                   help="worker processes (default: the CPU count; 1 runs in this process)")
+    p.add_argument("--backend", choices=("process", "ray"), default="process",
+                   help="where episodes run: a local process pool (default) or Ray "
+                        "(pip install 'cdf-mj[ray]')")
+    p.add_argument("--address", default=None,
+                   help="with --backend ray: the address of an existing Ray cluster "
+                        "(default: start a local Ray instance)")
+    p.add_argument("--resume", action="store_true",
+                   help="continue an interrupted run in --out with the same settings")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_scenario_arguments(p)
     p.set_defaults(func=_cmd_experiment)
@@ -279,8 +305,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return args.func(args)
     # ValueError: bad parameters or seed (SceneError, CLIError are ValueErrors too);
-    # FloatingPointError: a diverged simulation (NonFiniteStateError, SimulationDivergedError).
-    except (ValueError, FloatingPointError) as exc:
+    # FloatingPointError: a diverged simulation (NonFiniteStateError, SimulationDivergedError);
+    # WorkerDiedError: a worker process died (the finished episodes are saved).
+    except (ValueError, FloatingPointError, WorkerDiedError) as exc:
         if args.debug:
             raise
         return _fail(exc)

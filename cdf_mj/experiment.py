@@ -1,34 +1,55 @@
 """Many episodes: run planners on the same seeds, persist every record, print the tables.
 
 ``run_experiment`` runs every planner on every seed (common random numbers: the obstacle
-and the ego's start are the same for all planners), appends one JSON line per episode
-and planner to ``DIR/episodes.jsonl`` as soon as it finishes (flushed), and writes the
-settings to ``DIR/settings.json``. A directory holding results from other settings is
-refused. ``experiment_tables`` turns records into the paper's two tables beside ours,
-with 95 % Wilson intervals. ::
+and the ego's start are the same for all planners) on a process pool (default: one
+worker per CPU; :mod:`cdf_mj.runner` also offers ``serial`` and ``ray``), and appends one
+JSON line per episode and planner to ``DIR/episodes.jsonl`` as soon as its seed
+finishes (flushed and fsync-ed); the settings go to ``DIR/settings.json``. The records
+are the same whatever the backend and the number of workers.
 
-    records = run_experiment("results/run1", seeds=range(100), planners=("cdf", "reactive"))
-    print(experiment_tables(records))
+A run that was killed continues with ``resume=True`` (``--resume``): the seeds already
+on disk are skipped, a half-written last line is dropped, and nothing is run twice. A
+directory holding results from other settings is refused, and so is a directory with
+results when ``resume`` is not asked for. An episode that raises is recorded with its
+traceback (``"status": "failed"``) and the run goes on.
+
+``experiment_tables`` turns records into the paper's two tables beside ours, with 95 %
+Wilson intervals. ::
+
+    result = run_experiment("results/run1", seeds=range(100), planners=("cdf", "reactive"))
+    print(experiment_tables(result.records))
 """
 
 from __future__ import annotations
 
+import functools
 import json
-import os
+import pickle
 import statistics
+import time
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, Iterator, Sequence
 
 from tqdm import tqdm
 
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.episode import EpisodeRecord, Labels, run_episode
 from cdf_mj.metrics import Rate
-from cdf_mj.planners import CDFPlanner, Planner, make_planner
+from cdf_mj.planners import PLANNERS, CDFPlanner, Planner, make_planner
+from cdf_mj.runner import (
+    FAILED,
+    Backend,
+    RecordStore,
+    SeedJob,
+    WorkerDiedError,
+    check_backend,
+    run_seeds,
+)
 from cdf_mj.scene import DEFAULT_SCENE, Scene
 
-__all__ = ["run_many", "iter_episodes", "run_experiment", "experiment_tables", "load_records",
-           "PAPER_CONFUSION", "PAPER_PLANNERS"]
+__all__ = ["run_many", "iter_episodes", "run_experiment", "ExperimentResult", "experiment_tables",
+           "load_records", "completed", "PAPER_CONFUSION", "PAPER_PLANNERS"]
 
 LABELS = (Labels.CUTOFF, Labels.YIELD, Labels.RIGHT)
 #: The paper's Figure "Simulation results using the CDF": rows scenario, columns prediction.
@@ -37,14 +58,22 @@ PAPER_CONFUSION = {Labels.CUTOFF: (417, 0, 0), Labels.YIELD: (13, 334, 0), Label
 PAPER_PLANNERS = {"cdf": (417, 9), "reactive": (404, 213)}
 
 
+def _factory(name: str, cdf: CDFConfig | None) -> Callable[[], Planner]:
+    """A picklable zero-argument planner factory (the CDF with its configuration)."""
+    if name == "cdf":
+        return functools.partial(CDFPlanner, cdf or CDFConfig())
+    make_planner(name)  # unknown name: ValueError listing the known ones
+    return PLANNERS[name]
+
+
 def _planner(name: str, cdf: CDFConfig | None) -> Planner:
-    return CDFPlanner(cdf) if name == "cdf" else make_planner(name)
+    return _factory(name, cdf)()
 
 
 def iter_episodes(seeds: Iterable[int], planner: str = "reactive", config: ScenarioConfig | None = None,
                   scene: str | Path = DEFAULT_SCENE, progress: bool = True,
                   cdf: CDFConfig | None = None) -> Iterator[EpisodeRecord]:
-    """Yield one labelled record per seed, in order, with a progress bar on stderr."""
+    """Yield one labelled record per seed, in order, in this process, with a progress bar."""
     config = config or ScenarioConfig()
     sc = Scene.load(scene, names=config.names)
     for seed in tqdm(list(seeds), desc=f"{planner} episodes", unit="ep", disable=not progress, leave=False):
@@ -65,53 +94,128 @@ def _settings(seeds: Sequence[int], planners: Sequence[str], config: ScenarioCon
             "scene": str(Path(scene).resolve())}
 
 
+def _differences(old: dict, new: dict, prefix: str = "") -> list[str]:
+    """Dotted keys whose values differ between two settings dicts."""
+    keys = []
+    for key in sorted(set(old) | set(new)):
+        a, b = old.get(key), new.get(key)
+        if isinstance(a, dict) and isinstance(b, dict):
+            keys += _differences(a, b, f"{prefix}{key}.")
+        elif a != b:
+            keys.append(f"{prefix}{key}")
+    return keys
+
+
+@dataclass(frozen=True)
+class ExperimentResult(Sequence):
+    """What :func:`run_experiment` did; a sequence of its records (``list(result)``).
+
+    ``records`` holds every record of the experiment (also those an earlier, resumed run
+    wrote), sorted by seed and then in planner order; failed ones have ``"status": "failed"``.
+    """
+
+    out_dir: Path
+    records: list[dict]
+    ran: int  # episodes run by this call
+    resumed: int  # episodes that were already on disk
+    failed: int  # failed records among ``records``
+    backend: str
+    workers: int
+    wall_time: float  # [s] of this call
+    peak_worker_rss_mb: float  # [MiB] largest peak resident memory of a worker (nan if none ran)
+
+    def __getitem__(self, index):  # type: ignore[override]
+        return self.records[index]
+
+    def __len__(self) -> int:
+        return len(self.records)
+
+
 def run_experiment(out_dir: str | Path, seeds: Sequence[int], planners: Sequence[str] = ("cdf", "reactive"),
                    config: ScenarioConfig | None = None, cdf: CDFConfig | None = None,
-                   scene: str | Path = DEFAULT_SCENE, progress: bool = True) -> list[dict]:
-    """Run every planner on every seed; persist and return the records (as dicts).
+                   scene: str | Path = DEFAULT_SCENE, progress: bool = True, *,
+                   workers: int | None = None, backend: Backend = "process",
+                   resume: bool = False, address: str | None = None) -> ExperimentResult:
+    """Run every planner on every seed; persist the records and return them.
 
-    ``seeds`` must be a contiguous range. Refuses a directory whose ``settings.json``
-    differs from these settings, and a non-empty ``episodes.jsonl`` (resuming is not
-    supported yet: choose a new directory).
+    Args:
+        out_dir: result directory (created): ``settings.json`` and ``episodes.jsonl``.
+        seeds: a non-empty contiguous range of non-negative seeds.
+        planners: registered planner names, run on the same seeds.
+        config, cdf: scenario and CDF settings (defaults if ``None``).
+        scene: MJCF scene file.
+        progress: a progress bar on stderr.
+        workers: worker processes (default: the CPU count); 1 runs in this process.
+        backend: ``process`` (default), ``serial`` or ``ray``.
+        resume: continue a run in ``out_dir`` that was interrupted (same settings only).
+        address: with ``backend="ray"``, the address of an existing Ray cluster.
+
+    Raises:
+        ValueError: bad settings, a directory holding other settings, or results
+            without ``resume``; nothing is run then.
+        cdf_mj.runner.WorkerDiedError: a worker died; the finished seeds are saved.
     """
+    t0 = time.perf_counter()
     config, cdf = config or ScenarioConfig(), cdf or CDFConfig()
-    seeds = list(seeds)
-    if not seeds or seeds != list(range(seeds[0], seeds[0] + len(seeds))):
-        raise ValueError("seeds must be a non-empty contiguous range")
-    for name in planners:
-        make_planner(name)  # unknown planner: refused before any work
+    seeds = [int(s) for s in seeds]
+    if not seeds or seeds[0] < 0 or seeds != list(range(seeds[0], seeds[0] + len(seeds))):
+        raise ValueError("seeds must be a non-empty contiguous range of non-negative integers")
+    planners = tuple(planners)
+    if not planners or len(set(planners)) != len(planners):
+        raise ValueError(f"planners must be distinct names, got {list(planners)}")
+    n_workers = 1 if backend == "serial" else check_backend(backend, workers)
+    job = SeedJob(config=config, scene=str(scene), planners=planners,
+                  factories={name: _factory(name, cdf) for name in planners})
+    if n_workers > 1:
+        try:
+            pickle.dumps(job)
+        except Exception as exc:
+            raise ValueError(f"the planners cannot be sent to worker processes ({exc}); register "
+                             "module-level planner classes, or run with workers=1") from None
+    Scene.load(scene, names=config.names)  # a broken scene is refused before anything is written
+
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     settings = _settings(seeds, planners, config, cdf, scene)
     settings_path, records_path = out / "settings.json", out / "episodes.jsonl"
     if settings_path.exists():
         old = json.loads(settings_path.read_text())
-        if old != json.loads(json.dumps(settings)):
-            raise ValueError(f"{out} holds results from other settings; choose another directory")
-    if records_path.exists() and records_path.stat().st_size > 0:
-        raise ValueError(f"{records_path} already holds results; choose another directory")
+        diff = _differences(old, json.loads(json.dumps(settings)))
+        if diff:
+            raise ValueError(f"{out} holds results from other settings (differing: {', '.join(diff)}); "
+                             "choose another directory")
+    if not resume and records_path.exists() and records_path.stat().st_size > 0:
+        raise ValueError(f"{records_path} already holds results: pass resume=True (--resume) to "
+                         "continue that run, or choose another directory")
+    out.mkdir(parents=True, exist_ok=True)
     settings_path.write_text(json.dumps(settings, indent=2) + "\n")
 
-    sc = Scene.load(scene, names=config.names)
-    records: list[dict] = []
-    with open(records_path, "a", encoding="utf-8") as fh, \
-            tqdm(total=len(seeds) * len(planners), unit="ep", disable=not progress,
-                 desc="episodes") as bar:
-        for seed in seeds:
-            labelled = None  # the label depends on the seed only: one counterfactual per seed
-            for name in planners:
-                rec = run_episode(config, seed, _planner(name, cdf), sc, label=labelled is None).to_dict()
-                if labelled is None:
-                    labelled = rec
-                else:
-                    rec["label"] = labelled["label"]
-                    rec["counterfactual_collision"] = labelled["counterfactual_collision"]
-                fh.write(json.dumps(rec, allow_nan=False) + "\n")
-                fh.flush()
-                records.append(rec)
-                bar.update()
-        os.fsync(fh.fileno())
-    return records
+    order = {name: i for i, name in enumerate(planners)}
+    peaks: list[float] = []
+    with RecordStore.open(records_path) as store:
+        done = store.done()
+        resumed = len(done)
+        todo = [(s, tuple(p for p in planners if (s, p) not in done)) for s in seeds]
+        todo = [(s, ps) for s, ps in todo if ps]
+        total = sum(len(ps) for _, ps in todo)
+        with tqdm(total=total, unit="ep", disable=not progress, desc="episodes") as bar:
+            try:
+                for result in run_seeds(job, todo, backend=backend, workers=workers, address=address):
+                    store.append(result.records)
+                    peaks.append(result.peak_rss_mb)
+                    bar.update(len(result.records))
+            except WorkerDiedError as exc:
+                raise WorkerDiedError(f"{exc}; {len(store.records)} episodes are saved in {records_path}: "
+                                      "run again with resume=True (--resume) to finish") from None
+        records = sorted(store.records, key=lambda r: (r["seed"], order.get(r["planner"], len(order))))
+    return ExperimentResult(out_dir=out, records=records, ran=total, resumed=resumed,
+                            failed=sum(1 for r in records if r.get("status") == FAILED),
+                            backend=backend if n_workers > 1 else "serial", workers=n_workers, wall_time=time.perf_counter() - t0,
+                            peak_worker_rss_mb=max(peaks, default=float("nan")))
+
+
+def completed(records: Iterable[dict]) -> list[dict]:
+    """The records of episodes that ran to the end (failed ones left out)."""
+    return [r for r in records if r.get("status") != FAILED]
 
 
 def load_records(out_dir: str | Path) -> list[dict]:
@@ -127,9 +231,12 @@ def _prediction(rec: dict) -> str:
 
 def experiment_tables(records: Iterable[dict]) -> str:
     """Markdown: the CDF confusion matrix beside the paper's, and the planner comparison
-    (imminent collisions, collisions, avoided, false alarms, lead time, gap, time lost)."""
+    (imminent collisions, collisions, avoided, false alarms, lead time, gap, time lost).
+    Failed episodes are left out and counted in a last line."""
+    records = list(records)
+    good = completed(records)
     by_planner: dict[str, list[dict]] = {}
-    for rec in records:
+    for rec in good:
         by_planner.setdefault(rec["planner"], []).append(rec)
     lines: list[str] = []
     if "cdf" in by_planner:
@@ -171,4 +278,7 @@ def experiment_tables(records: Iterable[dict]) -> str:
         lines.append(f"| {name} | {len(cut)} | {occurred} | {avoided} | {100 * paper_style:.1f} % | {paper} "
                      f"| {false_alarm} | {lead} "
                      f"| {gap:.2f} | {lost:.2f} |")
+    if len(good) < len(records):
+        lines += ["", f"{len(records) - len(good)} failed episode(s) left out of these tables "
+                      "(their records hold the error and traceback)."]
     return "\n".join(lines)

@@ -24,8 +24,8 @@ def small_run(tmp_path_factory):
 
 def test_every_episode_and_planner_is_persisted(small_run):
     out, records = small_run
-    on_disk = load_records(out)
-    assert on_disk == records
+    on_disk = load_records(out)  # in the order the seeds finished
+    assert sorted(on_disk, key=lambda r: (r["seed"], r["planner"] != "cdf")) == records.records
     assert len(on_disk) == 2 * len(SEEDS)
     assert {(r["seed"], r["planner"]) for r in on_disk} == {(s, p) for s in SEEDS for p in ("cdf", "reactive")}
     settings = json.loads((out / "settings.json").read_text())

@@ -1,0 +1,292 @@
+"""Running many seeds: serially, on a process pool or on Ray, with lossless persistence.
+
+The unit of work is one **seed**: every planner of the experiment runs on it (common
+random numbers), and the counterfactual that labels the seed runs once. A seed's records
+depend on nothing but the seed and the settings, so any backend and any number of
+workers give the same records; only the order in which seeds finish differs.
+
+============  ===================================================================
+backend       where the seeds run
+============  ===================================================================
+``serial``    in this process (``workers=1``)
+``process``   a ``concurrent.futures`` process pool (``spawn``), one scene per worker
+``ray``       Ray actors (``pip install 'cdf-mj[ray]'``), one scene per actor; a local
+              Ray instance, or an existing cluster with ``address``
+============  ===================================================================
+
+:class:`RecordStore` persists records: one JSON line per episode, appended as soon as a
+seed finishes, flushed and ``fsync``-ed, so a run killed at any moment (``SIGKILL``
+included) loses at most the seeds that were still running. :meth:`RecordStore.open`
+reads what an earlier run left, dropping a half-written last line, so that the run can
+resume without duplicating or missing an episode.
+
+An episode that raises is recorded as a *failed* record (``"status": "failed"``, with its
+seed, planner, error and traceback) and the run goes on. Successful records carry
+``"status": "ok"``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import sys
+import traceback
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Literal
+
+from cdf_mj.config import ScenarioConfig
+
+__all__ = ["SeedJob", "SeedResult", "RecordStore", "run_seeds", "Backend", "BACKENDS",
+           "WorkerDiedError", "OK", "FAILED", "check_backend"]
+
+Backend = Literal["serial", "process", "ray"]
+BACKENDS: tuple[str, ...] = ("serial", "process", "ray")
+OK, FAILED = "ok", "failed"
+
+
+class WorkerDiedError(RuntimeError):
+    """A worker process died (killed, out of memory); finished seeds are saved."""
+
+
+@dataclass(frozen=True)
+class SeedJob:
+    """Everything a worker needs to run seeds; pickled once per worker.
+
+    ``factories`` maps each planner name to a zero-argument callable returning a fresh
+    :class:`~cdf_mj.planners.Planner`; it must be picklable (a module-level class or
+    ``functools.partial`` of one) for the ``process`` and ``ray`` backends.
+    """
+
+    config: ScenarioConfig
+    scene: str
+    planners: tuple[str, ...]
+    factories: dict[str, Callable]
+
+
+@dataclass(frozen=True)
+class SeedResult:
+    """The records of one seed (one per planner, in the job's planner order)."""
+
+    seed: int
+    records: list[dict]
+    peak_rss_mb: float  # [MiB] the worker's peak resident memory so far
+    pid: int
+
+
+def _peak_rss_mb() -> float:
+    # ru_maxrss is KiB on Linux, bytes on macOS.
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return rss / (1024 * 1024) if sys.platform == "darwin" else rss / 1024
+
+
+def _failed(seed: int, planner: str, exc: BaseException) -> dict:
+    return {"seed": seed, "planner": planner, "status": FAILED,
+            "error": f"{type(exc).__name__}: {exc}",
+            "traceback": "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))}
+
+
+class SeedWorker:
+    """Runs seeds of one job with one scene loaded once (one per process or Ray actor)."""
+
+    def __init__(self, job: SeedJob) -> None:
+        from cdf_mj.scene import Scene
+
+        self.job = job
+        self.scene = Scene.load(job.scene, names=job.config.names)
+
+    def run(self, seed: int, planners: Sequence[str] | None = None) -> SeedResult:
+        """Every planner (or those named) on ``seed``; a planner that raises gives a failed record."""
+        from cdf_mj.episode import run_episode
+
+        job = self.job
+        label: tuple[str, bool] | None = None  # (label, counterfactual collision) once known
+        records = []
+        for name in planners or job.planners:
+            try:
+                rec = run_episode(job.config, seed, job.factories[name](), self.scene,
+                                  label=label is None).to_dict()
+            except Exception as exc:  # noqa: BLE001 - recorded with its traceback; the run goes on
+                records.append(_failed(seed, name, exc))
+                continue
+            if label is None:  # the label depends on the seed only: one counterfactual per seed
+                label = (rec["label"], rec["counterfactual_collision"])
+            else:
+                rec["label"], rec["counterfactual_collision"] = label
+            rec["status"] = OK
+            records.append(rec)
+        return SeedResult(seed, records, _peak_rss_mb(), os.getpid())
+
+
+# ----------------------------------------------------------------- process pool
+_WORKER: SeedWorker | None = None
+
+
+def _init_process(job: SeedJob) -> None:
+    global _WORKER
+    _WORKER = SeedWorker(job)
+
+
+def _run_in_process(seed: int, planners: tuple[str, ...] | None) -> SeedResult:
+    assert _WORKER is not None, "worker not initialised"
+    return _WORKER.run(seed, planners)
+
+
+def _serial(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], workers: int,
+            address: str | None) -> Iterator[SeedResult]:
+    worker = SeedWorker(job)
+    for seed, planners in todo:
+        yield worker.run(seed, planners)
+
+
+def _process_pool(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], workers: int,
+                  address: str | None) -> Iterator[SeedResult]:
+    # spawn: no state inherited from the parent (threads, MuJoCo contexts); the same on
+    # every platform. At most 2 seeds in flight per worker keeps memory flat and
+    # cancellation prompt.
+    ctx = get_context("spawn")
+    pending: set = set()
+    queue = list(todo)[::-1]
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_process,
+                             initargs=(job,)) as pool:
+        try:
+            while queue or pending:
+                while queue and len(pending) < 2 * workers:
+                    seed, planners = queue.pop()
+                    pending.add(pool.submit(_run_in_process, seed, planners))
+                done, pending = wait(pending, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    yield fut.result()
+        except BrokenProcessPool as exc:
+            raise WorkerDiedError(f"a worker process died ({exc})") from None
+        finally:
+            for fut in pending:
+                fut.cancel()
+
+
+def _ray(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], workers: int,
+         address: str | None) -> Iterator[SeedResult]:
+    try:
+        import ray
+        from ray.util import ActorPool
+    except ImportError:
+        raise ValueError("--backend ray needs Ray: pip install 'cdf-mj[ray]'") from None
+    started = not ray.is_initialized()
+    if started:
+        kwargs = {"address": address} if address else {"num_cpus": workers}
+        ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False, **kwargs)
+    try:
+        actor = ray.remote(num_cpus=1)(SeedWorker)
+        n_actors = workers if address is None else max(1, min(workers, int(ray.cluster_resources().get("CPU", 1))))
+        pool = ActorPool([actor.remote(job) for _ in range(n_actors)])
+        for seed, planners in todo:
+            pool.submit(lambda a, item: a.run.remote(*item), (seed, planners))
+        while pool.has_next():
+            try:
+                yield pool.get_next_unordered()
+            except ray.exceptions.RayActorError as exc:
+                raise WorkerDiedError(f"a Ray actor died ({exc})") from None
+    finally:
+        if started:
+            ray.shutdown()
+
+
+_BACKENDS: dict[str, Callable[..., Iterator[SeedResult]]] = {
+    "serial": _serial, "process": _process_pool, "ray": _ray}
+
+
+def run_seeds(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], backend: Backend = "process",
+              workers: int | None = None, address: str | None = None) -> Iterator[SeedResult]:
+    """Yield one :class:`SeedResult` per ``(seed, planners)`` item, in completion order.
+
+    ``workers`` defaults to the CPU count; ``backend="process"`` with one worker, or
+    fewer than two seeds, runs in this process. Raises :class:`WorkerDiedError` if a
+    worker dies; seeds already yielded are unaffected.
+    """
+    workers = check_backend(backend, workers)
+    if backend == "process" and (workers == 1 or len(todo) < 2):
+        backend = "serial"
+    return _BACKENDS[backend](job, todo, min(workers, max(1, len(todo))), address)
+
+
+def check_backend(backend: str, workers: int | None) -> int:
+    """The worker count (default: the CPU count); ValueError for a bad backend or count."""
+    if backend not in _BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}: choose one of {', '.join(BACKENDS)}")
+    workers = workers if workers is not None else (os.cpu_count() or 1)
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers={workers!r} must be a positive integer")
+    return workers
+
+
+# ----------------------------------------------------------------- persistence
+class RecordStore:
+    """Append-only JSON lines of episode records: every seed is flushed and ``fsync``-ed.
+
+    Use :meth:`open`; the store is a context manager that closes the file.
+    """
+
+    def __init__(self, path: Path, records: list[dict], fh) -> None:
+        self.path = path
+        self.records = records  # everything on disk, in file order
+        self._fh = fh
+
+    @classmethod
+    def open(cls, path: str | Path) -> RecordStore:
+        """Open ``path`` for appending, reading the records already there.
+
+        A last line cut short by a killed run is dropped (truncated from the file); any
+        other line that is not a JSON object is an error naming its line number.
+        """
+        path = Path(path)
+        records: list[dict] = []
+        if path.exists():
+            data = path.read_bytes()
+            end = data.rfind(b"\n") + 1  # everything after the last newline is a partial line
+            for number, line in enumerate(data[:end].splitlines(), start=1):
+                if not line.strip():
+                    continue
+                try:
+                    rec = json.loads(line)
+                except ValueError:
+                    rec = None
+                if not isinstance(rec, dict) or "seed" not in rec or "planner" not in rec:
+                    raise ValueError(f"{path}:{number} is not an episode record; "
+                                     "the file is damaged: move it away or choose another directory")
+                records.append(rec)
+            if end < len(data):
+                with open(path, "r+b") as fh:
+                    fh.truncate(end)
+                    fh.flush()
+                    os.fsync(fh.fileno())
+        fh = open(path, "a", encoding="utf-8")
+        return cls(path, records, fh)
+
+    def done(self) -> set[tuple[int, str]]:
+        """``(seed, planner)`` pairs already recorded (failed ones included)."""
+        return {(int(r["seed"]), str(r["planner"])) for r in self.records}
+
+    def append(self, records: Iterable[dict]) -> None:
+        """Write records as one block, then flush and fsync (one seed per call)."""
+        records = list(records)
+        if not records:
+            return
+        self._fh.write("".join(json.dumps(r, allow_nan=False) + "\n" for r in records))
+        self._fh.flush()
+        os.fsync(self._fh.fileno())
+        self.records.extend(records)
+
+    def close(self) -> None:
+        self._fh.close()
+
+    def __enter__(self) -> RecordStore:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+

@@ -1,0 +1,194 @@
+"""The experiment runner: the same records on any backend, nothing lost or duplicated by a
+killed run, failed episodes recorded, other settings refused."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+
+import pytest
+
+from cdf_mj.cli import main
+from cdf_mj.config import CDFConfig
+from cdf_mj.experiment import experiment_tables, load_records, run_experiment
+from cdf_mj.planners import PLANNERS, Planner, PlannerInput, ReactivePlanner
+from cdf_mj.runner import FAILED, OK, RecordStore, WorkerDiedError
+
+SMALL = CDFConfig(n_particles=200)
+SEEDS = range(30, 38)
+
+
+def _key(rec: dict) -> tuple[int, str]:
+    return rec["seed"], rec["planner"]
+
+
+@pytest.fixture(scope="module")
+def serial(tmp_path_factory):
+    out = tmp_path_factory.mktemp("serial")
+    return run_experiment(out, SEEDS, ("cdf", "reactive"), cdf=SMALL, progress=False, workers=1)
+
+
+def test_process_pool_gives_the_serial_records(serial, tmp_path):
+    parallel = run_experiment(tmp_path, SEEDS, ("cdf", "reactive"), cdf=SMALL, progress=False, workers=2)
+    assert parallel.workers == 2 and parallel.ran == 2 * len(SEEDS)
+    assert parallel.records == serial.records  # sorted by seed, then planner order
+    assert sorted(load_records(tmp_path), key=_key) == sorted(serial.records, key=_key)
+    assert all(r["status"] == OK for r in parallel)
+    assert parallel.peak_worker_rss_mb > 10  # measured in the workers
+
+
+def test_ray_gives_the_serial_records(serial, tmp_path):
+    pytest.importorskip("ray", reason="the ray extra is not installed")
+    result = run_experiment(tmp_path, SEEDS, ("cdf", "reactive"), cdf=SMALL, progress=False,
+                            workers=2, backend="ray")
+    assert result.backend == "ray"
+    assert result.records == serial.records
+
+
+def _count_lines(path: Path) -> int:
+    try:
+        return path.read_bytes().count(b"\n")
+    except FileNotFoundError:
+        return 0
+
+
+def test_sigkilled_run_resumes_without_loss_or_duplicates(tmp_path):
+    out, seeds = tmp_path / "killed", range(0, 60)
+    cmd = [sys.executable, "-m", "cdf_mj.cli", "experiment", "--episodes", str(len(seeds)),
+           "--planners", "reactive", "--workers", "2", "--out", str(out), "--quiet"]
+    # Its own session, so that the kill reaches the worker processes too.
+    proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    while _count_lines(out / "episodes.jsonl") < 5 and proc.poll() is None:
+        assert time.monotonic() < deadline, "the experiment wrote nothing in 120 s"
+        time.sleep(0.02)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert proc.returncode == -signal.SIGKILL
+    saved = _count_lines(out / "episodes.jsonl")
+    assert 5 <= saved < len(seeds)  # really killed in the middle
+
+    # Without --resume the directory is refused; with it the run completes.
+    assert main(cmd[3:]) == 2
+    assert main([*cmd[3:], "--resume"]) == 0
+    records = load_records(out)
+    counts = Counter(_key(r) for r in records)
+    assert set(counts) == {(s, "reactive") for s in seeds}
+    assert max(counts.values()) == 1
+    fresh = run_experiment(tmp_path / "fresh", seeds, ("reactive",), progress=False, workers=1)
+    assert sorted(records, key=_key) == fresh.records
+
+
+class ExplodingPlanner(ReactivePlanner):
+    """Raises on episodes whose ego starts behind site ego_start (about half the seeds)."""
+
+    name = "exploding"
+
+    def brake(self, obs: PlannerInput) -> bool:
+        if obs.t == 0.0 and obs.poses[0, 0] < -40.8:
+            raise RuntimeError("deliberate failure for the test")
+        return super().brake(obs)
+
+
+def test_a_failing_episode_is_recorded_and_the_run_goes_on(tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(PLANNERS, "exploding", ExplodingPlanner)
+    seeds = range(0, 10)
+    assert main(["experiment", "--episodes", "10", "--planners", "reactive,exploding", "--workers", "2",
+                 "--out", str(tmp_path), "--quiet"]) == 1
+    err = capsys.readouterr().err
+    records = load_records(tmp_path)
+    assert len(records) == 20
+    reactive = {r["seed"]: r for r in records if r["planner"] == "reactive"}
+    failed = [r for r in records if r["status"] == FAILED]
+    expected = {s for s in seeds if reactive[s]["ego_start_offset"] < 0}  # behind ego_start
+    assert expected and len(expected) < len(seeds)
+    assert {r["seed"] for r in failed} == expected
+    assert all(r["planner"] == "exploding" for r in failed)
+    assert all("deliberate failure" in r["error"] and "in brake" in r["traceback"] for r in failed)
+    assert f"{len(expected)} of 20 episodes failed" in err
+    assert f"{len(expected)} failed episode(s) left out" in experiment_tables(records)
+    # The others ran to the end, labelled like the reactive run of the same seed.
+    for r in records:
+        if r["planner"] == "exploding" and r["status"] == OK:
+            assert r["label"] == reactive[r["seed"]]["label"]
+
+
+class DyingPlanner(ReactivePlanner):
+    """Kills its own worker process once (while the marker file is missing)."""
+
+    name = "dying"
+
+    def brake(self, obs: PlannerInput) -> bool:
+        marker = Path(os.environ["CDF_MJ_TEST_MARKER"])
+        if not marker.exists():
+            marker.touch()
+            os.kill(os.getpid(), signal.SIGKILL)
+        return super().brake(obs)
+
+
+def test_a_worker_that_dies_is_reported_and_resumed(tmp_path, monkeypatch):
+    monkeypatch.setitem(PLANNERS, "dying", DyingPlanner)
+    monkeypatch.setenv("CDF_MJ_TEST_MARKER", str(tmp_path / "died"))
+    with pytest.raises(WorkerDiedError, match="resume"):
+        run_experiment(tmp_path / "r", range(6), ("dying",), progress=False, workers=2)
+    result = run_experiment(tmp_path / "r", range(6), ("dying",), progress=False, workers=2, resume=True)
+    assert sorted(r["seed"] for r in result) == list(range(6))
+    assert all(r["status"] == OK for r in result)
+
+
+def test_resume_with_other_settings_is_refused(serial, tmp_path):
+    out = serial.out_dir
+    before = (out / "episodes.jsonl").read_bytes()
+    with pytest.raises(ValueError, match=r"other settings \(differing: cdf.n_particles\)"):
+        run_experiment(out, SEEDS, ("cdf", "reactive"), progress=False, resume=True)
+    with pytest.raises(ValueError, match="planners"):
+        run_experiment(out, SEEDS, ("reactive",), cdf=SMALL, progress=False, resume=True)
+    assert main(["experiment", "--episodes", "8", "--seed0", "30", "--out", str(out), "--resume",
+                 "--set", "beta=0.1", "--quiet"]) == 2
+    assert (out / "episodes.jsonl").read_bytes() == before
+    # The same settings: nothing left to run, the same records.
+    again = run_experiment(out, SEEDS, ("cdf", "reactive"), cdf=SMALL, progress=False, resume=True)
+    assert again.ran == 0 and again.resumed == 2 * len(SEEDS) and again.records == serial.records
+
+
+def test_store_drops_a_half_written_last_line_and_refuses_a_damaged_one(tmp_path):
+    path = tmp_path / "episodes.jsonl"
+    good = [{"seed": 1, "planner": "reactive", "status": OK}, {"seed": 2, "planner": "reactive", "status": OK}]
+    path.write_text("".join(json.dumps(r) + "\n" for r in good) + '{"seed": 3, "plan')
+    with RecordStore.open(path) as store:
+        assert store.records == good and store.done() == {(1, "reactive"), (2, "reactive")}
+        store.append([{"seed": 3, "planner": "reactive", "status": OK}])
+    assert [json.loads(line)["seed"] for line in path.read_text().splitlines()] == [1, 2, 3]
+
+    path.write_text(json.dumps(good[0]) + "\nnot json\n" + json.dumps(good[1]) + "\n")
+    with pytest.raises(ValueError, match=r"episodes.jsonl:2 is not an episode record"):
+        RecordStore.open(path)
+
+
+def test_bad_runner_arguments_are_refused_before_work(tmp_path):
+    with pytest.raises(ValueError, match="workers"):
+        run_experiment(tmp_path / "a", range(4), ("reactive",), progress=False, workers=0)
+    with pytest.raises(ValueError, match="backend"):
+        run_experiment(tmp_path / "b", range(4), ("reactive",), progress=False, backend="mpi")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="distinct"):
+        run_experiment(tmp_path / "c", range(4), ("reactive", "reactive"), progress=False)
+
+    class Local(Planner):  # not importable by a worker process
+        def brake(self, obs: PlannerInput) -> bool:
+            return False
+
+    PLANNERS["local"] = Local
+    try:
+        with pytest.raises(ValueError, match="cannot be sent to worker processes"):
+            run_experiment(tmp_path / "d", range(4), ("local",), progress=False, workers=2)
+        assert len(run_experiment(tmp_path / "e", range(2), ("local",), progress=False, workers=1)) == 2
+    finally:
+        del PLANNERS["local"]
+    assert not (tmp_path / "a").exists() and not (tmp_path / "d").exists()
