@@ -1,15 +1,17 @@
 """One episode of the T-intersection scenario in MuJoCo: ``run_episode(config, seed)``.
 
-Each 0.1 s tick (``config.dt``), in this order:
+The world itself is :class:`World` (``reset(seed)``, ``measure()``, ``step(ego_controls)``),
+shared with the Gymnasium environment. Each 0.1 s tick (``config.dt``) of an episode, in
+this order:
 
 1. read the system pose ``S_t`` from MuJoCo (error on a non-finite pose);
-2. the obstacle looks: line of sight from its eye to the ego (MuJoCo rays); if visible,
+2. the ego's planner is asked whether to brake (the first yes is latched: the ego then
+   brakes at the maximum rate to the end), the ego's controller gives its controls;
+3. the obstacle looks: line of sight from its eye to the ego (MuJoCo rays); if visible,
    with probability ``beta`` it observes the ego's pose with Gaussian noise; its belief
    is updated (``g``);
-3. the obstacle driver's state machine gives its controls (``h``), plus process noise;
-4. the ego's planner is asked whether to brake (the first yes is latched: the ego then
-   brakes at the maximum rate to the end), the ego's controller gives its
-   controls, plus process noise;
+4. the obstacle driver's state machine gives its controls (``h``); both cars' controls
+   get process noise;
 5. MuJoCo steps ``dt / timestep`` physics steps; the episode ends at the ego's first contact.
 
 Randomness: the seed makes a ``numpy.random.SeedSequence`` that is split into
@@ -30,12 +32,27 @@ import numpy as np
 import shapely
 
 from cdf_mj.config import ScenarioConfig
-from cdf_mj.driver import DriverModel, Intent, Mode, ego_control, obstacle_control, update_belief
+from cdf_mj.driver import (
+    DriverModel,
+    Intent,
+    Mode,
+    ego_control,
+    obstacle_control,
+    update_belief,
+)
 from cdf_mj.planners import Planner, PlannerInput, make_planner
 from cdf_mj.scene import Scene, SimulationDivergedError
 from cdf_mj.visibility import ego_visible
 
-__all__ = ["run_episode", "EpisodeRecord", "Labels", "NonFiniteStateError"]
+__all__ = [
+    "EpisodeRecord",
+    "Labels",
+    "Measurement",
+    "NonFiniteStateError",
+    "Tick",
+    "World",
+    "run_episode",
+]
 
 
 class NonFiniteStateError(FloatingPointError):
@@ -83,6 +100,219 @@ class EpisodeRecord:
         return asdict(self)
 
 
+@dataclass(frozen=True)
+class Measurement:
+    """What the ego measures at the start of a tick, before it chooses its controls."""
+
+    t: float  # [s] episode time
+    poses: np.ndarray  # (2, 4) system pose S_t: ego, obstacle [x m, y m, theta rad, v m/s], world frame
+    obstacle_in_lane: bool  # any corner of the obstacle's collision box inside the ego lane
+
+
+@dataclass(frozen=True)
+class Tick:
+    """What one :meth:`World.step` did. Times in seconds from the start of the episode."""
+
+    t: float  # [s] time at the start of the tick
+    poses: np.ndarray  # (2, 4) the system pose S_t the tick started from (world frame)
+    obstacle_in_lane: bool  # at the start of the tick
+    observed: bool  # the obstacle observed the ego on this tick
+    mode: int  # the obstacle driver's Mode after its decision
+    seen: bool  # the obstacle has observed the ego at least once
+    belief: np.ndarray  # (4,) its believed ego pose [x m, y m, theta rad, v m/s] (zeros if not seen)
+    gap: float  # [m] distance between the two cars' collision boxes at the start of the tick
+    collision: str | None  # "obstacle" | "building" if the ego touched one during the tick
+    done: bool  # the episode is over (contact, the ego past the end, or the duration reached)
+
+
+def _streams(seed: int) -> dict[str, np.random.Generator]:
+    ss = np.random.SeedSequence(seed)
+    names = ("scenario", "obstacle", "ego", "planner")
+    return {n: np.random.Generator(np.random.PCG64(s)) for n, s in zip(names, ss.spawn(len(names)))}
+
+
+def _substeps(scene: Scene, config: ScenarioConfig) -> int:
+    ratio = config.dt / scene.model.opt.timestep
+    n = round(ratio)
+    if n < 1 or abs(ratio - n) > 1e-6:
+        raise ValueError(f"dt={config.dt} s must be a whole multiple of the scene's timestep "
+                         f"{scene.model.opt.timestep} s")
+    return n
+
+
+class World:
+    """The scenario world, ticked at ``config.dt``: the obstacle looks, believes and drives;
+    the ego takes the controls it is given. The one implementation of the obstacle's side,
+    used by :func:`run_episode` and by the Gymnasium environment (:mod:`cdf_mj.envs`). ::
+
+        world = World(scene, config)
+        world.reset(seed=7)                        # draws intent and ego start; places cars
+        while not world.done:
+            m = world.measure()                    # S_t and whether the obstacle is in the lane
+            tick = world.step(np.array([0.0, 0.0]))    # ego [accel m/s^2, steer rad]
+
+    One tick, in order: the obstacle looks (MuJoCo rays; with probability ``beta`` it
+    observes the ego's pose with Gaussian noise) and updates its belief; its driver state
+    machine gives its controls; both cars' controls get the scenario's process noise;
+    MuJoCo steps ``dt / timestep`` physics steps, stopping at the ego's first contact.
+
+    Randomness: ``reset(seed)`` splits the seed into independent streams (``rng``:
+    ``scenario``, ``obstacle``, ``ego``, ``planner``), each drawn the same way whatever
+    the ego does (common random numbers). The ``planner`` stream is not used here; it is
+    for the ego's decision maker.
+
+    Args:
+        scene: the loaded scene (its model is not changed; its data is).
+        config: scenario parameters; ``config.dt`` must be a whole multiple of the scene's
+            timestep.
+
+    Attributes after :meth:`reset` (updated by :meth:`step`): ``seed``, ``intent``
+    (:class:`cdf_mj.driver.Intent`), ``ego_start_offset`` [m], ``first_seen`` [s],
+    ``yielded``, ``entered_lane`` [s], ``min_gap`` [m], ``collision``
+    (``"obstacle"``/``"building"``/``None``), ``collision_time`` [s], ``done``.
+    """
+
+    def __init__(self, scene: Scene, config: ScenarioConfig | None = None) -> None:
+        self.scene = scene
+        self.config = config = config or ScenarioConfig()
+        self.driver = DriverModel.from_scene(scene, config)
+        self.n_sub = _substeps(scene, config)
+        self._obs_std = np.array([config.obs_noise_pos, config.obs_noise_pos,
+                                  config.obs_noise_heading, config.obs_noise_speed])
+        self._nu_std = np.array([config.noise_accel, config.noise_steer])
+        self._s0 = scene.route_ego.project(scene.ego_start[:2])[0]
+        self._s_conflict = scene.route_ego.project(scene.conflict)[0]
+        self.done = True  # until reset
+
+    # ------------------------------------------------------------------ episode
+    def reset(self, seed: int) -> Measurement:
+        """Start the episode of ``seed`` (a non-negative integer): draw the intent and the
+        ego's start offset, place both cars (the ego at its nominal speed, the obstacle at
+        rest at its start site), and return the first measurement."""
+        scene, config = self.scene, self.config
+        self.seed = seed
+        self.rng = rng = _streams(seed)
+        # Scenario draw: intent, then the ego's start along its route.
+        self.intent = Intent.LEFT if rng["scenario"].random() < config.p_left else Intent.RIGHT
+        self.ego_start_offset = offset = float(rng["scenario"].uniform(*config.ego_start_spread))
+        route = scene.route_ego
+        xy0 = route.point_at(self._s0 + offset)
+        ahead = route.point_at(self._s0 + offset + 1.0)
+        heading0 = math.atan2(ahead[1] - xy0[1], ahead[0] - xy0[0])
+        scene.reset(ego=np.array([xy0[0], xy0[1], heading0, config.ego_speed]),
+                    obstacle=scene.obstacle_start)
+        self._mode = np.array([Mode.WAITING])
+        self._belief = np.zeros((1, 4))
+        self._has_belief = np.zeros(1, dtype=bool)
+        self._intents = np.array([int(self.intent)])
+        self.first_seen: float | None = None
+        self.yielded = False
+        self.entered_lane: float | None = None
+        self.min_gap = math.inf
+        self.collision: str | None = None
+        self.collision_time: float | None = None
+        self.done = False
+        self._k = 0
+        self._measured: Measurement | None = None
+        return self.measure()
+
+    @property
+    def t(self) -> float:
+        """[s] episode time at the start of the current tick."""
+        return round(self._k * self.config.dt, 6)
+
+    @property
+    def end_time(self) -> float:
+        """[s] simulated time so far (the episode's end time once ``done``)."""
+        return round(float(self.scene.data.time), 6)
+
+    @property
+    def time_lost(self) -> float:
+        """[s] the ego's progress deficit along its route over its nominal speed, so far."""
+        cfg = self.config
+        s_end = self.scene.route_ego.project(self.scene.pose(self.scene.ego)[:2])[0]
+        s_start = self._s0 + self.ego_start_offset
+        return float((s_start + cfg.ego_speed * self.end_time - s_end) / cfg.ego_speed)
+
+    def measure(self) -> Measurement:
+        """The system pose ``S_t`` (2, 4) read from MuJoCo at the start of the current tick,
+        and whether the obstacle is in the ego lane. NonFiniteStateError on a NaN pose."""
+        if self._measured is not None:
+            return self._measured
+        scene = self.scene
+        poses = scene.poses()
+        if not np.all(np.isfinite(poses)):
+            raise NonFiniteStateError(f"non-finite system pose at t={self.t:.1f} s "
+                                      f"(seed {self.seed}): {poses.tolist()}")
+        hull = scene.obstacle.footprint(poses[1])
+        in_lane = bool(scene.ego_lane.contains(hull).any())
+        self._hull = hull
+        self._measured = Measurement(t=self.t, poses=poses, obstacle_in_lane=in_lane)
+        return self._measured
+
+    def step(self, ego_controls: np.ndarray) -> Tick:
+        """One tick of ``config.dt`` with the ego's controls ``[accel m/s^2, steer rad]``
+        (process noise is added; MuJoCo clips them to the actuator ranges).
+
+        RuntimeError after the episode is over (call :meth:`reset`).
+        """
+        if self.done:
+            raise RuntimeError("the episode is over: call reset(seed) before step()")
+        scene, config, rng = self.scene, self.config, self.rng
+        m = self.measure()
+        t, poses = m.t, m.poses
+        ego, obs = poses[0], poses[1]
+        dt = config.dt
+
+        # The obstacle looks (draws are made every tick, whatever is visible: CRN).
+        scene.sync()
+        u_look = rng["obstacle"].random()
+        noise = rng["obstacle"].standard_normal(4) * self._obs_std
+        nu1 = rng["obstacle"].standard_normal(2) * self._nu_std
+        nu2 = rng["ego"].standard_normal(2) * self._nu_std
+        observed = bool(u_look < config.beta) and ego_visible(scene, obs, ego)
+        self._belief, self._has_belief = update_belief(
+            self._belief, self._has_belief, np.array([observed]), (ego + noise)[None], dt,
+            scene.obstacle.wheelbase)
+        if observed and self.first_seen is None:
+            self.first_seen = t
+
+        # The obstacle decides.
+        u1, self._mode = obstacle_control(self.driver, obs[None], self._mode, self._belief,
+                                          self._has_belief, self._intents)
+        mode = int(self._mode[0])
+        # Held back by what it believes: braking to yield, or still waiting after its first look.
+        self.yielded |= mode in (Mode.YIELDING, Mode.WAITING)
+        if m.obstacle_in_lane and self.entered_lane is None:
+            self.entered_lane = t
+        gap = float(shapely.distance(shapely.Polygon(scene.ego.footprint(ego)),
+                                     shapely.Polygon(self._hull)))
+        self.min_gap = min(self.min_gap, gap)
+
+        scene.set_controls("obstacle", *(u1[0] + nu1))
+        scene.set_controls("ego", *(np.asarray(ego_controls, dtype=float) + nu2))
+        self._measured = None
+        try:
+            hit = scene.step(self.n_sub)
+        except SimulationDivergedError as exc:
+            self.done = True
+            raise NonFiniteStateError(f"non-finite system pose between t={t:.1f} s and "
+                                      f"t={t + dt:.1f} s (seed {self.seed}): {exc}") from None
+        self._k += 1
+        if hit is not None:
+            self.collision = hit
+            self.collision_time = self.end_time
+            self.min_gap = 0.0
+            self.done = True
+        # The ego's rear axle is 20 m past the conflict point: nothing more can happen to it.
+        elif (self._k >= config.n_ticks or
+              scene.route_ego.project(scene.pose(scene.ego)[:2])[0] > self._s_conflict + 20.0):
+            self.done = True
+        return Tick(t=t, poses=poses, obstacle_in_lane=m.obstacle_in_lane, observed=observed,
+                    mode=mode, seen=bool(self._has_belief[0]), belief=self._belief[0].copy(),
+                    gap=gap, collision=hit, done=self.done)
+
+
 @dataclass
 class _Run:
     """The raw outcome of one simulated run."""
@@ -101,120 +331,32 @@ class _Run:
     trace: dict | None = None
 
 
-def _streams(seed: int) -> dict[str, np.random.Generator]:
-    ss = np.random.SeedSequence(seed)
-    names = ("scenario", "obstacle", "ego", "planner")
-    return {n: np.random.Generator(np.random.PCG64(s)) for n, s in zip(names, ss.spawn(len(names)))}
-
-
-def _substeps(scene: Scene, config: ScenarioConfig) -> int:
-    ratio = config.dt / scene.model.opt.timestep
-    n = int(round(ratio))
-    if n < 1 or abs(ratio - n) > 1e-6:
-        raise ValueError(f"dt={config.dt} s must be a whole multiple of the scene's timestep "
-                         f"{scene.model.opt.timestep} s")
-    return n
-
-
 def _simulate(scene: Scene, config: ScenarioConfig, seed: int, planner: Planner,
               record_trace: bool) -> _Run:
-    rng = _streams(seed)
-    model = DriverModel.from_scene(scene, config)
-    n_sub = _substeps(scene, config)
-    dt = config.dt
-
-    # Scenario draw: intent, then the ego's start along its route.
-    intent = int(Intent.LEFT if rng["scenario"].random() < config.p_left else Intent.RIGHT)
-    offset = float(rng["scenario"].uniform(*config.ego_start_spread))
-    s0, _ = scene.route_ego.project(scene.ego_start[:2])
-    xy0 = scene.route_ego.point_at(s0 + offset)
-    ahead = scene.route_ego.point_at(s0 + offset + 1.0)
-    heading0 = math.atan2(ahead[1] - xy0[1], ahead[0] - xy0[0])
-    scene.reset(ego=np.array([xy0[0], xy0[1], heading0, config.ego_speed]),
-                obstacle=scene.obstacle_start)
-    planner.reset(scene, config, rng["planner"])
-
-    run = _Run(intent=intent, offset=offset)
-    mode = np.array([Mode.WAITING])
-    belief = np.zeros((1, 4))
-    has_belief = np.zeros(1, dtype=bool)
-    intents = np.array([intent])
-    obs_std = np.array([config.obs_noise_pos, config.obs_noise_pos, config.obs_noise_heading,
-                        config.obs_noise_speed])
-    nu_std = np.array([config.noise_accel, config.noise_steer])
-    s_conflict, _ = scene.route_ego.project(scene.conflict)
-    s_start = s0 + offset
+    world = World(scene, config)
+    world.reset(seed)
+    planner.reset(scene, config, world.rng["planner"])
     braking = False
+    brake_time: float | None = None
     tr: dict[str, list] = {k: [] for k in ("t", "poses", "mode", "seen", "belief", "brake")}
-
-    t = 0.0
-    for k in range(config.n_ticks):
-        t = round(k * dt, 6)
-        poses = scene.poses()
-        if not np.all(np.isfinite(poses)):
-            raise NonFiniteStateError(f"non-finite system pose at t={t:.1f} s (seed {seed}): "
-                                      f"{poses.tolist()}")
-        ego, obs = poses[0], poses[1]
-
-        # The obstacle looks (draws are made every tick, whatever is visible: CRN).
-        scene.sync()
-        u_look = rng["obstacle"].random()
-        noise = rng["obstacle"].standard_normal(4) * obs_std
-        nu1 = rng["obstacle"].standard_normal(2) * nu_std
-        nu2 = rng["ego"].standard_normal(2) * nu_std
-        observed = bool(u_look < config.beta) and ego_visible(scene, obs, ego)
-        belief, has_belief = update_belief(belief, has_belief, np.array([observed]),
-                                           (ego + noise)[None], dt, scene.obstacle.wheelbase)
-        if observed and run.first_seen is None:
-            run.first_seen = t
-
-        # The obstacle decides.
-        u1, mode = obstacle_control(model, obs[None], mode, belief, has_belief, intents)
-        # Held back by what it believes: braking to yield, or still waiting after its first look.
-        run.yielded |= bool(mode[0] in (Mode.YIELDING, Mode.WAITING))
-
-        # The ego decides.
-        obstacle_hull = scene.obstacle.footprint(obs)
-        in_lane = bool(scene.ego_lane.contains(obstacle_hull).any())
-        if in_lane and run.entered is None:
-            run.entered = t
-        wants_brake = planner.brake(PlannerInput(t=t, poses=poses, obstacle_in_lane=in_lane))
-        if wants_brake and not braking:
+    while not world.done:
+        m = world.measure()
+        # The ego decides (its first yes to braking is latched).
+        if planner.brake(PlannerInput(t=m.t, poses=m.poses, obstacle_in_lane=m.obstacle_in_lane)) \
+                and not braking:
             braking = True
-            run.brake_time = t
-        u2 = ego_control(model, scene.ego, ego, braking)
-
-        gap = shapely.distance(shapely.Polygon(scene.ego.footprint(ego)), shapely.Polygon(obstacle_hull))
-        run.min_gap = min(run.min_gap, float(gap))
+            brake_time = m.t
+        tick = world.step(ego_control(world.driver, scene.ego, m.poses[0], braking))
         if record_trace:
-            for key, val in (("t", t), ("poses", poses.tolist()), ("mode", int(mode[0])),
-                             ("seen", bool(has_belief[0])), ("belief", belief[0].tolist()),
+            for key, val in (("t", tick.t), ("poses", tick.poses.tolist()), ("mode", tick.mode),
+                             ("seen", tick.seen), ("belief", tick.belief.tolist()),
                              ("brake", braking)):
                 tr[key].append(val)
-
-        scene.set_controls("obstacle", *(u1[0] + nu1))
-        scene.set_controls("ego", *(u2 + nu2))
-        try:
-            hit = scene.step(n_sub)
-        except SimulationDivergedError as exc:
-            raise NonFiniteStateError(f"non-finite system pose between t={t:.1f} s and "
-                                      f"t={t + dt:.1f} s (seed {seed}): {exc}") from None
-        if hit is not None:
-            run.collision = hit
-            run.collision_time = round(float(scene.data.time), 6)
-            run.min_gap = 0.0
-            break
-        # The ego's rear axle is 20 m past the conflict point: nothing more can happen to it.
-        if scene.route_ego.project(scene.pose(scene.ego)[:2])[0] > s_conflict + 20.0:
-            break
-
-    final = scene.pose(scene.ego)
-    run.end_time = round(float(scene.data.time), 6)
-    s_end, _ = scene.route_ego.project(final[:2])
-    run.time_lost = float((s_start + config.ego_speed * run.end_time - s_end) / config.ego_speed)
-    if record_trace:
-        run.trace = tr
-    return run
+    return _Run(intent=int(world.intent), offset=world.ego_start_offset,
+                first_seen=world.first_seen, yielded=world.yielded, entered=world.entered_lane,
+                collision=world.collision, collision_time=world.collision_time,
+                min_gap=world.min_gap, brake_time=brake_time, time_lost=world.time_lost,
+                end_time=world.end_time, trace=tr if record_trace else None)
 
 
 def run_episode(config: ScenarioConfig | None = None, seed: int = 0,
