@@ -37,6 +37,9 @@ class SceneNames:
     """Names of the MJCF elements that the code reads. The only place Python spells them.
 
     Car names are the car file's names with the placement prefix (``ego_``, ``obstacle_``).
+    Give your own to read a scene with other names, e.g.
+    ``SceneNames(ego_prefix="av/", route_ego="av_path")``; docs/SCENES.md says what each
+    element is used for. ValueError on an empty name or equal car prefixes.
     """
 
     ego_prefix: str = "ego_"
@@ -60,6 +63,15 @@ class SceneNames:
     route_left: str = "route_obstacle_left"
     route_right: str = "route_obstacle_right"
     building_prefix: str = "building"  # geoms whose name starts with it occlude
+
+    def __post_init__(self) -> None:
+        bad = [f.name for f in dataclasses.fields(self)
+               if not isinstance(getattr(self, f.name), str) or not getattr(self, f.name)]
+        if bad:
+            raise ValueError(f"SceneNames: {', '.join(bad)} must be non-empty strings")
+        if self.ego_prefix == self.obstacle_prefix:
+            raise ValueError(f"SceneNames: ego_prefix and obstacle_prefix are both "
+                             f"{self.ego_prefix!r}; the two cars need different prefixes")
 
     @property
     def planar_joints(self) -> tuple[str, str, str]:

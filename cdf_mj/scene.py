@@ -26,10 +26,20 @@ import numpy as np
 from cdf_mj.config import SceneNames
 from cdf_mj.geometry import OrientedBox, Polyline, box_corners
 
-__all__ = ["Scene", "SceneError", "SimulationDivergedError", "Car", "DEFAULT_SCENE", "MODELS_DIR"]
+__all__ = [
+    "CAR_XML",
+    "DEFAULT_SCENE",
+    "MODELS_DIR",
+    "Car",
+    "Scene",
+    "SceneError",
+    "SimulationDivergedError",
+    "add_car",
+]
 
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models" / "xml"
 DEFAULT_SCENE = MODELS_DIR / "scene.xml"
+CAR_XML = MODELS_DIR / "car.xml"  # one car, no world: placed by <attach> or add_car
 
 _OBJ = {
     "body": mujoco.mjtObj.mjOBJ_BODY,
@@ -46,6 +56,10 @@ class SceneError(ValueError):
 
 class SimulationDivergedError(FloatingPointError):
     """MuJoCo found a NaN, Inf or huge value in the state (and reset it)."""
+
+
+def _id(model: mujoco.MjModel, kind: str, name: str) -> int:
+    return mujoco.mj_name2id(model, _OBJ[kind], name)
 
 
 def _yaw(mat9: np.ndarray) -> float:
@@ -105,16 +119,21 @@ class Scene:
         model: compiled model; use :meth:`load` to read a file.
         names: the element names to read (defaults match ``models/xml``).
         source: where the model came from, for error messages.
+        data: the ``MjData`` to read poses from and step (default: a new one). Pass your
+            own to watch a simulation that you step yourself (:meth:`from_model`).
+
+    The static geometry (routes, lanes, start sites, car dimensions) is read once, from
+    the model at its reference configuration; poses are read from ``data`` on demand.
     """
 
     def __init__(self, model: mujoco.MjModel, names: SceneNames | None = None,
-                 source: str = "<model>") -> None:
+                 source: str = "<model>", data: mujoco.MjData | None = None) -> None:
         self.model = model
         self.names = names or SceneNames()
         self.source = source
-        self._validate()
-        self.data = mujoco.MjData(model)
+        self.data = mujoco.MjData(model)  # scratch: static geometry at qpos0
         mujoco.mj_kinematics(model, self.data)
+        self._validate()
         n = self.names
         self.ego = self._car(n.ego_prefix)
         self.obstacle = self._car(n.obstacle_prefix)
@@ -134,12 +153,21 @@ class Scene:
         self._root = model.body_rootid[model.geom_bodyid]  # geom -> root body
         self._is_building = np.zeros(model.ngeom, dtype=bool)
         self._is_building[self.buildings] = True
-        # Ray filter for sight lines: buildings (group 1) and car collision boxes (group 3).
-        self.ray_groups = np.array([0, 1, 0, 1, 0, 0], dtype=np.uint8)
+        # Ray filter for sight lines: the geom groups of the buildings and of the two cars'
+        # collision boxes (groups 1 and 3 in models/xml).
+        self.ray_groups = np.zeros(mujoco.mjNGROUP, dtype=np.uint8)
+        hulls = [model.geom(p + n.hull).id for p in (n.ego_prefix, n.obstacle_prefix)]
+        self.ray_groups[model.geom_group[np.r_[self.buildings, hulls].astype(int)]] = 1
+        if data is not None:
+            if data.qpos.shape != (model.nq,) or data.act.shape != (model.na,):
+                raise SceneError(f"scene {source}: the MjData given does not belong to this "
+                                 f"model (nq {data.qpos.size} vs {model.nq}, na {data.act.size} "
+                                 f"vs {model.na})")
+            self.data = data
 
     # ----------------------------------------------------------------- loading
     @classmethod
-    def load(cls, path: str | Path = DEFAULT_SCENE, names: SceneNames | None = None) -> "Scene":
+    def load(cls, path: str | Path = DEFAULT_SCENE, names: SceneNames | None = None) -> Scene:
         """Compile an MJCF file into a scene; errors name the file."""
         path = Path(path)
         if not path.is_file():
@@ -150,6 +178,18 @@ class Scene:
             msg = " ".join(str(exc).split())
             raise SceneError(f"cannot load scene {path}: {msg}") from None
         return cls(model, names, source=str(path))
+
+    @classmethod
+    def from_model(cls, model: mujoco.MjModel, data: mujoco.MjData | None = None,
+                   names: SceneNames | None = None, source: str = "<model>") -> Scene:
+        """A scene over a model you compiled yourself (for example from an ``MjSpec`` with
+        cars placed by :func:`add_car`), reading poses from your ``data``.
+
+        ``names`` says which elements are the cars, routes, lanes and sites
+        (:class:`cdf_mj.config.SceneNames`; docs/SCENES.md lists them). SceneError lists
+        every missing or wrong element at once.
+        """
+        return cls(model, names, source=source, data=data)
 
     def _required(self) -> list[tuple[str, str]]:
         n = self.names
@@ -163,27 +203,69 @@ class Scene:
         return req
 
     def _validate(self) -> None:
-        m = self.model
-        problems = [f"{kind} '{name}'" for kind, name in self._required()
-                    if mujoco.mj_name2id(m, _OBJ[kind], name) < 0]
+        """One SceneError listing every missing element, then every element of the wrong
+        kind, shape or place (each checked only where it exists)."""
+        m, n = self.model, self.names
+        exists = {(kind, name): mujoco.mj_name2id(m, _OBJ[kind], name) >= 0
+                  for kind, name in self._required()}
+        missing = [f"{kind} '{name}'" for (kind, name), ok in exists.items() if not ok]
+        wrong: list[str] = []
+
+        def has(kind: str, name: str) -> bool:
+            return exists[(kind, name)]
+
+        for route in (n.route_ego, n.route_left, n.route_right):
+            if has("body", route) and np.count_nonzero(m.site_bodyid == m.body(route).id) < 2:
+                wrong.append(f"body '{route}' has fewer than 2 waypoint sites")
+        for site in (n.stop_line, n.ego_lane):
+            if has("site", site) and m.site(site).type[0] != mujoco.mjtGeom.mjGEOM_BOX:
+                wrong.append(f"site '{site}' must be a box (its half sizes give the area)")
+        for p in (n.ego_prefix, n.obstacle_prefix):
+            chassis = p + n.chassis
+            if has("body", chassis):
+                cid = m.body(chassis).id
+                if m.body_parentid[cid] != 0:
+                    wrong.append(f"body '{chassis}' must be a child of the worldbody")
+                for kind, name, owner in (("body", p + n.front_axle, m.body_parentid),
+                                          ("geom", p + n.hull, m.geom_bodyid),
+                                          ("site", p + n.eye, m.site_bodyid)):
+                    if has(kind, name) and owner[_id(m, kind, name)] != cid:
+                        wrong.append(f"{kind} '{name}' must belong to body '{chassis}'")
+            joints = [p + j for j in n.planar_joints]
+            if all(has("joint", j) for j in joints):
+                types = [int(m.joint(j).type[0]) for j in joints]
+                if types != [mujoco.mjtJoint.mjJNT_SLIDE, mujoco.mjtJoint.mjJNT_SLIDE,
+                             mujoco.mjtJoint.mjJNT_HINGE]:
+                    wrong.append(f"joints {', '.join(joints)} must be slide, slide, hinge")
+            if has("joint", p + n.steer) and m.joint(p + n.steer).type[0] != mujoco.mjtJoint.mjJNT_HINGE:
+                wrong.append(f"joint '{p}{n.steer}' must be a hinge")
+            if has("geom", p + n.hull) and m.geom(p + n.hull).type[0] != mujoco.mjtGeom.mjGEOM_BOX:
+                wrong.append(f"geom '{p}{n.hull}' must be a box")
+            if has("actuator", p + n.accel):
+                acc = m.actuator(p + n.accel)
+                if acc.dyntype[0] != mujoco.mjtDyn.mjDYN_INTEGRATOR or not acc.ctrllimited[0]:
+                    wrong.append(f"actuator '{p}{n.accel}' must be a ctrl-limited integrator "
+                                 "(ctrl = acceleration, act = speed)")
+            if has("actuator", p + n.steer) and not m.actuator(p + n.steer).ctrllimited[0]:
+                wrong.append(f"actuator '{p}{n.steer}' must be ctrl-limited (steering range)")
+        not_box, tilted = [], []
+        for g in range(m.ngeom):
+            name = m.geom(g).name or ""
+            if not name.startswith(n.building_prefix):
+                continue
+            if m.geom_type[g] != mujoco.mjtGeom.mjGEOM_BOX:
+                kind = mujoco.mjtGeom(int(m.geom_type[g])).name.removeprefix("mjGEOM_").lower()
+                not_box.append(f"'{name}' is a {kind}")
+            elif abs(abs(self.data.geom_xmat[g, 8]) - 1.0) > 1e-9:
+                tilted.append(f"'{name}'")
+        if not_box:
+            wrong.append(f"building geoms must be boxes: {', '.join(not_box)}")
+        if tilted:
+            wrong.append(f"building boxes must be upright (rotated about z only): {', '.join(tilted)}")
+        problems = ([f"lacks {', '.join(missing)}"] if missing else []) + wrong
         if problems:
-            raise SceneError(f"scene {self.source} lacks {', '.join(problems)} "
-                             "(models/xml/README.md lists the names a scene must have)")
-        for route in (self.names.route_ego, self.names.route_left, self.names.route_right):
-            if np.count_nonzero(m.site_bodyid == m.body(route).id) < 2:
-                problems.append(f"body '{route}' has fewer than 2 waypoint sites")
-        for p in (self.names.ego_prefix, self.names.obstacle_prefix):
-            types = [int(m.joint(p + j).type[0]) for j in self.names.planar_joints]
-            if types != [mujoco.mjtJoint.mjJNT_SLIDE, mujoco.mjtJoint.mjJNT_SLIDE,
-                               mujoco.mjtJoint.mjJNT_HINGE]:
-                problems.append(f"joints {', '.join(p + j for j in self.names.planar_joints)} "
-                                "must be slide, slide, hinge")
-            acc = m.actuator(p + self.names.accel)
-            if acc.dyntype[0] != mujoco.mjtDyn.mjDYN_INTEGRATOR or not acc.ctrllimited[0]:
-                problems.append(f"actuator '{p}{self.names.accel}' must be a ctrl-limited "
-                                "integrator (ctrl = acceleration, act = speed)")
-        if problems:
-            raise SceneError(f"scene {self.source}: {'; '.join(problems)}")
+            raise SceneError(f"scene {self.source}: {'; '.join(problems)} "
+                             "(docs/SCENES.md lists the names a scene must have)")
 
     def _car(self, prefix: str) -> Car:
         m, n = self.model, self.names
@@ -333,3 +415,44 @@ class Scene:
     def sync(self) -> None:
         """Recompute positions of all geoms and sites from ``qpos`` (for rays and drawing)."""
         mujoco.mj_kinematics(self.model, self.data)
+
+
+def add_car(spec: mujoco.MjSpec, prefix: str, pos: tuple[float, float] = (0.0, 0.0),
+            yaw: float = 0.0, paint: tuple[float, float, float, float] = (0.8, 0.8, 0.8, 1.0),
+            car_file: str | Path = CAR_XML, set_options: bool = True) -> mujoco.MjsBody:
+    """Place our car (``models/xml/car.xml``) in your ``MjSpec`` and return its chassis.
+
+    The car is attached to the worldbody at rear-axle position ``pos`` [m] (world x, y;
+    z = 0 is the ground) with heading ``yaw`` [rad] from the world x axis, and every name
+    in it gets ``prefix`` (``chassis`` becomes ``<prefix>chassis``, and so on; see
+    :class:`cdf_mj.config.SceneNames`). A material ``<prefix>paint`` of colour ``paint``
+    (RGBA) is added unless the spec has one. With ``set_options`` the spec's integrator
+    becomes ``implicitfast`` and its timestep at most 0.005 s, which the car's stiff speed
+    servo and tyre dampers need to stay stable.
+
+    SceneError if the spec already has a body named ``<prefix>chassis`` or the car file
+    cannot be read.
+    """
+    if not prefix:
+        raise SceneError("add_car: prefix must be a non-empty string (e.g. 'ego_')")
+    chassis = SceneNames().chassis
+    if spec.body(prefix + chassis) is not None:
+        raise SceneError(f"add_car: the spec already has a body '{prefix}{chassis}'; choose "
+                         "another prefix")
+    x, y = (float(v) for v in pos)
+    if not all(math.isfinite(v) for v in (x, y, yaw)):
+        raise ValueError(f"add_car: pose must be finite, got pos={pos}, yaw={yaw}")
+    try:
+        car = mujoco.MjSpec.from_file(str(car_file))
+    except ValueError as exc:
+        raise SceneError(f"add_car: cannot read car file {car_file}: "
+                         f"{' '.join(str(exc).split())}") from None
+    if spec.material(prefix + "paint") is None:
+        spec.add_material(name=prefix + "paint", rgba=list(paint))
+    frame = spec.worldbody.add_frame(pos=[x, y, 0.0],
+                                     quat=[math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
+    body = frame.attach_body(car.body(chassis), prefix, "")
+    if set_options:
+        spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+        spec.option.timestep = min(spec.option.timestep, 0.005)
+    return body
