@@ -51,6 +51,7 @@ __all__ = [
     "NonFiniteStateError",
     "Tick",
     "World",
+    "episode_label",
     "run_episode",
 ]
 
@@ -359,6 +360,19 @@ def _simulate(scene: Scene, config: ScenarioConfig, seed: int, planner: Planner,
                 end_time=world.end_time, trace=tr if record_trace else None)
 
 
+def _label(intent: int, counterfactual_collision: bool) -> str:
+    if intent == Intent.RIGHT:
+        return Labels.RIGHT
+    return Labels.CUTOFF if counterfactual_collision else Labels.YIELD
+
+
+def episode_label(config: ScenarioConfig, seed: int, scene: Scene) -> str:
+    """The scenario label of a seed (``Cutoff``, ``Yield`` or ``Right``), from its
+    counterfactual run with the ego holding its speed (resets ``scene``)."""
+    cf = _simulate(scene, config, seed, make_planner("constant"), False)
+    return _label(cf.intent, cf.collision == "obstacle")
+
+
 def run_episode(config: ScenarioConfig | None = None, seed: int = 0,
                 planner: str | Planner = "reactive", scene: Scene | None = None,
                 label: bool = True, trace: bool = False) -> EpisodeRecord:
@@ -386,10 +400,7 @@ def run_episode(config: ScenarioConfig | None = None, seed: int = 0,
     if label:
         cf = run if plan.name == "constant" else _simulate(scene, config, seed, make_planner("constant"), False)
         cf_collision = cf.collision == "obstacle"
-        if run.intent == Intent.RIGHT:
-            lab = Labels.RIGHT
-        else:
-            lab = Labels.CUTOFF if cf_collision else Labels.YIELD
+        lab = _label(run.intent, cf_collision)
 
     return EpisodeRecord(
         seed=seed, planner=plan.name, intent=Intent(run.intent).name.lower(), label=lab,

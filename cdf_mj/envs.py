@@ -1,0 +1,289 @@
+"""Gymnasium environment ``cdf_mj/TIntersection-v0``: you drive the ego through the junction.
+
+Registered when ``cdf_mj`` is imported (if Gymnasium is installed, ``pip install
+'cdf-mj[gym]'``), also in the worker processes of ``gymnasium.make_vec``::
+
+    import gymnasium as gym
+    import cdf_mj  # noqa: F401  (registers the environment)
+
+    env = gym.make("cdf_mj/TIntersection-v0", render_mode="rgb_array")
+    obs, info = env.reset(seed=7)            # the world of run_episode(seed=7)
+    obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+    frame = env.render()                     # (480, 640, 3) uint8 from camera "top"
+
+The obstacle is the scenario's (:class:`cdf_mj.episode.World`, the same code as
+:func:`cdf_mj.run_episode`); the agent replaces the ego's planner and controller.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, ClassVar
+
+try:
+    import gymnasium as gym
+    from gymnasium import spaces
+except ImportError:  # pragma: no cover - exercised only without the extra
+    raise ImportError("cdf_mj.envs needs Gymnasium: pip install 'cdf-mj[gym]'") from None
+import mujoco
+import numpy as np
+
+from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames
+from cdf_mj.driver import Intent
+from cdf_mj.episode import World, episode_label
+from cdf_mj.monitor import CDFMonitor
+from cdf_mj.scene import DEFAULT_SCENE, Scene
+
+__all__ = ["ENV_ID", "TIntersectionEnv"]
+
+ENV_ID = "cdf_mj/TIntersection-v0"
+
+
+class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
+    """The ego car at the T-intersection, with the obstacle driver of the CDF scenario.
+
+    Each :meth:`step` is one planner tick of ``config.dt`` = 0.1 s (20 MuJoCo steps of
+    the default scene). Frames: world x east, y north [m]; headings from the x axis
+    towards y [rad]; poses are of the rear axle.
+
+    **Action** ``Box(2,)`` float32, the ego's actuator commands, ranges read from the
+    model's ``ctrlrange`` (``ego_accel``, ``ego_steer``):
+
+    ===  ==================  ======  =======================
+    idx  meaning             unit    range (default scene)
+    ===  ==================  ======  =======================
+    0    acceleration u1     m/s^2   -4.877 ... 3.0
+    1    steering angle u2   rad     -0.6 ... 0.6
+    ===  ==================  ======  =======================
+
+    With ``normalized_actions=True`` the box is ``[-1, 1]^2``, mapped affinely onto these
+    ranges (Gymnasium's ``check_env`` recommends such a box and warns about any other, so
+    the physical default gets that one recommendation from it and nothing else).
+
+    Out-of-range actions are **clipped** to the box (as MuJoCo clips ``ctrl``); an action
+    of the wrong shape or with NaN/inf is **refused** with ValueError. The scenario's
+    process noise (``noise_accel``, ``noise_steer``) is added to the action, as to the
+    obstacle's controls; the speed cannot go below 0 (no reverse).
+
+    **Observation** ``Box(8,)`` float64, or ``Box(11,)`` with ``posterior_in_observation``.
+    Position bounds enclose everything a car can reach in ``duration`` at its top speed;
+    speed bounds are [-1, top speed + 1] m/s; values are clipped to the box (a guard):
+
+    =====  =====================================================  ==========
+    idx    meaning                                                unit
+    =====  =====================================================  ==========
+    0-3    ego pose x, y, theta, v (measured system pose S_t)     m, m, rad, m/s
+    4-7    obstacle pose x, y, theta, v                           m, m, rad, m/s
+    8      CDF posterior P(obstacle intends to turn left)         1
+    9      CDF posterior P(obstacle has seen the ego)             1
+    10     CDF posterior P(cut-off)                               1
+    =====  =====================================================  ==========
+
+    **Reward** per step, the sum of:
+
+    ===========  ======================================================  ===========
+    term         value                                                   unit
+    ===========  ======================================================  ===========
+    progress     distance the ego's rear axle advanced along its route   1 (= 1.0 per
+                 in the step / (``ego_speed`` x ``dt``)                  step at 13.4 m/s)
+    collision    ``-collision_penalty`` (default 100) on the step the    1
+                 ego touches the obstacle or a building
+    ===========  ======================================================  ===========
+
+    **Episode end**:
+
+    ==========  =========================================================================
+    kind        condition
+    ==========  =========================================================================
+    terminated  the ego touched the obstacle or a building (``info["collision"]``)
+    terminated  the ego's rear axle is 20 m past the conflict point (the junction is behind)
+    truncated   ``config.duration`` elapsed (8 s = 80 steps by default)
+    ==========  =========================================================================
+
+    **info** (after reset and every step): ``posterior`` (dict ``p_left``, ``p_right``,
+    ``p_seen``, ``p_cutoff``, ``ess`` of the CDF filter watching the episode, or None with
+    ``run_filter=False``; on a collision step it is the one of the previous step),
+    ``brake`` (the CDF would brake: P(cut-off) has reached ``tau``), ``collision``
+    (None, ``"obstacle"`` or ``"building"``), ``label`` (``Cutoff``/``Yield``/``Right``
+    from the constant-speed counterfactual of the same seed, None with ``label=False``),
+    ``intent`` (``left``/``right``), ``t`` [s], ``obstacle_in_lane``, ``gap`` [m] between
+    the two collision boxes, ``episode_seed``. ``label`` and ``intent`` are ground truth
+    for evaluation: a policy should not read them.
+
+    **Seeding**: ``reset(seed=n)`` plays the world of ``run_episode(seed=n)`` (same
+    intent, ego start, obstacle observations and noise); ``reset()`` without a seed draws
+    the episode seed from the environment's ``np_random``.
+
+    Args:
+        render_mode: None or ``"rgb_array"``.
+        scene: path of an MJCF scene or a loaded :class:`Scene` (default models/xml/scene.xml).
+        config: scenario parameters (default :class:`ScenarioConfig`).
+        cdf: CDF filter parameters (default :class:`CDFConfig`).
+        posterior_in_observation: append P(left), P(seen), P(cut-off) to the observation.
+        run_filter: run the CDF filter (for ``info`` and the observation); about 0.5 ms
+            per step at N = 1000.
+        label: compute ``info["label"]`` at reset (one counterfactual run, ~15 ms).
+        collision_penalty: reward on a collision step, negated [1].
+        camera: name of the MJCF camera ``render`` uses (``top``, ``ego_chase``, ...).
+        width, height: rendered frame size [pixels], at most the model's offscreen buffer.
+        names: element names of the scene (default :class:`SceneNames`).
+        normalized_actions: the action space is ``[-1, 1]^2`` instead, mapped affinely onto
+            the actuator ranges (-1 = maximum braking / full right steer, +1 = maximum
+            acceleration / full left steer), as most RL libraries prefer.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 10}
+
+    def __init__(self, render_mode: str | None = None, scene: str | Path | Scene = DEFAULT_SCENE,
+                 config: ScenarioConfig | None = None, cdf: CDFConfig | None = None,
+                 posterior_in_observation: bool = False, run_filter: bool = True,
+                 label: bool = True, collision_penalty: float = 100.0, camera: str = "top",
+                 width: int = 640, height: int = 480, names: SceneNames | None = None,
+                 normalized_actions: bool = False) -> None:
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise ValueError(f"render_mode={render_mode!r}: choose None or 'rgb_array'")
+        if posterior_in_observation and not run_filter:
+            raise ValueError("posterior_in_observation=True needs run_filter=True")
+        self.config = config or ScenarioConfig()
+        self.cdf = cdf or CDFConfig()
+        self.scene = scene if isinstance(scene, Scene) else Scene.load(scene, names or self.config.names)
+        self.world = World(self.scene, self.config)
+        self.render_mode = render_mode
+        self.posterior_in_observation = posterior_in_observation
+        self.run_filter = run_filter
+        self.label = label
+        self.collision_penalty = float(collision_penalty)
+        m = self.scene.model
+        if mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, camera) < 0:
+            cams = ", ".join(m.camera(i).name for i in range(m.ncam)) or "none"
+            raise ValueError(f"camera {camera!r} is not in the scene; cameras: {cams}")
+        if not (0 < width <= m.vis.global_.offwidth and 0 < height <= m.vis.global_.offheight):
+            raise ValueError(f"width x height = {width} x {height} must be positive and at most "
+                             f"the scene's offscreen buffer {m.vis.global_.offwidth} x "
+                             f"{m.vis.global_.offheight}")
+        self.camera, self.width, self.height = camera, int(width), int(height)
+        self._renderer: mujoco.Renderer | None = None
+
+        ego = self.scene.ego
+        self._ctrl_low = np.array([ego.accel_range[0], ego.steer_range[0]])
+        self._ctrl_high = np.array([ego.accel_range[1], ego.steer_range[1]])
+        self.normalized_actions = normalized_actions
+        if normalized_actions:
+            self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+        else:
+            self.action_space = spaces.Box(self._ctrl_low.astype(np.float32),
+                                           self._ctrl_high.astype(np.float32), dtype=np.float32)
+        self.observation_space = self._observation_box()
+        self._monitor: CDFMonitor | None = None
+        self._label: str | None = None
+        self._episode_seed: int | None = None
+
+    # ------------------------------------------------------------------ gymnasium API
+    def reset(self, *, seed: int | None = None,
+              options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+        """Start an episode; ``seed`` makes it reproducible (see the class docstring)."""
+        super().reset(seed=seed)
+        episode_seed = int(seed) if seed is not None else int(self.np_random.integers(2**62))
+        self._episode_seed = episode_seed
+        self._label = episode_label(self.config, episode_seed, self.scene) if self.label else None
+        m = self.world.reset(episode_seed)
+        self._monitor = None
+        if self.run_filter:
+            self._monitor = CDFMonitor(self.scene, self.config, self.cdf,
+                                       rng=self.world.rng["planner"])
+            self._monitor.step()
+        self._s = self._progress(m.poses[0])
+        return self._observation(m.poses), self._info(m.obstacle_in_lane, gap=None)
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        """Apply the ego's ``[acceleration m/s^2, steering rad]`` for one tick of ``dt``."""
+        if self._episode_seed is None:
+            raise RuntimeError("call reset() before step()")
+        a = np.asarray(action, dtype=float)
+        if a.shape != (2,) or not np.all(np.isfinite(a)):
+            raise ValueError(f"action must be 2 finite numbers [acceleration m/s^2, steering "
+                             f"rad], got {np.asarray(action).tolist()!r}")
+        a = np.clip(a, self.action_space.low, self.action_space.high)
+        if self.normalized_actions:  # [-1, 1] -> [ctrl low, ctrl high], affinely
+            a = self._ctrl_low + 0.5 * (a + 1.0) * (self._ctrl_high - self._ctrl_low)
+        world = self.world
+        tick = world.step(a)
+        m = world.measure() if tick.collision is None else None
+        poses = m.poses if m is not None else self.scene.poses()
+        if self._monitor is not None and tick.collision is None:
+            self._monitor.step()
+        s = self._progress(poses[0])
+        reward = (s - self._s) / (self.config.ego_speed * self.config.dt)
+        self._s = s
+        if tick.collision is not None:
+            reward -= self.collision_penalty
+        truncated = tick.done and tick.collision is None and world.t >= self.config.duration - 1e-9
+        terminated = tick.done and not truncated
+        in_lane = m.obstacle_in_lane if m is not None else tick.obstacle_in_lane
+        return (self._observation(poses), float(reward), bool(terminated), bool(truncated),
+                self._info(in_lane, gap=0.0 if tick.collision else tick.gap,
+                           collision=tick.collision))
+
+    def render(self) -> np.ndarray | None:
+        """An RGB frame ``(height, width, 3)`` uint8 from ``camera``; None without
+        ``render_mode="rgb_array"``."""
+        if self.render_mode is None:
+            gym.logger.warn("render() called without render_mode='rgb_array'; returning None")
+            return None
+        if self._renderer is None:
+            try:
+                self._renderer = mujoco.Renderer(self.scene.model, self.height, self.width)
+            except (mujoco.FatalError, RuntimeError, ImportError, OSError, AttributeError) as exc:
+                # no OpenGL context: the exception type depends on the backend
+                raise RuntimeError(f"cannot create an OpenGL context for rendering "
+                                   f"({' '.join(str(exc).split())}); without a display set "
+                                   "MUJOCO_GL=egl (or osmesa) before importing mujoco") from None
+        self.scene.sync()
+        self._renderer.update_scene(self.scene.data, camera=self.camera)
+        return self._renderer.render()
+
+    def close(self) -> None:
+        """Free the renderer."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    # ------------------------------------------------------------------ helpers
+    def _observation_box(self) -> spaces.Box:
+        """Finite bounds: no car can leave the box around the scene's routes and start
+        sites that its top speed (the speed actuator's ``actrange``) covers in
+        ``duration``, plus 10 m; speeds within [-1, top speed + 1] m/s."""
+        sc, m = self.scene, self.scene.model
+        pts = np.vstack([sc.route_ego.points, sc.route_left.points, sc.route_right.points,
+                         sc.ego_start[None, :2], sc.obstacle_start[None, :2]])
+        vmax = max(float(m.actuator_actrange[car.accel][1]) if m.actuator_actlimited[car.accel]
+                   else 50.0 for car in (sc.ego, sc.obstacle))
+        reach = vmax * self.config.duration + 10.0
+        lo_xy, hi_xy = pts.min(axis=0) - reach, pts.max(axis=0) + reach
+        car_lo = np.array([lo_xy[0], lo_xy[1], -np.pi, -1.0])
+        car_hi = np.array([hi_xy[0], hi_xy[1], np.pi, vmax + 1.0])
+        low, high = np.tile(car_lo, 2), np.tile(car_hi, 2)
+        if self.posterior_in_observation:
+            low, high = np.r_[low, 0.0, 0.0, 0.0], np.r_[high, 1.0, 1.0, 1.0]
+        return spaces.Box(low=low, high=high, dtype=np.float64)
+
+    def _progress(self, ego_pose: np.ndarray) -> float:
+        return float(self.scene.route_ego.project(ego_pose[:2])[0])
+
+    def _observation(self, poses: np.ndarray) -> np.ndarray:
+        obs = poses.reshape(8)
+        if self.posterior_in_observation:
+            p = self._monitor.decision.posterior
+            obs = np.r_[obs, p.p_left, p.p_seen, p.p_cutoff]
+        # Clipping is a guard (a contact can kick a speed past its bound for one step).
+        return np.clip(obs, self.observation_space.low, self.observation_space.high)
+
+    def _info(self, in_lane: bool, gap: float | None, collision: str | None = None) -> dict[str, Any]:
+        w = self.world
+        d = self._monitor.decision if self._monitor is not None else None
+        return {"posterior": d.posterior.to_dict() if d is not None else None,
+                "brake": bool(d.brake) if d is not None else False,
+                "collision": collision, "label": self._label,
+                "intent": Intent(w.intent).name.lower(), "t": w.end_time,
+                "obstacle_in_lane": bool(in_lane), "gap": gap,
+                "episode_seed": self._episode_seed}
