@@ -12,7 +12,9 @@ seed::
     record.label, record.collision, record.to_dict()
 
 The names below are imported on first use, so ``import cdf_mj`` stays light (no MuJoCo
-import) for tools that only want ``cdf_mj.__version__``.
+import) for tools that only want ``cdf_mj.__version__``. If Gymnasium is installed,
+importing the package registers the environment ``cdf_mj/TIntersection-v0``
+(:mod:`cdf_mj.envs`), which imports Gymnasium (about 0.2 s).
 """
 
 from __future__ import annotations
@@ -33,17 +35,50 @@ _EXPORTS = {
     "CDFPlanner": "cdf_mj.planners",
     "ParticleFilter": "cdf_mj.inference",
     "run_experiment": "cdf_mj.experiment",
+    "SceneNames": "cdf_mj.config",
+    "World": "cdf_mj.episode",
+    "add_car": "cdf_mj.scene",
+    "attach": "cdf_mj.monitor",
+    "CDFMonitor": "cdf_mj.monitor",
+    "TIntersectionEnv": "cdf_mj.envs",
 }
 
-__all__ = ["__version__", *_EXPORTS]
+__all__ = ["__version__", "ENV_ID", *_EXPORTS]
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time see __getattr__
-    from cdf_mj.config import CDFConfig, ScenarioConfig
-    from cdf_mj.episode import EpisodeRecord, run_episode
+    from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames
+    from cdf_mj.envs import TIntersectionEnv
+    from cdf_mj.episode import EpisodeRecord, World, run_episode
     from cdf_mj.experiment import run_experiment
     from cdf_mj.inference import ParticleFilter
+    from cdf_mj.monitor import CDFMonitor, attach
     from cdf_mj.planners import CDFPlanner
-    from cdf_mj.scene import Scene, SceneError
+    from cdf_mj.scene import Scene, SceneError, add_car
+
+
+#: Gymnasium id of :class:`cdf_mj.envs.TIntersectionEnv`.
+ENV_ID = "cdf_mj/TIntersection-v0"
+
+
+def _register_env() -> None:
+    """Register ``cdf_mj/TIntersection-v0`` with Gymnasium if it is installed.
+
+    Runs on ``import cdf_mj`` (so also in the worker processes of ``gymnasium.make_vec``,
+    which import the entry point's package); without Gymnasium it does nothing and imports
+    nothing. The entry point is a string: the environment module (and MuJoCo) loads only
+    when the environment is made.
+    """
+    import importlib.util
+
+    if importlib.util.find_spec("gymnasium") is None:
+        return
+    from gymnasium.envs.registration import register, registry
+
+    if ENV_ID not in registry:
+        register(id=ENV_ID, entry_point="cdf_mj.envs:TIntersectionEnv")
+
+
+_register_env()
 
 
 def __getattr__(name: str) -> Any:

@@ -28,6 +28,7 @@ except ImportError:  # pragma: no cover - exercised only without the extra
 import mujoco
 import numpy as np
 
+from cdf_mj import ENV_ID
 from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames
 from cdf_mj.driver import Intent
 from cdf_mj.episode import World, episode_label
@@ -35,8 +36,6 @@ from cdf_mj.monitor import CDFMonitor
 from cdf_mj.scene import DEFAULT_SCENE, Scene
 
 __all__ = ["ENV_ID", "TIntersectionEnv"]
-
-ENV_ID = "cdf_mj/TIntersection-v0"
 
 
 class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
