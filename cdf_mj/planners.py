@@ -18,6 +18,7 @@ New planners subclass :class:`Planner` and register with :func:`register`.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Callable
 
@@ -141,3 +142,17 @@ def make_planner(name: str | Planner) -> Planner:
         return PLANNERS[name]()
     except KeyError:
         raise ValueError(f"unknown planner {name!r}: choose one of {', '.join(sorted(PLANNERS))}") from None
+
+
+# Baselines (cdf_mj/baselines.py): registered here so that every process that imports the
+# registry knows them; the module (and filterpy, ~1 s to import) loads on first use. The
+# factories are partials of a module-level function, so worker processes can unpickle them.
+def _make_baseline(class_name: str) -> Planner:
+    """A fresh baseline planner (``CVPlanner``, ``IMMPlanner``) with its default parameters."""
+    from cdf_mj import baselines
+
+    return getattr(baselines, class_name)()
+
+
+register("cv", functools.partial(_make_baseline, "CVPlanner"))
+register("imm", functools.partial(_make_baseline, "IMMPlanner"))

@@ -1,0 +1,359 @@
+"""Baseline planners that the CDF paper argues against, on the same footing as ``cdf``.
+
+==========  ===========================================================================
+cv          constant-velocity predictor (the velocity-obstacle assumption): extrapolate
+            the obstacle and the ego in straight lines at their measured speeds and
+            brake when their collision boxes (the obstacle's widened by a margin) meet
+            within a horizon
+imm         intent-only estimator: filterpy's ``IMMEstimator`` over one Kalman filter
+            per intent, each following the obstacle along its own route (left or
+            right); brakes when P(conflict) = sum over intents of P(intent) x
+            [that intent's predicted motion meets the ego within the horizon]
+            reaches a threshold. It models no belief: it cannot know whether the
+            obstacle has seen the ego
+==========  ===========================================================================
+
+Both see what every planner sees (:class:`cdf_mj.planners.PlannerInput`: the measured
+system pose), predict the ego holding its speed along its heading, and latch their
+decision, as the other planners do. Their parameters are the frozen dataclasses
+:class:`CVConfig` and :class:`IMMConfig`; the defaults were chosen on seeds 0-199 only
+(docs/ANALYSIS.md says how). Importing :mod:`cdf_mj.planners` registers both names, so
+``cdf-mj experiment --planners cdf,reactive,cv,imm`` and worker processes know them::
+
+    from cdf_mj.baselines import IMMConfig, IMMPlanner
+    record = run_episode(config, seed=7, planner=IMMPlanner(IMMConfig(threshold=0.8)))
+
+Frames and units: world frame (x east, y north), metres, seconds, radians; poses are
+rear-axle ``[x, y, theta, v]``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from filterpy.common import Q_discrete_white_noise
+from filterpy.kalman import IMMEstimator, KalmanFilter
+
+from cdf_mj.config import ScenarioConfig
+from cdf_mj.driver import Intent
+from cdf_mj.geometry import Polyline, wrap_angle
+from cdf_mj.planners import Planner, PlannerInput
+
+__all__ = [
+    "CVConfig",
+    "CVPlanner",
+    "IMMConfig",
+    "IMMPlanner",
+    "RouteKalmanFilter",
+    "boxes_overlap",
+    "first_conflict",
+    "route_heading",
+]
+
+
+def _require(ok: bool, name: str, value: object, allowed: str) -> None:
+    if not ok:
+        raise ValueError(f"{name}={value!r} is out of range: must be {allowed}")
+
+
+def _finite_number(v: object) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+# ----------------------------------------------------------------- parameters
+@dataclass(frozen=True)
+class CVConfig:
+    """Parameters of the constant-velocity planner ``cv`` (chosen on seeds 0-199)."""
+
+    horizon: float = 2.0  # [s] look-ahead of the straight-line extrapolation
+    margin: float = 0.3  # [m] added to each half size of the obstacle's collision box
+
+    def __post_init__(self) -> None:
+        _require(_finite_number(self.horizon) and 0 < self.horizon <= 10, "horizon", self.horizon,
+                 "in (0, 10] [s]")
+        _require(_finite_number(self.margin) and 0 <= self.margin <= 5, "margin", self.margin,
+                 "in [0, 5] [m]")
+
+    def replace(self, **changes: object) -> CVConfig:
+        """A copy with some fields changed (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+
+@dataclass(frozen=True)
+class IMMConfig:
+    """Parameters of the intent-only IMM planner ``imm``.
+
+    The filter models and noise levels are set from the scenario's geometry and from how
+    closely a route-following car keeps to its route (lateral offset up to about 0.2 m,
+    heading about 0.15 rad off the route's tangent); ``horizon`` and ``threshold`` were
+    chosen on seeds 0-199.
+    """
+
+    horizon: float = 2.0  # [s] look-ahead of each intent's predicted motion
+    margin: float = 0.3  # [m] added to each half size of the obstacle's collision box
+    threshold: float = 0.8  # brake when P(conflict) >= threshold, in (0, 1]
+    switch_prob: float = 0.001  # per-tick P(intent changes) in the IMM's Markov matrix
+    pos_std: float = 0.25  # [m] measurement std of the obstacle's position about its route
+    heading_std: float = 0.1  # [rad] measurement std of its heading about the route tangent
+    speed_std: float = 0.2  # [m/s] measurement std of its speed
+    jerk_std: float = 1.0  # [m/s^2 per tick] std of the change of acceleration (process noise)
+    init_std: tuple[float, float, float] = (0.2, 0.3, 1.5)  # [m, m/s, m/s^2] of [s, v, a] at t=0
+    max_speed: float | None = None  # [m/s] cap of predicted speed; None: obstacle_turn_speed
+    heading_window: float = 0.5  # [m] half window of the route tangent's central difference
+
+    def __post_init__(self) -> None:
+        _require(_finite_number(self.horizon) and 0 < self.horizon <= 10, "horizon", self.horizon,
+                 "in (0, 10] [s]")
+        _require(_finite_number(self.margin) and 0 <= self.margin <= 5, "margin", self.margin,
+                 "in [0, 5] [m]")
+        _require(_finite_number(self.threshold) and 0 < self.threshold <= 1, "threshold",
+                 self.threshold, "in (0, 1]")
+        _require(_finite_number(self.switch_prob) and 0 < self.switch_prob < 0.5, "switch_prob",
+                 self.switch_prob, "in (0, 0.5)")
+        for name in ("pos_std", "heading_std", "speed_std", "jerk_std", "heading_window"):
+            v = getattr(self, name)
+            _require(_finite_number(v) and v > 0, name, v, "a finite number > 0")
+        init = tuple(self.init_std)
+        _require(len(init) == 3 and all(_finite_number(v) and v > 0 for v in init), "init_std",
+                 self.init_std, "3 finite numbers > 0 ([s m, v m/s, a m/s^2])")
+        _require(self.max_speed is None or (_finite_number(self.max_speed) and self.max_speed > 0),
+                 "max_speed", self.max_speed, "None or a finite number > 0 [m/s]")
+
+    def replace(self, **changes: object) -> IMMConfig:
+        """A copy with some fields changed (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+
+# ----------------------------------------------------------------- conflict prediction
+def boxes_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Whether rectangles ``a[k]`` and ``b[k]`` overlap (boundary included), for corner
+    arrays ``(K, 4, 2)`` [m] as :func:`cdf_mj.geometry.box_corners` gives; separating axes."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    edges = np.concatenate([a[:, 1:3] - a[:, 0:2], b[:, 1:3] - b[:, 0:2]], axis=1)  # (K, 4, 2)
+    axes = np.stack([-edges[..., 1], edges[..., 0]], axis=-1)
+    pa = np.einsum("kcj,kaj->kac", a, axes)  # (K, axes, corners)
+    pb = np.einsum("kcj,kaj->kac", b, axes)
+    return np.all((pa.max(-1) >= pb.min(-1)) & (pb.max(-1) >= pa.min(-1)), axis=-1)
+
+
+def first_conflict(ego_car, obstacle_car, ego_path: np.ndarray, obstacle_path: np.ndarray,
+                   margin: float, dt: float) -> float | None:
+    """Time [s] from now of the first predicted overlap of the two collision boxes, the
+    obstacle's widened by ``margin`` [m] on each side, or ``None`` within the paths.
+
+    ``ego_path``/``obstacle_path`` are ``(K, 4)`` predicted poses at ``0, dt, ..., (K-1) dt``;
+    the cars are :class:`cdf_mj.scene.Car` (footprints).
+    """
+    wide = dataclasses.replace(obstacle_car, hull_half=obstacle_car.hull_half + margin)
+    hit = boxes_overlap(ego_car.footprint(ego_path), wide.footprint(obstacle_path))
+    k = np.flatnonzero(hit)
+    return round(float(k[0] * dt), 6) if k.size else None
+
+
+def straight_path(pose: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """Poses ``(K, 4)`` of a car holding its heading and speed from ``pose`` at ``times`` [s]."""
+    x, y, th, v = (float(p) for p in pose)
+    d = max(v, 0.0) * np.asarray(times, dtype=float)
+    out = np.empty((len(d), 4))
+    out[:, 0] = x + d * math.cos(th)
+    out[:, 1] = y + d * math.sin(th)
+    out[:, 2] = th
+    out[:, 3] = v
+    return out
+
+
+def route_heading(route: Polyline, s: np.ndarray | float, window: float = 0.5) -> np.ndarray:
+    """Heading [rad] of ``route`` at arc length(s) ``s`` [m]: the direction of the chord of
+    length ``2 window`` [m] centred on ``s`` (shifted inside the route near its ends)."""
+    s = np.asarray(s, dtype=float)
+    w = min(window, 0.5 * route.length)
+    lo = route.point_at(np.clip(s - w, 0.0, route.length - 2 * w))
+    hi = route.point_at(np.clip(s + w, 2 * w, route.length))
+    return np.arctan2(hi[..., 1] - lo[..., 1], hi[..., 0] - lo[..., 0])
+
+
+def _times(horizon: float, dt: float) -> np.ndarray:
+    return np.arange(math.floor(horizon / dt + 1e-9) + 1) * dt
+
+
+# ----------------------------------------------------------------- constant velocity
+class CVPlanner(Planner):
+    """Constant-velocity predictor (velocity obstacle): brake when the straight-line
+    extrapolations of the obstacle and of the ego at their measured speeds put their
+    boxes in contact within ``horizon``. ``summary()`` holds the decision time and the
+    predicted time to conflict at that moment."""
+
+    name = "cv"
+
+    def __init__(self, params: CVConfig | None = None) -> None:
+        self.params = params or CVConfig()
+
+    def reset(self, scene, config: ScenarioConfig, rng: np.random.Generator) -> None:
+        self._ego, self._obstacle, self._dt = scene.ego, scene.obstacle, config.dt
+        self._times = _times(self.params.horizon, config.dt)
+        self.decision_time: float | None = None
+        self.conflict_in: float | None = None
+
+    def time_to_conflict(self, poses: np.ndarray) -> float | None:
+        """Predicted time [s] to the first conflict under constant velocities, or None."""
+        return first_conflict(self._ego, self._obstacle, straight_path(poses[0], self._times),
+                              straight_path(poses[1], self._times), self.params.margin, self._dt)
+
+    def brake(self, obs: PlannerInput) -> bool:
+        if self.decision_time is None:
+            ttc = self.time_to_conflict(obs.poses)
+            if ttc is not None:
+                self.decision_time, self.conflict_in = obs.t, ttc
+        return self.decision_time is not None
+
+    def summary(self) -> dict:
+        return {"decision_time": self.decision_time, "predicted_conflict_in": self.conflict_in}
+
+
+# ----------------------------------------------------------------- intent-only IMM
+class RouteKalmanFilter(KalmanFilter):
+    """Kalman filter of the obstacle's progress along one route.
+
+    State ``x = [s m, v m/s, a m/s^2]``: arc length along the route from the stop line,
+    speed and acceleration, with a constant-acceleration model (white jerk). Measurement
+    ``z = [x m, y m, theta rad, v m/s]``, the measured obstacle pose, predicted as the
+    route's point and tangent at ``s`` and the speed; the measurement is linearised at
+    the predicted ``s`` on every update (an extended Kalman update) and the heading
+    residual is wrapped to [-pi, pi). Its ``likelihood`` is that of this residual, which
+    is what :class:`filterpy.kalman.IMMEstimator` compares between intents.
+    """
+
+    def __init__(self, route: Polyline, dt: float, params: IMMConfig) -> None:
+        super().__init__(dim_x=3, dim_z=4)
+        self.route = route
+        self.window = params.heading_window
+        self.F = np.array([[1.0, dt, 0.5 * dt * dt], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
+        self.Q = Q_discrete_white_noise(dim=3, dt=dt, var=params.jerk_std ** 2 / (dt * dt))
+        self.R = np.diag(np.square([params.pos_std, params.pos_std, params.heading_std,
+                                    params.speed_std]))
+        self.P = np.diag(np.square(params.init_std))
+
+    def measurement(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Predicted measurement ``h(x)`` (4,) and its Jacobian (4, 3) at state ``x``."""
+        s = float(np.ravel(x)[0])
+        eps, w = 0.05, self.window
+        p0, p1 = self.route.point_at(np.array([s - eps, s + eps]))
+        th = route_heading(self.route, np.array([s - eps, s, s + eps]), w)
+        hx = np.array([*self.route.point_at(s), th[1], float(np.ravel(x)[1])])
+        H = np.zeros((4, 3))
+        H[0:2, 0] = (p1 - p0) / (2 * eps)
+        H[2, 0] = float(wrap_angle(th[2] - th[0])) / (2 * eps)
+        H[3, 1] = 1.0
+        return hx, H
+
+    def update(self, z, R=None, H=None) -> None:
+        """Extended Kalman update with the measured pose ``z`` (4,) (see the class)."""
+        z = np.ravel(np.asarray(z, dtype=float))
+        hx, Hj = self.measurement(self.x)
+        resid = z - hx
+        resid[2] = float(wrap_angle(resid[2]))
+        self.H = Hj
+        super().update(resid + Hj @ np.ravel(self.x), R=R)
+
+
+class IMMPlanner(Planner):
+    """Intent-only planner: an IMM over per-intent route filters; brake when
+    P(conflict) >= ``threshold``.
+
+    P(conflict) = sum over intents of the IMM's mode probability times 1 if that intent's
+    filter, extrapolated along its route at constant acceleration (speed kept in
+    ``[0, max_speed]``), meets the ego holding its speed within ``horizon``. The prior
+    P(left) is the scenario's ``p_left``. Its prediction for the episode is ``Cutoff`` if
+    it braked, else its most probable intent at the end (left -> ``Yield``, right ->
+    ``Right``), as for ``cdf``. ``summary()`` holds the prediction, the decision time and
+    the per-tick history of P(left) and P(conflict).
+    """
+
+    name = "imm"
+
+    def __init__(self, params: IMMConfig | None = None) -> None:
+        self.params = params or IMMConfig()
+
+    def reset(self, scene, config: ScenarioConfig, rng: np.random.Generator) -> None:
+        p = self.params
+        self._ego, self._obstacle, self._dt = scene.ego, scene.obstacle, config.dt
+        self._routes = {Intent.LEFT: scene.route_left, Intent.RIGHT: scene.route_right}
+        self._times = _times(p.horizon, config.dt)
+        self._max_speed = p.max_speed if p.max_speed is not None else config.obstacle_turn_speed
+        self._p_left = config.p_left
+        self.imm: IMMEstimator | None = None
+        self.decision_time: float | None = None
+        self.history: dict[str, list] = {"t": [], "p_left": [], "p_conflict": []}
+
+    def _start(self, obstacle_pose: np.ndarray) -> IMMEstimator:
+        p = self.params
+        filters = []
+        for intent in (Intent.LEFT, Intent.RIGHT):
+            kf = RouteKalmanFilter(self._routes[intent], self._dt, p)
+            s, _ = kf.route.project(obstacle_pose[:2])
+            kf.x = np.array([[float(s)], [float(obstacle_pose[3])], [0.0]])
+            filters.append(kf)
+        # Clip the prior away from 0 and 1 so that the IMM's mixing stays defined.
+        prior = min(max(self._p_left, 1e-6), 1 - 1e-6)
+        e = p.switch_prob
+        return IMMEstimator(filters, np.array([prior, 1 - prior]), np.array([[1 - e, e], [e, 1 - e]]))
+
+    @property
+    def mode_probabilities(self) -> np.ndarray:
+        """Current P(left), P(right) of the IMM (sums to 1)."""
+        if self.imm is None:
+            return np.array([self._p_left, 1 - self._p_left])
+        return np.asarray(self.imm.mu, dtype=float).copy()
+
+    def predicted_path(self, intent: Intent) -> np.ndarray:
+        """Poses ``(K, 4)`` of the obstacle over the horizon if it has this intent: its filter's
+        state extrapolated along the route at constant acceleration, speed in [0, max_speed]."""
+        kf = self.imm.filters[int(intent)]
+        s, v, a = (float(q) for q in np.ravel(kf.x))
+        speed = np.clip(v + a * self._times, 0.0, self._max_speed)
+        arc = s + np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * self._dt)])
+        xy = kf.route.point_at(arc)
+        out = np.empty((len(arc), 4))
+        out[:, :2] = xy
+        out[:, 2] = route_heading(kf.route, arc, self.params.heading_window)
+        out[:, 3] = speed
+        return out
+
+    def conflict_probability(self, ego_pose: np.ndarray) -> float:
+        """P(conflict within the horizon) = sum over intents of P(intent) x conflict(intent)."""
+        ego_path = straight_path(ego_pose, self._times)
+        total = 0.0
+        for intent, mu in zip((Intent.LEFT, Intent.RIGHT), self.imm.mu):
+            hit = first_conflict(self._ego, self._obstacle, ego_path, self.predicted_path(intent),
+                                 self.params.margin, self._dt)
+            total += float(mu) if hit is not None else 0.0
+        return min(max(total, 0.0), 1.0)
+
+    def brake(self, obs: PlannerInput) -> bool:
+        z = obs.poses[1]
+        if self.imm is None:
+            self.imm = self._start(z)
+        else:
+            self.imm.predict()
+            self.imm.update(z)
+        p_conflict = self.conflict_probability(obs.poses[0])
+        h = self.history
+        h["t"].append(obs.t)
+        h["p_left"].append(round(float(self.imm.mu[Intent.LEFT]), 5))
+        h["p_conflict"].append(round(p_conflict, 5))
+        if self.decision_time is None and p_conflict >= self.params.threshold:
+            self.decision_time = obs.t
+        return self.decision_time is not None
+
+    def summary(self) -> dict:
+        if self.decision_time is not None:
+            prediction = "Cutoff"
+        else:
+            p_left = self.history["p_left"]
+            prediction = "Yield" if p_left and p_left[-1] >= 0.5 else "Right"
+        return {"prediction": prediction, "decision_time": self.decision_time,
+                "history": self.history}
