@@ -276,8 +276,204 @@ def _add_reproduce(subparsers: argparse._SubParsersAction) -> None:
     _add_experiment_arguments(p, episodes=1000, out="results/reproduce")
 
 
-_SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [_add_episode, _add_experiment,
-                                                                    _add_reproduce]
+def _value_list(text: str) -> list[float]:
+    try:
+        values = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+    if not values:
+        raise argparse.ArgumentTypeError("expected at least one value")
+    return values
+
+
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from cdf_mj.config import CDFConfig
+    from cdf_mj.sweep import VizUnavailableError, run_sweep
+
+    config = config_from_args(args)
+    cdf = CDFConfig(n_particles=args.particles, tau=args.tau, cutoff_rule=args.cutoff_rule)
+    seeds = range(args.seed0, args.seed0 + args.episodes)
+    for name in args.sweeps:
+        try:
+            result = run_sweep(name, args.out, seeds, planners=args.planners,
+                               values=args.values if len(args.sweeps) == 1 else None, config=config,
+                               cdf=cdf, scene=args.scene, workers=args.workers,
+                               progress=not args.quiet, figure=not args.no_figure)
+        except VizUnavailableError as exc:
+            raise CLIError(f"{exc} (the tables are written; --no-figure skips the figure)") from None
+        print(result.markdown + "\n")
+        figure = f", {result.figure_path}" if result.figure_path else ""
+        print(f"wrote {result.csv_path}, {result.markdown_path}{figure}\n")
+    return 0
+
+
+def _add_sweep(subparsers: argparse._SubParsersAction) -> None:
+    from cdf_mj.config import CDFConfig
+    from cdf_mj.sweep import SWEEPS
+
+    d = CDFConfig()
+    p = subparsers.add_parser(
+        "sweep", help="run the planners over a range of one setting; table (CSV, Markdown) and figure",
+        description="Sweep one setting (beta, particle count, threshold tau, noise levels) over "
+                    "values, each point an experiment on the same seeds; write OUT/<sweep>.csv, "
+                    "OUT/<sweep>.md and OUT/<sweep>.png. Finished points are reused.")
+    p.add_argument("sweeps", nargs="+", choices=sorted(SWEEPS), metavar="SWEEP",
+                   help=f"one or more of: {', '.join(SWEEPS)}")
+    p.add_argument("--values", type=_value_list, default=None,
+                   help="comma-separated values (one sweep only; default: the sweep's own)")
+    p.add_argument("--episodes", type=_positive_int, default=200, help="seeds per point (default 200)")
+    p.add_argument("--seed0", type=_non_negative_int, default=0, help="first seed (default 0)")
+    p.add_argument("--planners", type=_planner_list, default=["cdf", "reactive"],
+                   help="comma-separated planners (default cdf,reactive)")
+    p.add_argument("--out", default="results/sweeps", help="output directory (default results/sweeps)")
+    p.add_argument("--particles", type=_positive_int, default=d.n_particles,
+                   help=f"CDF particle count where not swept (default {d.n_particles})")
+    p.add_argument("--tau", type=float, default=d.tau, help=f"CDF threshold where not swept (default {d.tau})")
+    p.add_argument("--cutoff-rule", choices=("predictive", "paper"), default=d.cutoff_rule,
+                   help=f"how P(cutoff) is computed (default {d.cutoff_rule})")
+    p.add_argument("--workers", type=_positive_int, default=None,
+                   help="worker processes per point (default: the CPU count; 1 runs in this process)")
+    p.add_argument("--no-figure", action="store_true", help="tables only (no matplotlib needed)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_scenario_arguments(p)
+    p.set_defaults(func=_cmd_sweep)
+
+
+def _cmd_render(args: argparse.Namespace) -> int:
+    from cdf_mj.config import CDFConfig
+    from cdf_mj.render import render_episode
+
+    config = config_from_args(args)
+    scene = scene_from_args(args, config)
+    cdf = CDFConfig(n_particles=args.particles, tau=args.tau)
+    result = render_episode(args.out, seed=args.seed, planner=args.planner, config=config, cdf=cdf,
+                            scene=scene, camera=args.camera, width=args.width, height=args.height,
+                            fps=args.fps, frame_time=args.frame, max_particles=args.max_particles,
+                            shadows=args.shadows, antialias=args.antialias)
+    rate = result.n_frames / result.render_seconds if result.render_seconds > 0 else float("inf")
+    print(f"wrote {result.path}: {result.n_frames} frame(s), {result.duration:.2f} s of simulated time "
+          f"at {result.frames_per_second:g} fps, label {result.label}, brake "
+          f"{result.record.brake_time}; rendered at {rate:.1f} frames/s ({result.backend})")
+    return 0
+
+
+def _add_render(subparsers: argparse._SubParsersAction) -> None:
+    from cdf_mj.config import CDFConfig
+
+    d = CDFConfig()
+    p = subparsers.add_parser(
+        "render", help="render one episode offscreen to MP4, GIF or a PNG frame",
+        description="Run one episode and render it offscreen (MUJOCO_GL=egl unless set, else "
+                    "osmesa) at a constant frame rate in simulated time, with the obstacle's "
+                    "isovist, the CDF's particles, the braking moment and P(left), P(seen), "
+                    "P(cutoff) drawn in. The suffix of --out chooses MP4, GIF or PNG (--frame).")
+    p.add_argument("--seed", type=_non_negative_int, default=7, help="episode seed (default 7)")
+    p.add_argument("--planner", choices=sorted(PLANNERS), default="cdf", help="ego planner (default cdf)")
+    p.add_argument("--out", required=True, help="output file: .mp4, .gif, or .png with --frame")
+    p.add_argument("--camera", default="top",
+                   help="camera of the scene: top, ego_chase or obstacle_chase (default top)")
+    p.add_argument("--width", type=int, default=640, help="image width [px], even (default 640)")
+    p.add_argument("--height", type=int, default=480, help="image height [px], even (default 480)")
+    p.add_argument("--fps", type=float, default=None,
+                   help="frames per simulated second (default 30 for MP4, 25 for GIF)")
+    p.add_argument("--frame", type=float, default=None, metavar="T",
+                   help="render the one frame at T seconds to a .png")
+    p.add_argument("--particles", type=_positive_int, default=d.n_particles,
+                   help=f"CDF particle count N (default {d.n_particles})")
+    p.add_argument("--tau", type=float, default=d.tau, help=f"CDF braking threshold (default {d.tau})")
+    p.add_argument("--max-particles", type=_non_negative_int, default=100,
+                   help="most distinct particles drawn per frame (default 100)")
+    p.add_argument("--shadows", action="store_true", help="draw shadows (slower)")
+    p.add_argument("--antialias", action="store_true", help="4x multisampling (slower)")
+    add_scenario_arguments(p)
+    p.set_defaults(func=_cmd_render)
+
+
+def _cmd_report(args: argparse.Namespace) -> int:
+    from cdf_mj.report import write_report
+
+    result = write_report(args.dir, out=args.out, seeds=args.seeds, planner=args.planner)
+    skipped = f"; skipped {result.failed} failed episode(s)" if result.failed else ""
+    if result.unreadable:
+        skipped += f" and {result.unreadable} unreadable line(s)"
+    print(f"wrote {result.markdown} and {len(result.figures)} figure(s): "
+          f"{', '.join(p.name for p in result.figures.values())} from {result.records} records{skipped}")
+    for name, why in result.omitted.items():
+        print(f"  {name}: not drawn ({why})")
+    return 0
+
+
+def _seed_list(text: str) -> list[int]:
+    try:
+        seeds = [_non_negative_int(v) for v in text.split(",") if v.strip()]
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated non-negative integers, got {text!r}") from None
+    if not seeds:
+        raise argparse.ArgumentTypeError("expected at least one seed")
+    return seeds
+
+
+def _add_report(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "report", help="figures (PNG) and a Markdown page from an experiment directory",
+        description="Turn an experiment directory (settings.json, episodes.jsonl) into PNG "
+                    "figures and report.md: confusion matrix beside the paper's, avoidance per "
+                    "planner with 95 %% intervals, trajectories, posterior traces, braking lead "
+                    "times. Failed episodes are skipped and counted.")
+    p.add_argument("dir", metavar="DIR", help="experiment directory (cdf-mj experiment --out DIR)")
+    p.add_argument("--out", default=None, help="output directory (default DIR)")
+    p.add_argument("--seeds", type=_seed_list, default=None,
+                   help="comma-separated seeds for trajectories and posteriors (default: one per label)")
+    p.add_argument("--planner", default=None,
+                   help="planner whose trajectories are drawn (default cdf, else the first)")
+    p.set_defaults(func=_cmd_report)
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from cdf_mj.bench import bench_core, bench_filter, bench_planners, bench_reproduction, format_rows
+
+    sizes = tuple(args.particles)
+    rows = [] if args.only_reproduce else [*bench_core(args.episodes), *bench_filter(sizes),
+                                           *bench_planners(args.episodes)]
+    if args.reproduce or args.only_reproduce:
+        rows += bench_reproduction(args.reproduce_episodes, tuple(args.workers), progress=not args.quiet)
+    print(format_rows(rows))
+    return 0
+
+
+def _int_list(text: str) -> list[int]:
+    try:
+        values = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {text!r}") from None
+    if not values or min(values) < 1:
+        raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {text!r}")
+    return values
+
+
+def _add_bench(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "bench", help="timing table: physics, filter stages, planners, reproduction scaling",
+        description="Print the benchmark table of docs/PERFORMANCE.md: medians from one run "
+                    "(pin to one core with taskset -c 0 for the single-core rows).")
+    p.add_argument("--episodes", type=_positive_int, default=30,
+                   help="episodes timed per planner (default 30)")
+    p.add_argument("--particles", type=_int_list, default=[250, 1000, 4000],
+                   help="filter sizes N to time (default 250,1000,4000)")
+    p.add_argument("--reproduce", action="store_true",
+                   help="also time the paper's reproduction with each --workers count (minutes)")
+    p.add_argument("--only-reproduce", action="store_true", help="only the reproduction rows")
+    p.add_argument("--reproduce-episodes", type=_positive_int, default=1000,
+                   help="seeds in the timed reproduction (default 1000)")
+    p.add_argument("--workers", type=_int_list, default=[1, 2],
+                   help="worker counts for the reproduction (default 1,2)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_bench)
+
+
+_SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [_add_episode, _add_experiment, _add_bench,
+                                                                    _add_reproduce, _add_sweep,
+                                                                    _add_render, _add_report]
 
 
 # ----------------------------------------------------------------- entry point

@@ -1,0 +1,70 @@
+"""Sweeps: a tiny sweep writes its table (CSV, Markdown) and figure; tau from histories."""
+
+from __future__ import annotations
+
+import csv
+import sys
+
+import pytest
+
+from cdf_mj.cli import main
+from cdf_mj.sweep import SWEEPS, run_sweep, tau_curve
+
+
+def test_tiny_beta_sweep_writes_table_and_figure(tmp_path):
+    res = run_sweep("beta", tmp_path, seeds=range(2), planners=("reactive", "cv"), values=(0.05, 0.2),
+                    workers=1)
+    rows = list(csv.DictReader(open(res.csv_path, encoding="utf-8")))
+    assert [(r["value"], r["planner"]) for r in rows] == [("0.05", "reactive"), ("0.05", "cv"),
+                                                          ("0.2", "reactive"), ("0.2", "cv")]
+    assert all(r["episodes"] == "2" for r in rows)
+    assert "| 0.2 | cv |" in res.markdown_path.read_text(encoding="utf-8")
+    assert res.figure_path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # Each point is an experiment directory of its own; a second call reuses them.
+    assert (tmp_path / "beta" / "0.05" / "episodes.jsonl").is_file()
+    again = run_sweep("beta", tmp_path, seeds=range(2), planners=("reactive", "cv"), values=(0.05, 0.2),
+                      workers=1, figure=False)
+    assert [r["avoided_k"] for r in again.rows] == [r["avoided_k"] for r in res.rows]
+
+
+def test_tau_sweep_reads_the_fine_curve_from_the_histories(tmp_path):
+    res = run_sweep("tau", tmp_path, seeds=range(1, 4), planners=("cdf", "reactive"), values=(0.5, 0.95),
+                    workers=1)
+    # The reference planner runs once; the CDF at every tau.
+    assert sorted((r["value"], r["planner"]) for r in res.rows) == [(0.5, "cdf"), (0.95, "cdf"),
+                                                                   (0.95, "reactive")]
+    agreement = res.extra["agreement"]
+    assert agreement["episodes"] == 6 and agreement["agree"] == 6
+    curve = res.extra["curve"]
+    assert curve[-1]["tau"] == pytest.approx(0.95)
+    fa = [c["false_alarms"] for c in curve]
+    assert fa == sorted(fa, reverse=True)  # a higher threshold never brakes more often
+    assert (tmp_path / "tau_curve.csv").is_file() and res.figure_path.is_file()
+    assert tau_curve([], tau_max=0.5)[0]["episodes"] == 0
+
+
+def test_sweep_refuses_bad_requests(tmp_path):
+    with pytest.raises(ValueError, match="unknown sweep"):
+        run_sweep("gamma", tmp_path, seeds=range(1))
+    with pytest.raises(ValueError, match="include the planner 'cdf'"):
+        run_sweep("particles", tmp_path, seeds=range(1), planners=("reactive",))
+    with pytest.raises(ValueError, match="whole numbers"):
+        run_sweep("particles", tmp_path, seeds=range(1), values=(10.5,))
+    with pytest.raises(ValueError, match="beta"):
+        run_sweep("beta", tmp_path, seeds=range(1), values=(1.5,))
+    assert set(SWEEPS) == {"beta", "particles", "tau", "noise", "obs-noise"}
+
+
+def test_cli_sweep(tmp_path, capsys, monkeypatch):
+    argv = ["sweep", "noise", "--values", "1,2", "--episodes", "1", "--planners", "reactive",
+            "--workers", "1", "--quiet", "--out", str(tmp_path)]
+    assert main(argv) == 0
+    assert "Sweep `noise`" in capsys.readouterr().out
+    assert (tmp_path / "noise.png").is_file()
+    # Without matplotlib: the tables are written, then one line naming the extra.
+    monkeypatch.setitem(sys.modules, "matplotlib", None)
+    assert main(argv[:-1] + [str(tmp_path / "novis")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "pip install 'cdf-mj[viz]'" in err[0]
+    assert (tmp_path / "novis" / "noise.csv").is_file()
+    assert main(["sweep", "noise", "--values", "x"]) == 2
