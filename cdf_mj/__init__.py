@@ -41,11 +41,15 @@ _EXPORTS = {
     "attach": "cdf_mj.monitor",
     "CDFMonitor": "cdf_mj.monitor",
     "TIntersectionEnv": "cdf_mj.envs",
+    "CVPlanner": "cdf_mj.baselines",
+    "IMMPlanner": "cdf_mj.baselines",
+    "run_sweep": "cdf_mj.sweep",
 }
 
 __all__ = ["__version__", "ENV_ID", *_EXPORTS]
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time see __getattr__
+    from cdf_mj.baselines import CVPlanner, IMMPlanner
     from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames
     from cdf_mj.envs import TIntersectionEnv
     from cdf_mj.episode import EpisodeRecord, World, run_episode
@@ -54,6 +58,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time see __getattr__
     from cdf_mj.monitor import CDFMonitor, attach
     from cdf_mj.planners import CDFPlanner
     from cdf_mj.scene import Scene, SceneError, add_car
+    from cdf_mj.sweep import run_sweep
 
 
 #: Gymnasium id of :class:`cdf_mj.envs.TIntersectionEnv`.
