@@ -108,13 +108,28 @@ def pure_pursuit(route: Polyline, pose: np.ndarray, s: np.ndarray, lookahead: np
     return np.clip(steer, -max_steer, max_steer)
 
 
+# Plain ints for the hot paths (IntEnum attribute access costs a Python call each time).
+_WAITING, _GOING, _YIELDING, _COMMITTED = (int(m) for m in Mode)
+_LEFT, _RIGHT = int(Intent.LEFT), int(Intent.RIGHT)
+
+
+def _by_intent(intent: np.ndarray, n_routes: int):
+    """``(k, rows)`` per route with samples: ``rows`` is ``slice(None)`` when every sample
+    has intent ``k`` (no gather needed: one car, or particles of one intent), else a mask."""
+    for k in range(n_routes):
+        mask = intent == k
+        if mask.all():
+            yield k, slice(None)
+            return
+        if mask.any():
+            yield k, mask
+
+
 def _project_by_intent(model: DriverModel, xy: np.ndarray, intent: np.ndarray) -> np.ndarray:
     """Arc length on each sample's own route [m]."""
     s = np.empty(xy.shape[:-1])
-    for k, route in enumerate(model.routes):
-        mask = intent == k
-        if mask.any():
-            s[mask] = route.project(xy[mask])[0]
+    for k, rows in _by_intent(intent, len(model.routes)):
+        s[rows] = model.routes[k].project(xy[rows])[0]
     return s
 
 
@@ -127,7 +142,7 @@ def road_clear(model: DriverModel, belief: np.ndarray, has_belief: np.ndarray,
     ahead = dx * np.cos(belief[..., 2]) + dy * np.sin(belief[..., 2])  # [m] to the conflict
     passed = ahead < -cfg.passed_margin
     tta = ahead / np.maximum(belief[..., 3], 0.1)  # [s] believed time to arrive
-    return (~has_belief) | passed | (tta > cfg.critical_gap) | (intent == Intent.RIGHT)
+    return (~has_belief) | passed | (tta > cfg.critical_gap) | (intent == _RIGHT)
 
 
 def obstacle_control(model: DriverModel, pose: np.ndarray, mode: np.ndarray, belief: np.ndarray,
@@ -151,26 +166,24 @@ def obstacle_control(model: DriverModel, pose: np.ndarray, mode: np.ndarray, bel
     past_commit = s >= model.s_commit[intent]
 
     new = mode.copy()
-    waiting, going, yielding = (mode == Mode.WAITING), (mode == Mode.GOING), (mode == Mode.YIELDING)
-    new[(waiting | yielding) & clear] = Mode.GOING
-    new[(new == Mode.GOING) & past_commit] = Mode.COMMITTED  # before yielding: past it, no yield
-    new[going & ~clear & ~past_commit] = Mode.YIELDING
+    going = mode == _GOING
+    new[((mode == _WAITING) | (mode == _YIELDING)) & clear] = _GOING
+    new[(new == _GOING) & past_commit] = _COMMITTED  # before yielding: past it, no yield
+    new[going & ~clear & ~past_commit] = _YIELDING
 
     v = pose[:, 3]
-    moving = (new == Mode.GOING) | (new == Mode.COMMITTED)
-    accel = np.where(moving, np.clip((cfg.obstacle_turn_speed - v) / cfg.dt, -model.max_brake,
-                                     cfg.obstacle_accel), 0.0)
-    accel = np.where(new == Mode.YIELDING, -cfg.obstacle_yield_brake, accel)
-    accel = np.where(new == Mode.WAITING, -model.max_brake, accel)
+    u = np.empty((len(v), 2))
+    accel = u[:, 0]
+    # Moving (going or committed): towards the turn speed within the car's limits.
+    np.clip((cfg.obstacle_turn_speed - v) / cfg.dt, -model.max_brake, cfg.obstacle_accel, out=accel)
+    accel[new == _YIELDING] = -cfg.obstacle_yield_brake
+    accel[new == _WAITING] = -model.max_brake
 
     lookahead = cfg.lookahead + cfg.lookahead_gain * v
-    steer = np.empty_like(v)
-    for k, route in enumerate(model.routes):
-        mask = intent == k
-        if mask.any():
-            steer[mask] = pure_pursuit(route, pose[mask], s[mask], lookahead[mask],
-                                       model.wheelbase, model.max_steer)
-    return np.stack([accel, steer], axis=-1), new
+    for k, rows in _by_intent(intent, len(model.routes)):
+        u[rows, 1] = pure_pursuit(model.routes[k], pose[rows], s[rows], lookahead[rows],
+                                  model.wheelbase, model.max_steer)
+    return u, new
 
 
 def update_belief(belief: np.ndarray, has_belief: np.ndarray, observed: np.ndarray,
@@ -180,9 +193,13 @@ def update_belief(belief: np.ndarray, has_belief: np.ndarray, observed: np.ndarr
 
     Shapes: ``belief``/``observation`` ``(N, 4)``, ``has_belief``/``observed`` ``(N,)``.
     """
-    straight = np.zeros(belief.shape[:-1] + (2,))
-    carried = bicycle_step(belief, straight, dt, wheelbase)
-    new = np.where(observed[..., None], observation, np.where(has_belief[..., None], carried, belief))
+    new = belief.copy()
+    observation = np.broadcast_to(observation, belief.shape)
+    carry = has_belief & ~observed  # only these are dead-reckoned; the rest are replaced or kept
+    if carry.any():
+        rows = belief[carry]
+        new[carry] = bicycle_step(rows, np.zeros(rows.shape[:-1] + (2,)), dt, wheelbase)
+    new[observed] = observation[observed]
     return new, has_belief | observed
 
 

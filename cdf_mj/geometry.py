@@ -37,7 +37,15 @@ class Polyline:
         object.__setattr__(self, "_seg", seg)
         object.__setattr__(self, "_len", lengths)
         object.__setattr__(self, "_unit", seg / lengths[:, None])
-        object.__setattr__(self, "_s0", np.concatenate([[0.0], np.cumsum(lengths)]))
+        s0 = np.concatenate([[0.0], np.cumsum(lengths)])
+        object.__setattr__(self, "_s0", s0)
+        # Hot-path copies (contiguous): segment starts, unit directions, and the per-segment
+        # slope d(point)/ds that numpy.interp would use between waypoints.
+        object.__setattr__(self, "_x0", pts[:-1, 0].copy())
+        object.__setattr__(self, "_y0", pts[:-1, 1].copy())
+        object.__setattr__(self, "_ux", (seg[:, 0] / lengths).copy())
+        object.__setattr__(self, "_uy", (seg[:, 1] / lengths).copy())
+        object.__setattr__(self, "_slope", seg / np.diff(s0)[:, None])
 
     @property
     def length(self) -> float:
@@ -50,23 +58,38 @@ class Polyline:
         xy = np.asarray(xy, dtype=float)
         lead = xy.shape[:-1]
         flat = xy.reshape(-1, 2)
-        ux, uy = self._unit[:, 0], self._unit[:, 1]
-        px = flat[:, 0, None] - self.points[:-1, 0]  # (M, S) from each segment's start
-        py = flat[:, 1, None] - self.points[:-1, 1]
-        t = np.clip(px * ux + py * uy, 0.0, self._len)
-        rx = px - t * ux
-        ry = py - t * uy
-        k = np.argmin(rx * rx + ry * ry, axis=1)
-        rows = np.arange(len(flat))
-        s = self._s0[k] + t[rows, k]
-        lateral = ux[k] * ry[rows, k] - uy[k] * rx[rows, k]
+        # (S, M) layout, segments along axis 0: the elementwise work runs over the long axis.
+        ux, uy = self._ux[:, None], self._uy[:, None]
+        px = flat[:, 0] - self._x0[:, None]  # from each segment's start
+        py = flat[:, 1] - self._y0[:, None]
+        t = px * ux
+        t += py * uy
+        np.minimum(np.maximum(t, 0.0, out=t), self._len[:, None], out=t)  # along each segment, clamped
+        px -= t * ux  # now the offset from the closest point of each segment
+        py -= t * uy
+        d2 = px * px
+        d2 += py * py
+        k = np.argmin(d2, axis=0)
+        cols = np.arange(len(flat))
+        s = self._s0[k] + t[k, cols]
+        lateral = self._ux[k] * py[k, cols] - self._uy[k] * px[k, cols]
         return s.reshape(lead), lateral.reshape(lead)
 
     def point_at(self, s: np.ndarray) -> np.ndarray:
-        """Point(s) at arc length ``s`` [m], shape ``(..., 2)``; clamped to the ends."""
-        s = np.clip(np.asarray(s, dtype=float), 0.0, self.length)
-        return np.stack([np.interp(s, self._s0, self.points[:, 0]),
-                         np.interp(s, self._s0, self.points[:, 1])], axis=-1)
+        """Point(s) at arc length ``s`` [m], shape ``(..., 2)``; clamped to the ends.
+
+        Linear interpolation between waypoints, computed as ``numpy.interp`` does (same
+        values), for both coordinates at once.
+        """
+        s = np.asarray(s, dtype=float)
+        shape = s.shape
+        s = s.reshape(-1)
+        s0 = self._s0
+        k = np.searchsorted(s0, s, side="right") - 1
+        np.clip(k, 0, len(s0) - 2, out=k)
+        out = self._slope[k] * np.maximum(s - s0[k], 0.0)[:, None] + self.points[k]
+        out[s >= s0[-1]] = self.points[-1]
+        return out.reshape(shape + (2,))
 
 
 @dataclass(frozen=True)

@@ -91,7 +91,8 @@ class ParticleFilter:
         self._nu_std = cdf.process_noise_scale * np.array([scenario.noise_accel, scenario.noise_steer])
         self.skipped_updates = 0  # measurements that were NaN or infinite
         self.reinits = 0  # times every likelihood vanished
-        self._ego = None
+        self._ego: np.ndarray | None = None
+        self._ego_targets: np.ndarray | None = None
 
     @classmethod
     def from_scene(cls, scene, scenario: ScenarioConfig, cdf: CDFConfig,
@@ -115,6 +116,7 @@ class ParticleFilter:
         self.has_belief = np.zeros(n, dtype=bool)
         self.logw = np.zeros(n)
         self._ego = system_pose[0].copy()
+        self._ego_targets = None
         return self.posterior()
 
     @property
@@ -148,11 +150,16 @@ class ParticleFilter:
             v = self.pose[idx, 3]
             t_commit = (np.sqrt(v * v + 2.0 * cfg.obstacle_accel * remaining) - v) / cfg.obstacle_accel
             ticks = np.ceil(t_commit / cfg.dt - 1e-9)  # looks left before the commit point
-            corners = self.ego.footprint(self._ego)
-            targets = np.vstack([corners, corners.mean(axis=0)])
-            beta = cfg.beta * self.occluders.visible(self.obstacle.eye(self.pose[idx]), targets)
+            beta = cfg.beta * self.occluders.visible(self.obstacle.eye(self.pose[idx]), self._targets())
             p[idx] = (1.0 - beta) ** ticks
         return p
+
+    def _targets(self) -> np.ndarray:
+        """The ego's sight-line targets ``(5, 2)``: its hull corners and centre (cached per pose)."""
+        if self._ego_targets is None:
+            corners = self.ego.footprint(self._ego)
+            self._ego_targets = np.vstack([corners, corners.mean(axis=0)])
+        return self._ego_targets
 
     def ego_exposed(self) -> bool:
         """Whether the (known) ego could still be cut off: it has not passed the conflict
@@ -177,8 +184,9 @@ class ParticleFilter:
         """Take the ego's pose from ``system_pose[0]`` where it is finite."""
         if system_pose is not None:
             ego = np.asarray(system_pose, dtype=float)[0]
-            if np.all(np.isfinite(ego)):
+            if np.all(np.isfinite(ego)) and (self._ego is None or not np.array_equal(ego, self._ego)):
                 self._ego = ego.copy()
+                self._ego_targets = None
 
     def look(self) -> tuple[np.ndarray, np.ndarray]:
         """Observation events ``(N,)`` (beta draw, then line of sight only where it matters)
@@ -187,9 +195,7 @@ class ParticleFilter:
         observed = rng.random(n) < cfg.beta
         idx = np.flatnonzero(observed)
         if idx.size:
-            corners = self.ego.footprint(self._ego)
-            targets = np.vstack([corners, corners.mean(axis=0)])
-            observed[idx] = self.occluders.visible(self.obstacle.eye(self.pose[idx]), targets)
+            observed[idx] = self.occluders.visible(self.obstacle.eye(self.pose[idx]), self._targets())
         return observed, self._ego + rng.standard_normal((n, 4)) * self._obs_std
 
     def believe(self, observed: np.ndarray, observation: np.ndarray) -> None:
@@ -235,7 +241,7 @@ class ParticleFilter:
             return self.posterior()
         d = self.pose - meas
         d[:, 2] = wrap_angle(d[:, 2])
-        maha2 = np.einsum("ni,ij,nj->n", d, self._cov_inv, d)
+        maha2 = ((d @ self._cov_inv) * d).sum(axis=1)
         if maha2.min() > self.cdf.reinit_mahalanobis ** 2:
             self.reinits += 1
             self.pose = np.repeat(meas[None], self.n, axis=0)

@@ -1,29 +1,17 @@
 #!/usr/bin/env python3
-"""Print the benchmark table (medians from one run) for docs/PERFORMANCE.md.
+"""Print the benchmark table of docs/PERFORMANCE.md (medians from one run).
 
-    python scripts/bench.py [--episodes 60] [--filter]
+The same as ``cdf-mj bench``; see ``cdf-mj bench --help``::
+
+    taskset -c 0 python scripts/bench.py               # single-core rows
+    python scripts/bench.py --only-reproduce           # reproduction with 1 and 2 workers
 """
 
 from __future__ import annotations
 
-import argparse
 import sys
 
-from cdf_mj.bench import bench_core, bench_filter, format_rows
-
-
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--episodes", type=int, default=60, help="episodes timed per planner")
-    p.add_argument("--filter", action="store_true",
-                   help="also time the particle filter stage by stage and a CDF episode")
-    args = p.parse_args(argv)
-    rows = bench_core(args.episodes)
-    if args.filter:
-        rows += bench_filter()
-    print(format_rows(rows))
-    return 0
-
+from cdf_mj.cli import main
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main(["bench", *sys.argv[1:]]))

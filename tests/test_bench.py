@@ -1,0 +1,27 @@
+"""The benchmark command prints every row it promises, with targets judged from the figures."""
+
+from __future__ import annotations
+
+import re
+
+from cdf_mj.cli import main
+from cdf_mj.planners import PLANNERS
+
+
+def test_bench_prints_filter_planner_and_scaling_rows(capsys):
+    assert main(["bench", "--episodes", "1", "--particles", "100", "--reproduce",
+                 "--reproduce-episodes", "3", "--workers", "1,2", "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert "| filter tick N=100 " in out and "|   act (driver h" in out
+    for name in PLANNERS:
+        assert f"| episode, {name} (no counterfactual) |" in out
+    one = re.search(r"\| reproduction: 3 seeds x cdf\+reactive, 1 worker\(s\) \| ([\d.]+) (ms|s) \| (.*) \|", out)
+    two = re.search(r"\| reproduction: 3 seeds x cdf\+reactive, 2 worker\(s\) \| ([\d.]+) (ms|s) \| (.*) \|", out)
+    assert one and two
+    assert "6 records, 0 failed" in one.group(3) and "efficiency" in two.group(3)
+    assert re.search(r"peak memory per worker \d+ MiB", two.group(3))
+
+
+def test_bench_refuses_bad_lists(capsys):
+    assert main(["bench", "--particles", "0,100"]) == 2
+    assert "positive integers" in capsys.readouterr().err
