@@ -1,0 +1,147 @@
+"""cdf_mj.render: offscreen videos of episodes with the CDF's belief drawn in.
+
+Tests that draw need an OpenGL backend (EGL or OSMesa); they are skipped, with the
+reason, only when none can be created. Requests are checked before any simulation.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cdf_mj import render
+from cdf_mj.cli import main
+from cdf_mj.config import ScenarioConfig
+from cdf_mj.episode import run_episode
+from cdf_mj.render import RenderError, check_request, frame_times, record_episode, render_episode
+
+iio = pytest.importorskip("imageio.v3", reason="the viz extra (imageio) is not installed")
+
+SHORT = ScenarioConfig(duration=1.0)  # 10 ticks: frames 0.0, 0.1, ..., 1.0 s at 10 fps
+SMALL = {"width": 160, "height": 120}
+
+
+@pytest.fixture(scope="module")
+def gl() -> str:
+    """The OpenGL backend's name; skips the test when no backend can be created."""
+    try:
+        return render.gl_backend()[0]
+    except RenderError as exc:
+        pytest.skip(f"no OpenGL backend can be created here: {exc}")
+
+
+def _magenta(img: np.ndarray) -> np.ndarray:
+    """Pixels of the P(left) / left-turner particle colour (magenta)."""
+    r, g, b = (img[..., i].astype(int) for i in range(3))
+    return (r > 200) & (g < 90) & (b > 200)
+
+
+# ----------------------------------------------------------------- no GL needed
+def test_frame_times_constant_rate_in_simulated_time() -> None:
+    t = frame_times(1.0, 10)
+    assert len(t) == 11 and t[0] == 0.0 and t[-1] == pytest.approx(1.0)
+    np.testing.assert_allclose(np.diff(t), 0.1)
+    assert len(frame_times(5.3, 30)) == 160  # 0 .. 5.3 s, last frame at 159/30 = 5.2967 s
+
+
+def test_recorded_episode_is_the_plain_episode(scene) -> None:
+    rep = record_episode(1, "cdf", SHORT.replace(duration=2.0), scene, label=False)
+    plain = run_episode(SHORT.replace(duration=2.0), 1, "cdf", scene, label=False)
+    assert rep.record.brake_time == plain.brake_time
+    assert rep.record.end_time == plain.end_time
+    assert rep.record.planner_info["history"] == plain.planner_info["history"]
+    assert len(rep.particles) == len(rep.times) - 1  # one snapshot per tick
+    # Interpolation passes through the ticks and ends at the final state.
+    np.testing.assert_allclose(rep.pose_at(rep.times[3]), rep.poses[3])
+    np.testing.assert_allclose(rep.pose_at(rep.end_time), rep.poses[-1])
+
+
+@pytest.mark.parametrize(("kwargs", "message"), [
+    ({"camera": "bird"}, "unknown camera 'bird': choose one of top, ego_chase, obstacle_chase"),
+    ({"width": 161}, "must be even"),
+    ({"height": 0}, "must be a positive integer"),
+    ({"width": 10000}, "above the largest offscreen buffer"),
+    ({"out": "nowhere/x.mp4"}, "does not exist"),
+    ({"out": "."}, "unknown format"),
+    ({"out": "x.avi"}, "unknown format"),
+    ({"out": "x.png"}, "--frame"),
+    ({"out": "x.gif", "fps": 30}, "GIF frame delays"),
+    ({"fps": 0}, "between 1 and 240"),
+])
+def test_bad_input_refused_before_any_work(scene, tmp_path, monkeypatch, kwargs, message) -> None:
+    def no_work(*args, **kw):
+        raise AssertionError("simulated before the request was checked")
+
+    monkeypatch.setattr(render, "record_episode", no_work)
+    monkeypatch.setattr(render, "run_episode", no_work)
+    monkeypatch.chdir(tmp_path)
+    kwargs = {"out": "x.mp4", **kwargs}
+    with pytest.raises(RenderError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        render_episode(kwargs.pop("out"), seed=1, scene=scene, **kwargs)
+
+
+def test_output_directory_is_refused(scene, tmp_path) -> None:
+    (tmp_path / "d.mp4").mkdir()
+    with pytest.raises(RenderError, match="is a directory"):
+        check_request(tmp_path / "d.mp4", scene.model)
+
+
+def test_cli_bad_camera_is_one_line(tmp_path, capsys) -> None:
+    status = main(["render", "--seed", "1", "--camera", "bird", "--out", str(tmp_path / "e.mp4")])
+    err = capsys.readouterr().err
+    assert status == 2
+    assert err.count("\n") == 1 and err.startswith("cdf-mj: error: unknown camera 'bird'")
+    assert not (tmp_path / "e.mp4").exists()
+
+
+def test_no_gl_backend_names_the_fix(monkeypatch) -> None:
+    monkeypatch.setattr(render, "_BACKEND", None)
+    monkeypatch.setenv("MUJOCO_GL", "nonesuch")
+    with pytest.raises(RenderError) as info:
+        render.gl_backend()
+    msg = str(info.value)
+    assert "\n" not in msg and "MUJOCO_GL" in msg and "apt-get install libegl1 libosmesa6" in msg
+
+
+# ----------------------------------------------------------------- drawing
+def test_short_video_has_every_frame_and_they_move(gl, scene, tmp_path) -> None:
+    out = tmp_path / "short.mp4"
+    res = render_episode(out, seed=1, planner="cdf", config=SHORT, scene=scene, fps=10, **SMALL)
+    assert res.n_frames == 11 == len(frame_times(res.record.end_time, 10))
+    frames = np.stack(list(iio.imiter(out)))
+    assert frames.shape == (11, 120, 160, 3)
+    assert all(f.std() > 10 for f in frames)  # not blank
+    view = frames[:, 50:].astype(float)  # below the panel: the scene itself
+    assert np.abs(view[-1] - view[0]).mean() > 1.0  # the ego drove ~13 m
+    assert all(np.abs(view[i + 1] - view[i]).mean() > 0.05 for i in range(10))  # no repeated frame
+
+
+def test_gif_has_every_frame(gl, scene, tmp_path) -> None:
+    out = tmp_path / "short.gif"
+    res = render_episode(out, seed=1, planner="reactive", config=SHORT.replace(duration=0.5),
+                         scene=scene, fps=10, **SMALL)
+    frames = iio.imread(out, index=None)
+    assert len(frames) == res.n_frames == 6
+
+
+def test_overlay_is_visible(gl, scene, tmp_path) -> None:
+    """P(left) bar and the left-turner particles are magenta; without overlays there is none."""
+    kw = {"seed": 1, "planner": "cdf", "config": SHORT, "scene": scene, "camera": "obstacle_chase",
+          "frame_time": 0.5, **SMALL}
+    render_episode(tmp_path / "on.png", **kw)
+    render_episode(tmp_path / "off.png", overlays=False, **kw)
+    on, off = iio.imread(tmp_path / "on.png"), iio.imread(tmp_path / "off.png")
+    assert on.shape == (120, 160, 3)
+    assert _magenta(off).sum() == 0
+    assert _magenta(on[:44, :61]).sum() > 20  # the panel's P(left) bar (P(left) ~ 0.75 at 0.5 s)
+    assert _magenta(on[50:]).sum() > 3  # particles over the obstacle, below the panel
+    assert np.abs(on[50:].astype(int) - off[50:]).mean() > 1.0  # the isovist tints the road
+
+
+def test_cli_renders_a_frame(gl, tmp_path, capsys) -> None:
+    out = tmp_path / "frame.png"
+    status = main(["render", "--seed", "1", "--frame", "0.3", "--out", str(out), "--width", "96",
+                   "--height", "64", "--set", "duration=1.0", "--particles", "200"])
+    assert status == 0, capsys.readouterr().err
+    assert iio.imread(out).shape == (64, 96, 3)
+    assert "wrote" in capsys.readouterr().out
