@@ -1,0 +1,461 @@
+"""Figures and a Markdown page from an experiment directory: ``cdf-mj report DIR``.
+
+Reads ``DIR/settings.json`` and ``DIR/episodes.jsonl`` (as written by
+``cdf-mj experiment --out DIR``) and writes, into ``DIR`` or ``out``:
+
+==================  ==========================================================================
+``confusion.png``   the CDF's confusion matrix (scenario label x prediction) beside the paper's
+``avoidance.png``   per planner: imminent collisions avoided and false alarms, 95 % Wilson intervals
+``trajectories.png`` top-down paths of both cars for a few seeds over the road layout of the MJCF
+``posterior.png``   P(left), P(seen), P(cutoff) over time for the same seeds (CDF)
+``lead_times.png``  distribution of braking lead times, entered_lane_time - brake_time [s]
+``report.md``       the tables of :func:`cdf_mj.experiment.experiment_tables` and every figure
+==================  ==========================================================================
+
+A figure whose data are absent (no CDF records, no braking before a lane entry) is left
+out and the page says why. Failed episodes (``"status": "failed"``) and unreadable lines
+are skipped and counted. Planners other than ``cdf`` and ``reactive`` are shown like
+them. The trajectories are re-simulated from the stored settings (``trace=True``); the
+posterior traces come from the stored records. Figures use matplotlib's Agg canvas
+directly, so no global backend is changed. ::
+
+    from cdf_mj.report import write_report
+    result = write_report("results/experiment")
+    result.markdown, result.figures
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import statistics
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames
+from cdf_mj.episode import Labels, run_episode
+from cdf_mj.experiment import PAPER_CONFUSION, PAPER_PLANNERS, experiment_tables
+from cdf_mj.metrics import Rate
+from cdf_mj.planners import CDFPlanner, Planner, make_planner
+from cdf_mj.scene import DEFAULT_SCENE, Scene
+
+__all__ = ["FIGURES", "Experiment", "ReportError", "ReportResult", "load_experiment", "write_report"]
+
+LABELS = (Labels.CUTOFF, Labels.YIELD, Labels.RIGHT)
+#: Figure file names and what each shows.
+FIGURES = {
+    "confusion": "the CDF's predictions against the scenario labels, beside the paper's",
+    "avoidance": "imminent collisions avoided and false alarms per planner, 95 % Wilson intervals",
+    "trajectories": "top-down paths of the ego and the obstacle for a few seeds",
+    "posterior": "P(left), P(seen) and P(cutoff) of the CDF over time for the same seeds",
+    "lead_times": "braking lead time (obstacle enters the ego lane minus brake decision) on Cutoff episodes",
+}
+_VIZ_HINT = "pip install 'cdf-mj[viz]'"
+_PLANNER_COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#7f7f7f")
+_CURVES = (("p_left", "P(left)", "#c020c0"), ("p_seen", "P(seen)", "#d4a000"),
+           ("p_cutoff", "P(cutoff)", "#e04010"))
+
+
+class ReportError(ValueError):
+    """An experiment directory that cannot be reported on, or missing packages (one line)."""
+
+
+@dataclass
+class Experiment:
+    """The completed records of an experiment directory and its settings."""
+
+    path: Path
+    settings: dict
+    records: list[dict]  # completed episodes only
+    failed: int = 0  # records with "status": "failed", skipped
+    unreadable: int = 0  # lines that are not JSON objects (a run killed mid-line), skipped
+    planners: list[str] = field(default_factory=list)  # settings order, then any others
+
+    def by_planner(self, name: str) -> list[dict]:
+        """The completed records of one planner."""
+        return [r for r in self.records if r.get("planner") == name]
+
+
+@dataclass(frozen=True)
+class ReportResult:
+    """What :func:`write_report` wrote."""
+
+    markdown: Path
+    figures: dict[str, Path]  # name -> PNG, only those written
+    omitted: dict[str, str]  # name -> why the figure was left out
+    records: int  # completed records used
+    failed: int  # failed records skipped
+    unreadable: int  # unreadable lines skipped
+
+
+def load_experiment(path: str | Path) -> Experiment:
+    """Read ``settings.json`` and ``episodes.jsonl``; failed and unreadable records are
+    counted and skipped. :class:`ReportError` if either file is missing or no episode
+    completed."""
+    path = Path(path)
+    settings_path, records_path = path / "settings.json", path / "episodes.jsonl"
+    for p in (settings_path, records_path):
+        if not p.is_file():
+            raise ReportError(f"{path} is not an experiment directory: {p.name} is missing "
+                              f"(write one with: cdf-mj experiment --out {path})")
+    try:
+        settings = json.loads(settings_path.read_text(encoding="utf-8"))
+    except ValueError as exc:
+        raise ReportError(f"{settings_path}: not JSON ({exc})") from None
+    records, failed, unreadable = [], 0, 0
+    with open(records_path, encoding="utf-8") as fh:
+        for line in fh:
+            if not line.strip():
+                continue
+            try:
+                rec = json.loads(line)
+            except ValueError:
+                unreadable += 1
+                continue
+            if not isinstance(rec, dict) or "planner" not in rec:
+                unreadable += 1
+            elif rec.get("status") == "failed":
+                failed += 1
+            else:
+                records.append(rec)
+    if not records:
+        raise ReportError(f"{records_path} holds no completed episode "
+                          f"({failed} failed, {unreadable} unreadable line(s))")
+    planners = [p for p in settings.get("planners", []) if any(r["planner"] == p for r in records)]
+    planners += sorted({r["planner"] for r in records} - set(planners))
+    return Experiment(path, settings, records, failed, unreadable, planners)
+
+
+# ----------------------------------------------------------------- settings -> objects
+def _tuples(value: Any) -> Any:
+    return tuple(_tuples(v) for v in value) if isinstance(value, list) else value
+
+
+def _scenario(settings: dict) -> ScenarioConfig:
+    raw = dict(settings.get("scenario", {}))
+    names = raw.pop("names", None)
+    fields = {k: _tuples(v) for k, v in raw.items()}
+    if names:
+        fields["names"] = SceneNames(**names)
+    try:
+        return ScenarioConfig(**fields)
+    except TypeError as exc:
+        raise ReportError(f"settings.json: scenario settings this version cannot read ({exc})") from None
+
+
+def _cdf(settings: dict) -> CDFConfig:
+    try:
+        return CDFConfig(**{k: _tuples(v) for k, v in settings.get("cdf", {}).items()})
+    except TypeError as exc:
+        raise ReportError(f"settings.json: CDF settings this version cannot read ({exc})") from None
+
+
+def _planner(name: str, cdf: CDFConfig) -> Planner:
+    return CDFPlanner(cdf) if name == "cdf" else make_planner(name)
+
+
+# ----------------------------------------------------------------- figures
+def _figure(width: float, height: float) -> Any:
+    try:
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
+        from matplotlib.figure import Figure
+    except ImportError:
+        raise ReportError(f"cdf-mj report needs matplotlib: {_VIZ_HINT}") from None
+    fig = Figure(figsize=(width, height), dpi=100, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig: Any, path: Path) -> Path:
+    fig.savefig(path, dpi=100)
+    return path
+
+
+def _prediction(rec: dict) -> str | None:
+    return (rec.get("planner_info") or {}).get("prediction")
+
+
+def _confusion(exp: Experiment, path: Path) -> Path | str:
+    recs = [r for r in exp.by_planner("cdf") if _prediction(r) in LABELS and r.get("label") in LABELS]
+    if not recs:
+        return "no CDF records with a prediction"
+    ours = np.array([[sum(1 for r in recs if r["label"] == a and _prediction(r) == b) for b in LABELS]
+                     for a in LABELS])
+    paper = np.array([PAPER_CONFUSION[a] for a in LABELS])
+    fig = _figure(8.0, 3.4)
+    axes = fig.subplots(1, 2)
+    for ax, mat, title in ((axes[0], ours, f"ours ({int(ours.sum())} episodes)"),
+                           (axes[1], paper, f"paper ({int(paper.sum())} episodes)")):
+        share = mat / np.maximum(mat.sum(axis=1, keepdims=True), 1)
+        ax.imshow(share, cmap="Blues", vmin=0.0, vmax=1.0)
+        for i in range(3):
+            for j in range(3):
+                ax.text(j, i, str(mat[i, j]), ha="center", va="center",
+                        color="white" if share[i, j] > 0.6 else "black", fontsize=11)
+        ax.set_xticks(range(3), LABELS)
+        ax.set_yticks(range(3), LABELS)
+        ax.set_xlabel("prediction")
+        ax.set_ylabel("scenario")
+        ax.set_title(title, fontsize=10)
+    fig.suptitle("CDF predictions (colour: share of the row)", fontsize=11)
+    return _save(fig, path)
+
+
+def _rates(recs: list[dict]) -> tuple[Rate, Rate]:
+    cut = [r for r in recs if r.get("label") == Labels.CUTOFF]
+    avoided = Rate(sum(1 for r in cut if r.get("collision_with") != "obstacle"), len(cut))
+    # As in experiment_tables: braking on an episode that is not a Cutoff, over all episodes.
+    false_alarm = Rate(sum(1 for r in recs if r.get("label") != Labels.CUTOFF and r.get("brake_time") is not None),
+                       len(recs))
+    return avoided, false_alarm
+
+
+def _avoidance(exp: Experiment, path: Path) -> Path | str:
+    rates = {p: _rates(exp.by_planner(p)) for p in exp.planners}
+    if not any(r[0].n for r in rates.values()):
+        return "no Cutoff episodes"
+    fig = _figure(8.0, 3.4)
+    axes = fig.subplots(1, 2)
+    x = np.arange(len(exp.planners))
+    colors = [_PLANNER_COLORS[i % len(_PLANNER_COLORS)] for i in range(len(exp.planners))]
+    titles = ("imminent collisions avoided (Cutoff episodes)", "false alarms (braked, not Cutoff; of all episodes)")
+    for k, ax in enumerate(axes):
+        vals = [rates[p][k] for p in exp.planners]
+        v = np.array([100 * r.value if r.n else np.nan for r in vals])
+        lo = np.array([100 * r.interval[0] for r in vals])
+        hi = np.array([100 * r.interval[1] for r in vals])
+        ax.bar(x, v, color=colors, alpha=0.8)
+        ax.errorbar(x, v, yerr=[np.nan_to_num(v - lo), np.nan_to_num(hi - v)], fmt="none", ecolor="black",
+                    capsize=5, label="95 % Wilson interval")
+        for xi, r, top in zip(x, vals, hi):
+            ax.text(xi + 0.08, min(top, 92) + 1.5, f"{r.k}/{r.n}", ha="left", va="bottom", fontsize=8)
+        if k == 0:
+            paper = [(i, 100 * (PAPER_PLANNERS[p][0] - PAPER_PLANNERS[p][1]) / PAPER_PLANNERS[p][0])
+                     for i, p in enumerate(exp.planners) if p in PAPER_PLANNERS]
+            if paper:
+                ax.scatter([i for i, _ in paper], [v for _, v in paper], marker="D", color="black",
+                           zorder=3, label="paper")
+        ax.set_xticks(x, exp.planners)
+        ax.set_ylim(0, 105)
+        ax.set_ylabel("%")
+        ax.set_title(titles[k], fontsize=10)
+        ax.legend(fontsize=8, loc="upper right")
+    return _save(fig, path)
+
+
+def _draw_layout(ax: Any, scene: Scene) -> None:
+    """The world-body boxes of the MJCF (roads, markings, buildings) as rectangles."""
+    from matplotlib.patches import Polygon as MplPolygon
+
+    m, d = scene.model, scene.data
+    boxes = []
+    for i in range(m.ngeom):
+        if m.geom_bodyid[i] != 0 or m.geom_type[i] != 6:  # world body, mjGEOM_BOX
+            continue
+        rgba = m.mat_rgba[m.geom_matid[i]] if m.geom_matid[i] >= 0 else m.geom_rgba[i]
+        boxes.append((float(d.geom_xpos[i][2] + m.geom_size[i][2]), i, rgba))
+    for _, i, rgba in sorted(boxes):
+        hx, hy = m.geom_size[i][:2]
+        rot = d.geom_xmat[i].reshape(3, 3)[:2, :2]
+        corners = np.array([[-hx, -hy], [hx, -hy], [hx, hy], [-hx, hy]]) @ rot.T + d.geom_xpos[i][:2]
+        ax.add_patch(MplPolygon(corners, closed=True, facecolor=tuple(rgba[:3]), edgecolor="none",
+                                zorder=1))
+    ax.set_facecolor((0.33, 0.42, 0.30))
+
+
+def _pick_seeds(exp: Experiment, planner: str, count: int = 3) -> list[int]:
+    """One seed per label (Cutoff, Yield, Right) for ``planner``, first in seed order;
+    Cutoff seeds where the planner braked first."""
+    recs = sorted(exp.by_planner(planner), key=lambda r: r["seed"])
+    seeds: list[int] = []
+    for lab in LABELS:
+        cand = [r for r in recs if r.get("label") == lab]
+        # A Cutoff the planner braked for; a Yield or Right it did not brake for.
+        cand.sort(key=lambda r: (r.get("brake_time") is None) == (lab == Labels.CUTOFF))
+        if cand:
+            seeds.append(int(cand[0]["seed"]))
+    for r in recs:  # unlabelled runs, or fewer labels than wanted
+        if len(seeds) >= count:
+            break
+        if int(r["seed"]) not in seeds:
+            seeds.append(int(r["seed"]))
+    return seeds[:count]
+
+
+def _trajectories(exp: Experiment, planner: str, seeds: Sequence[int], path: Path,
+                  notes: list[str]) -> Path | str:
+    if not seeds:
+        return f"no records of planner {planner}"
+    config, cdf = _scenario(exp.settings), _cdf(exp.settings)
+    scene_path = Path(exp.settings.get("scene") or DEFAULT_SCENE)
+    if not scene_path.is_file():
+        notes.append(f"The scene {scene_path} of the settings was not found; the default scene was used.")
+        scene_path = DEFAULT_SCENE
+    scene = Scene.load(scene_path, names=config.names)
+    stored = {int(r["seed"]): r for r in exp.by_planner(planner)}
+    fig = _figure(8.0, 4.6)
+    ax = fig.subplots()
+    _draw_layout(ax, scene)
+    for i, seed in enumerate(seeds):
+        rec = run_episode(config, seed, _planner(planner, cdf), scene, label=False, trace=True)
+        old = stored.get(seed)
+        if old is not None and old.get("brake_time") != rec.brake_time:
+            notes.append(f"Seed {seed} re-simulated with brake time {rec.brake_time} against "
+                         f"{old.get('brake_time')} stored: the code changed since the experiment.")
+        poses = np.asarray(rec.trace["poses"], dtype=float)  # (K, 2, 4)
+        color = _PLANNER_COLORS[i % len(_PLANNER_COLORS)]
+        lab = old.get("label") if old else None
+        name = f"seed {seed}" + (f" ({lab})" if lab else "")
+        lw = max(3.2 - 0.8 * i, 1.0)  # later paths thinner, so that shared stretches stay visible
+        ax.plot(poses[:, 0, 0], poses[:, 0, 1], color=color, lw=lw, zorder=3, label=f"{name}: ego")
+        ax.plot(poses[:, 1, 0], poses[:, 1, 1], color=color, lw=lw, ls="--", zorder=3,
+                label=f"{name}: obstacle")
+        if rec.brake_time is not None:
+            k = int(np.argmin(np.abs(np.asarray(rec.trace["t"]) - rec.brake_time)))
+            ax.scatter(poses[k, 0, 0], poses[k, 0, 1], marker="X", s=90, color=color, edgecolor="black",
+                       zorder=4)
+        if rec.collision:
+            ax.scatter(poses[-1, 0, 0], poses[-1, 0, 1], marker="*", s=160, color="yellow",
+                       edgecolor="black", zorder=4)
+    ax.set_xlim(-55, 35)
+    ax.set_ylim(-14, 22)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x east [m]")
+    ax.set_ylabel("y north [m]")
+    ax.set_title(f"{planner}: paths (ego solid, obstacle dashed; X brake decision, * collision)",
+                 fontsize=10)
+    ax.legend(fontsize=7, loc="upper left", ncol=1, framealpha=0.85)
+    return _save(fig, path)
+
+
+def _posterior(exp: Experiment, seeds: Sequence[int], path: Path) -> Path | str:
+    recs = {int(r["seed"]): r for r in exp.by_planner("cdf")
+            if (r.get("planner_info") or {}).get("history", {}).get("t")}
+    chosen = [s for s in seeds if s in recs] or sorted(recs)[:3]
+    if not chosen:
+        return "no CDF records with a posterior history"
+    tau = exp.settings.get("cdf", {}).get("tau")
+    fig = _figure(8.0, 1.0 + 1.9 * len(chosen))
+    axes = np.atleast_1d(fig.subplots(len(chosen), 1, sharex=True))
+    for ax, seed in zip(axes, chosen):
+        rec = recs[seed]
+        h = rec["planner_info"]["history"]
+        for key, name, color in _CURVES:
+            ax.plot(h["t"], h[key], color=color, lw=1.8, label=name)
+        if tau is not None:
+            ax.axhline(tau, color="#e04010", ls=":", lw=1, label=f"tau = {tau}")
+        if rec.get("brake_time") is not None:
+            ax.axvline(rec["brake_time"], color="black", lw=1.4, label="brake decision")
+        if rec.get("entered_lane_time") is not None:
+            ax.axvline(rec["entered_lane_time"], color="grey", ls="--", lw=1.2, label="obstacle enters ego lane")
+        ax.set_ylim(-0.03, 1.03)
+        ax.set_ylabel("probability")
+        ax.set_title(f"seed {seed}: label {rec.get('label')}, prediction {_prediction(rec)}", fontsize=9)
+    axes[0].legend(fontsize=7, loc="center right", ncol=2)
+    axes[-1].set_xlabel("time [s]")
+    return _save(fig, path)
+
+
+def _lead_times(exp: Experiment, path: Path) -> Path | str:
+    leads = {}
+    for p in exp.planners:
+        leads[p] = [r["entered_lane_time"] - r["brake_time"] for r in exp.by_planner(p)
+                    if r.get("label") == Labels.CUTOFF and r.get("brake_time") is not None
+                    and r.get("entered_lane_time") is not None]
+    if not any(leads.values()):
+        return "no Cutoff episode with both a brake decision and a lane entry"
+    every = np.concatenate([np.asarray(v, dtype=float) for v in leads.values() if v])
+    lo, hi = math.floor(every.min() * 10) / 10, math.ceil(every.max() * 10) / 10
+    bins = np.arange(lo - 0.05, hi + 0.1, 0.1)
+    fig = _figure(8.0, 3.4)
+    ax = fig.subplots()
+    for i, (p, v) in enumerate(leads.items()):
+        if not v:
+            continue
+        color = _PLANNER_COLORS[i % len(_PLANNER_COLORS)]
+        med = statistics.median(v)
+        ax.hist(v, bins=bins, histtype="stepfilled", alpha=0.35, color=color,
+                label=f"{p}: median {med:.2f} s ({len(v)} episodes)")
+        ax.hist(v, bins=bins, histtype="step", color=color, lw=1.5)
+        ax.axvline(med, color=color, ls="--", lw=1.2)
+    ax.axvline(0.0, color="black", lw=0.8)
+    ax.set_xlabel("lead time = obstacle enters the ego lane - brake decision [s]")
+    ax.set_ylabel("Cutoff episodes")
+    ax.legend(fontsize=8)
+    return _save(fig, path)
+
+
+# ----------------------------------------------------------------- the page
+def write_report(path: str | Path, out: str | Path | None = None, seeds: Sequence[int] | None = None,
+                 planner: str | None = None) -> ReportResult:
+    """Write the figures of :data:`FIGURES` and ``report.md`` for an experiment directory.
+
+    Args:
+        path: the experiment directory (``settings.json``, ``episodes.jsonl``).
+        out: where to write (default ``path``); created if missing.
+        seeds: seeds for the trajectory and posterior figures (default: one per label).
+        planner: planner whose trajectories are drawn (default ``cdf`` if present, else the
+            first planner of the experiment).
+
+    Raises:
+        ReportError: not an experiment directory, nothing completed, unknown planner,
+            missing matplotlib.
+    """
+    exp = load_experiment(path)
+    out = Path(out) if out is not None else exp.path
+    _figure(1, 1)  # matplotlib missing: refused before any work
+    if planner is None:
+        planner = "cdf" if "cdf" in exp.planners else exp.planners[0]
+    elif planner not in exp.planners:
+        raise ReportError(f"planner {planner!r} has no records in {exp.path}: "
+                          f"choose one of {', '.join(exp.planners)}")
+    known = {int(r["seed"]) for r in exp.by_planner(planner)}
+    if seeds is not None:
+        missing = [s for s in seeds if s not in known]
+        if missing:
+            raise ReportError(f"seed(s) {', '.join(map(str, missing))} have no completed {planner} "
+                              f"record in {exp.path}")
+        seeds = list(seeds)
+    else:
+        seeds = _pick_seeds(exp, planner)
+    out.mkdir(parents=True, exist_ok=True)
+
+    notes: list[str] = []
+    made: dict[str, Path | str] = {
+        "confusion": _confusion(exp, out / "confusion.png"),
+        "avoidance": _avoidance(exp, out / "avoidance.png"),
+        "trajectories": _trajectories(exp, planner, seeds, out / "trajectories.png", notes),
+        "posterior": _posterior(exp, seeds, out / "posterior.png"),
+        "lead_times": _lead_times(exp, out / "lead_times.png"),
+    }
+    figures = {k: v for k, v in made.items() if isinstance(v, Path)}
+    omitted = {k: v for k, v in made.items() if isinstance(v, str)}
+
+    s = exp.settings
+    span = s.get("seeds", [])
+    lines = [f"# Experiment report: {exp.path}", "",
+             f"{len(exp.records)} completed episode records, planners {', '.join(exp.planners)}"
+             + (f", seeds {span[0]}-{span[1] - 1}" if len(span) == 2 else "") + "."]
+    skipped = []
+    if exp.failed:
+        skipped.append(f"{exp.failed} failed episode(s) (`\"status\": \"failed\"`)")
+    if exp.unreadable:
+        skipped.append(f"{exp.unreadable} unreadable line(s)")
+    lines.append(f"Skipped: {', '.join(skipped)}." if skipped else "Skipped: none.")
+    lines += ["", "## Tables", "", experiment_tables(exp.records), "", "## Figures", ""]
+    for name, caption in FIGURES.items():
+        if name in figures:
+            lines += [f"**{name}**: {caption}.", "", f"![{name}]({figures[name].name})", ""]
+        else:
+            lines += [f"**{name}**: not drawn ({omitted[name]}).", ""]
+    if "trajectories" in figures:
+        lines += [f"Trajectory and posterior seeds ({planner}): {', '.join(map(str, seeds))}.", ""]
+    lines += notes
+    markdown = out / "report.md"
+    markdown.write_text("\n".join(lines).rstrip() + "\n", encoding="utf-8")
+    return ReportResult(markdown=markdown, figures=figures, omitted=omitted, records=len(exp.records),
+                        failed=exp.failed, unreadable=exp.unreadable)
