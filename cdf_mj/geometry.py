@@ -7,6 +7,8 @@ leading shape, so that the same code serves one car and N particles.
 
 from __future__ import annotations
 
+import bisect
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -46,6 +48,14 @@ class Polyline:
         object.__setattr__(self, "_ux", (seg[:, 0] / lengths).copy())
         object.__setattr__(self, "_uy", (seg[:, 1] / lengths).copy())
         object.__setattr__(self, "_slope", seg / np.diff(s0)[:, None])
+        # The same numbers as Python floats, for one point at a time (a car, not particles):
+        # plain float arithmetic in the same order gives the same values without NumPy's
+        # per-call overhead.
+        object.__setattr__(self, "_py", tuple(zip(self._x0.tolist(), self._y0.tolist(), self._ux.tolist(),
+                                                  self._uy.tolist(), lengths.tolist(), s0[:-1].tolist())))
+        object.__setattr__(self, "_py_slope", [tuple(row) for row in self._slope.tolist()])
+        object.__setattr__(self, "_py_points", [tuple(row) for row in pts.tolist()])
+        object.__setattr__(self, "_py_s0", s0.tolist())
 
     @property
     def length(self) -> float:
@@ -58,6 +68,9 @@ class Polyline:
         xy = np.asarray(xy, dtype=float)
         lead = xy.shape[:-1]
         flat = xy.reshape(-1, 2)
+        if len(flat) == 1 and math.isfinite(flat[0, 0]) and math.isfinite(flat[0, 1]):
+            s1, lat1 = self._project_one(float(flat[0, 0]), float(flat[0, 1]))
+            return np.full(lead, s1), np.full(lead, lat1)
         # (S, M) layout, segments along axis 0: the elementwise work runs over the long axis.
         ux, uy = self._ux[:, None], self._uy[:, None]
         px = flat[:, 0] - self._x0[:, None]  # from each segment's start
@@ -75,6 +88,20 @@ class Polyline:
         lateral = self._ux[k] * py[k, cols] - self._uy[k] * px[k, cols]
         return s.reshape(lead), lateral.reshape(lead)
 
+    def _project_one(self, x: float, y: float) -> tuple[float, float]:
+        """:meth:`project` of one finite point, the same operations on Python floats."""
+        best = math.inf
+        s_best = lat_best = 0.0
+        for x0, y0, ux, uy, length, s0 in self._py:
+            px, py = x - x0, y - y0
+            t = min(max(px * ux + py * uy, 0.0), length)
+            px -= t * ux
+            py -= t * uy
+            d2 = px * px + py * py
+            if d2 < best:  # the first minimum, as numpy.argmin
+                best, s_best, lat_best = d2, s0 + t, ux * py - uy * px
+        return s_best, lat_best
+
     def point_at(self, s: np.ndarray) -> np.ndarray:
         """Point(s) at arc length ``s`` [m], shape ``(..., 2)``; clamped to the ends.
 
@@ -83,6 +110,8 @@ class Polyline:
         """
         s = np.asarray(s, dtype=float)
         shape = s.shape
+        if s.size == 1 and math.isfinite(s.flat[0]):
+            return np.array(self._point_one(float(s.flat[0]))).reshape(shape + (2,))
         s = s.reshape(-1)
         s0 = self._s0
         k = np.searchsorted(s0, s, side="right") - 1
@@ -90,6 +119,16 @@ class Polyline:
         out = self._slope[k] * np.maximum(s - s0[k], 0.0)[:, None] + self.points[k]
         out[s >= s0[-1]] = self.points[-1]
         return out.reshape(shape + (2,))
+
+    def _point_one(self, s: float) -> tuple[float, float]:
+        """:meth:`point_at` of one finite arc length, the same operations on Python floats."""
+        s0 = self._py_s0
+        if s >= s0[-1]:
+            return self._py_points[-1]
+        k = min(max(bisect.bisect_right(s0, s) - 1, 0), len(s0) - 2)
+        d = max(s - s0[k], 0.0)
+        (sx, sy), (px, py) = self._py_slope[k], self._py_points[k]
+        return sx * d + px, sy * d + py
 
 
 @dataclass(frozen=True)
@@ -123,6 +162,8 @@ def box_corners(center: np.ndarray, heading: np.ndarray | float, half: np.ndarra
     heading = np.asarray(heading, dtype=float)
     c, s = np.cos(heading)[..., None], np.sin(heading)[..., None]
     local = _UNIT_CORNERS * np.asarray(half, dtype=float)  # (4, 2)
-    x = center[..., None, 0] + c * local[:, 0] - s * local[:, 1]
-    y = center[..., None, 1] + s * local[:, 0] + c * local[:, 1]
-    return np.stack([x, y], axis=-1)
+    lx, ly = local[:, 0], local[:, 1]
+    out = np.empty(np.broadcast_shapes(center.shape[:-1], heading.shape) + (4, 2))
+    out[..., 0] = center[..., None, 0] + c * lx - s * ly
+    out[..., 1] = center[..., None, 1] + s * lx + c * ly
+    return out
