@@ -159,10 +159,12 @@ class Scene:
         hulls = [model.geom(p + n.hull).id for p in (n.ego_prefix, n.obstacle_prefix)]
         self.ray_groups[model.geom_group[np.r_[self.buildings, hulls].astype(int)]] = 1
         if data is not None:
-            if data.qpos.shape != (model.nq,) or data.act.shape != (model.na,):
+            have = (data.qpos.size, data.act.size, data.xpos.shape[0], data.geom_xpos.shape[0],
+                    data.site_xpos.shape[0])
+            want = (model.nq, model.na, model.nbody, model.ngeom, model.nsite)
+            if have != want:
                 raise SceneError(f"scene {source}: the MjData given does not belong to this "
-                                 f"model (nq {data.qpos.size} vs {model.nq}, na {data.act.size} "
-                                 f"vs {model.na})")
+                                 f"model (nq, na, nbody, ngeom, nsite: {have} vs {want})")
             self.data = data
 
     # ----------------------------------------------------------------- loading
