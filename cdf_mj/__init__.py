@@ -44,6 +44,8 @@ _EXPORTS = {
     "CVPlanner": "cdf_mj.baselines",
     "IMMPlanner": "cdf_mj.baselines",
     "run_sweep": "cdf_mj.sweep",
+    "render_episode": "cdf_mj.render",
+    "write_report": "cdf_mj.report",
 }
 
 __all__ = ["__version__", "ENV_ID", *_EXPORTS]
@@ -57,6 +59,8 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time see __getattr__
     from cdf_mj.inference import ParticleFilter
     from cdf_mj.monitor import CDFMonitor, attach
     from cdf_mj.planners import CDFPlanner
+    from cdf_mj.render import render_episode
+    from cdf_mj.report import write_report
     from cdf_mj.scene import Scene, SceneError, add_car
     from cdf_mj.sweep import run_sweep
 
