@@ -1,0 +1,183 @@
+"""The Gymnasium environment cdf_mj/TIntersection-v0: Gymnasium's own checker, seeding,
+the same world as run_episode, actions, rewards and episode ends, vectorised workers,
+rendering and the example script (in a subprocess: OpenGL is chosen at MuJoCo import)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+gym = pytest.importorskip("gymnasium")
+from gymnasium.utils.env_checker import check_env
+
+import cdf_mj
+from cdf_mj.driver import ego_control
+from cdf_mj.episode import Labels, run_episode
+
+ROOT = Path(__file__).resolve().parent.parent
+# The one message check_env gives for an action box in physical units (see the class
+# docstring): a recommendation to normalise, which normalized_actions=True follows.
+NORMALISE_HINT = "we recommend using a symmetric and normalized space"
+
+
+def _checker_warnings(env) -> list[str]:
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(env, skip_render_check=True)
+    return [str(w.message) for w in caught]
+
+
+def test_check_env_normalized_actions_no_warnings():
+    env = gym.make(cdf_mj.ENV_ID, normalized_actions=True, label=False)
+    assert _checker_warnings(env.unwrapped) == []
+
+
+def test_check_env_physical_actions_only_the_normalisation_hint():
+    env = gym.make(cdf_mj.ENV_ID, posterior_in_observation=True, label=False)
+    msgs = _checker_warnings(env.unwrapped)
+    assert len(msgs) == 1 and NORMALISE_HINT in msgs[0], msgs
+
+
+def test_spaces_come_from_the_model():
+    env = gym.make(cdf_mj.ENV_ID, label=False).unwrapped
+    ego = env.scene.ego
+    np.testing.assert_allclose(env.action_space.low, [ego.accel_range[0], ego.steer_range[0]], rtol=1e-6)
+    np.testing.assert_allclose(env.action_space.high, [ego.accel_range[1], ego.steer_range[1]], rtol=1e-6)
+    assert env.observation_space.shape == (8,)
+    assert np.all(np.isfinite(env.observation_space.low))
+
+
+def test_reset_seed_is_reproducible_and_is_run_episodes_world(scene):
+    env = gym.make(cdf_mj.ENV_ID, scene=scene)
+    rng = np.random.default_rng(0)
+    actions = rng.uniform(env.action_space.low, env.action_space.high, size=(30, 2)).astype(np.float32)
+
+    def rollout():
+        obs, info = env.reset(seed=4)
+        out = [obs]
+        for a in actions:
+            obs, _, te, tr, info = env.step(a)
+            out.append(obs)
+            if te or tr:
+                break
+        return np.array(out), info
+
+    a, info_a = rollout()
+    b, info_b = rollout()
+    np.testing.assert_array_equal(a, b)
+    assert info_a == info_b
+    rec = run_episode(seed=4, planner="constant", scene=scene)
+    assert info_a["label"] == rec.label and info_a["intent"] == rec.intent
+    np.testing.assert_allclose(a[0][:2], [env.unwrapped.scene.ego_start[0] + rec.ego_start_offset,
+                                          env.unwrapped.scene.ego_start[1]])
+
+
+@pytest.mark.parametrize("planner", ["constant", "cdf"])
+def test_env_with_the_planners_policy_replays_run_episode(scene, planner):
+    """One implementation of the world: driving the env as the planner would gives
+    run_episode's record (seed 1 is a cut-off)."""
+    rec = run_episode(seed=1, planner=planner, scene=scene)
+    assert rec.label == Labels.CUTOFF
+    env = gym.make(cdf_mj.ENV_ID, scene=scene).unwrapped
+    obs, info = env.reset(seed=1)
+    brake_time, done, ret = None, False, 0.0
+    while not done:
+        brake = planner == "cdf" and info["brake"]
+        if brake and brake_time is None:
+            brake_time = info["t"]
+        action = ego_control(env.world.driver, scene.ego, obs[:4], brake)
+        obs, reward, terminated, truncated, info = env.step(action)
+        ret += reward
+        done = terminated or truncated
+    assert brake_time == rec.brake_time
+    assert info["collision"] == rec.collision_with
+    assert info["t"] == pytest.approx(rec.end_time)
+    assert env.world.min_gap == pytest.approx(rec.min_gap)
+    if planner == "constant":  # hit: the penalty is in the return, and the episode terminated
+        assert terminated and not truncated and ret < -50
+    else:  # avoided: it stopped short and waited to the end of the episode
+        assert truncated and not terminated and info["collision"] is None
+
+
+def test_out_of_range_actions_are_clipped_and_bad_ones_refused(scene):
+    env = gym.make(cdf_mj.ENV_ID, scene=scene, run_filter=False, label=False).unwrapped
+    env.reset(seed=2)
+    big = env.step(np.array([100.0, -7.0]))[0]
+    env.reset(seed=2)
+    edge = env.step(np.array([env.action_space.high[0], env.action_space.low[1]]))[0]
+    np.testing.assert_allclose(big, edge)
+    for bad in ([np.nan, 0.0], [0.0], [[0.0, 0.0]]):
+        with pytest.raises(ValueError, match="action must be 2 finite numbers"):
+            env.step(np.array(bad))
+
+
+def test_right_turner_episode_ends_when_the_ego_is_past(scene):
+    env = gym.make(cdf_mj.ENV_ID, scene=scene, run_filter=False).unwrapped
+    _obs, info = env.reset(seed=0)
+    assert info["label"] == Labels.RIGHT and info["posterior"] is None
+    ret, done, steps = 0.0, False, 0
+    while not done:
+        _, r, terminated, truncated, info = env.step(np.zeros(2))
+        ret += r
+        steps += 1
+        done = terminated or truncated
+    assert terminated and not truncated and info["collision"] is None
+    assert ret == pytest.approx(steps, rel=0.05)  # ~1 per step at the nominal speed
+
+
+def test_misuse_gives_clear_errors(scene):
+    env = gym.make(cdf_mj.ENV_ID, scene=scene, label=False).unwrapped
+    with pytest.raises(RuntimeError, match="reset"):
+        env.step(np.zeros(2))
+    with pytest.raises(ValueError, match="cameras: top"):
+        gym.make(cdf_mj.ENV_ID, scene=scene, camera="drone")
+    with pytest.raises(ValueError, match="needs run_filter"):
+        gym.make(cdf_mj.ENV_ID, scene=scene, posterior_in_observation=True, run_filter=False)
+
+
+def test_make_vec_with_worker_processes():
+    envs = gym.make_vec(cdf_mj.ENV_ID, num_envs=2, vectorization_mode="async",
+                        vector_kwargs={"context": "spawn"}, posterior_in_observation=True,
+                        label=False)
+    try:
+        obs, _info = envs.reset(seed=[3, 4])
+        assert obs.shape == (2, 11) and np.all(np.isfinite(obs))
+        for _ in range(5):
+            obs, reward, _, _, _ = envs.step(np.zeros((2, 2), dtype=np.float32))
+        assert obs.shape == (2, 11) and reward.shape == (2,)
+        assert np.all((obs[:, 8:] >= 0) & (obs[:, 8:] <= 1))
+    finally:
+        envs.close()
+
+
+def test_render_check_env_and_example_script_in_a_subprocess(tmp_path):
+    """With MUJOCO_GL=egl: check_env including its render checks, and the example script
+    driving the env with its own policy into a video."""
+    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+    code = (
+        "import warnings, gymnasium as gym, cdf_mj\n"
+        "from gymnasium.utils.env_checker import check_env\n"
+        "e = gym.make(cdf_mj.ENV_ID, render_mode='rgb_array', normalized_actions=True,"
+        " label=False, width=160, height=120)\n"
+        "with warnings.catch_warnings(record=True) as w:\n"
+        "    warnings.simplefilter('always'); check_env(e.unwrapped)\n"
+        "assert not w, [str(x.message) for x in w]\n"
+        "e.reset(seed=1); f = e.render(); assert f.shape == (120, 160, 3) and f.std() > 1\n"
+        "print('render ok')\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=False,
+                         timeout=120)
+    assert out.returncode == 0 and "render ok" in out.stdout, out.stderr[-2000:]
+    video = tmp_path / "drive.mp4"
+    out = subprocess.run([sys.executable, str(ROOT / "scripts" / "drive_env.py"), "--seed", "1",
+                          "--out", str(video), "--width", "160", "--height", "120",
+                          "--max-steps", "4"], env=env, capture_output=True, text=True, timeout=120,
+                         check=False)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert video.stat().st_size > 1000 and "5 frames" in out.stdout
