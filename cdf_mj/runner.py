@@ -182,7 +182,7 @@ def _ray(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], workers: int
         ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False, **kwargs)
     try:
         actor = ray.remote(num_cpus=1)(SeedWorker)
-        n_actors = workers if address is None else max(1, min(workers, int(ray.cluster_resources().get("CPU", 1))))
+        n_actors = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
         pool = ActorPool([actor.remote(job) for _ in range(n_actors)])
         for seed, planners in todo:
             pool.submit(lambda a, item: a.run.remote(*item), (seed, planners))
@@ -204,13 +204,17 @@ def run_seeds(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], backend
               workers: int | None = None, address: str | None = None) -> Iterator[SeedResult]:
     """Yield one :class:`SeedResult` per ``(seed, planners)`` item, in completion order.
 
-    ``workers`` defaults to the CPU count; ``backend="process"`` with one worker, or
-    fewer than two seeds, runs in this process. Raises :class:`WorkerDiedError` if a
+    ``workers`` defaults to the CPU count (with Ray and an ``address``: one actor per CPU
+    of the cluster); ``backend="process"`` with one worker, or fewer than two seeds, runs
+    in this process. Raises :class:`WorkerDiedError` if a
     worker dies; seeds already yielded are unaffected.
     """
+    cluster_default = backend == "ray" and address is not None and workers is None
     workers = check_backend(backend, workers)
     if backend == "process" and (workers == 1 or len(todo) < 2):
         backend = "serial"
+    if cluster_default:
+        workers = 0  # one actor per CPU of the cluster
     return _BACKENDS[backend](job, todo, min(workers, max(1, len(todo))), address)
 
 

@@ -59,7 +59,7 @@ def _count_lines(path: Path) -> int:
 
 
 def test_sigkilled_run_resumes_without_loss_or_duplicates(tmp_path):
-    out, seeds = tmp_path / "killed", range(0, 60)
+    out, seeds = tmp_path / "killed", range(0, 40)
     cmd = [sys.executable, "-m", "cdf_mj.cli", "experiment", "--episodes", str(len(seeds)),
            "--planners", "reactive", "--workers", "2", "--out", str(out), "--quiet"]
     # Its own session, so that the kill reaches the worker processes too.
