@@ -695,7 +695,7 @@ def _writer(req: _Request) -> tuple[Callable[[np.ndarray], None], Callable[[], N
     if req.fmt == "mp4":
         w = iio.get_writer(req.out, format="FFMPEG", mode="I", fps=req.fps, codec="libx264",
                            pixelformat="yuv420p", macro_block_size=2, quality=7,
-                           ffmpeg_log_level="error")
+                           ffmpeg_log_level="error", output_params=["-preset", "veryfast"])
         return w.append_data, w.close
     frames: list[np.ndarray] = []
 
