@@ -209,10 +209,13 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     cdf = CDFConfig(n_particles=args.particles, tau=args.tau, cutoff_rule=args.cutoff_rule)
     seeds = range(args.seed0, args.seed0 + args.episodes)
+    if args.retry_failed and not args.resume:
+        raise CLIError("--retry-failed needs --resume")
     try:
         result = run_experiment(args.out, seeds, args.planners, config, cdf, args.scene,
                                 progress=not args.quiet, workers=args.workers, backend=args.backend,
-                                resume=args.resume, address=args.address)
+                                resume=args.resume, retry_failed=args.retry_failed,
+                                address=args.address)
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted; the finished episodes are saved in {args.out}/episodes.jsonl: "
               f"continue with the same command and --resume", file=sys.stderr)
@@ -255,6 +258,8 @@ def _add_experiment_arguments(p: argparse.ArgumentParser, episodes: int, out: st
                         "(default: start a local Ray instance)")
     p.add_argument("--resume", action="store_true",
                    help="continue an interrupted run in --out with the same settings")
+    p.add_argument("--retry-failed", action="store_true",
+                   help="with --resume: run the episodes that failed again")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_scenario_arguments(p)
     p.set_defaults(func=_cmd_experiment)

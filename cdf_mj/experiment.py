@@ -135,7 +135,8 @@ def run_experiment(out_dir: str | Path, seeds: Sequence[int], planners: Sequence
                    config: ScenarioConfig | None = None, cdf: CDFConfig | None = None,
                    scene: str | Path = DEFAULT_SCENE, progress: bool = True, *,
                    workers: int | None = None, backend: Backend = "process",
-                   resume: bool = False, address: str | None = None) -> ExperimentResult:
+                   resume: bool = False, retry_failed: bool = False,
+                   address: str | None = None) -> ExperimentResult:
     """Run every planner on every seed; persist the records and return them.
 
     Args:
@@ -148,6 +149,8 @@ def run_experiment(out_dir: str | Path, seeds: Sequence[int], planners: Sequence
         workers: worker processes (default: the CPU count); 1 runs in this process.
         backend: ``process`` (default), ``serial`` or ``ray``.
         resume: continue a run in ``out_dir`` that was interrupted (same settings only).
+        retry_failed: with ``resume``, run the failed episodes again (their records are
+            replaced); without it they stay as recorded.
         address: with ``backend="ray"``, the address of an existing Ray cluster.
 
     Raises:
@@ -191,7 +194,7 @@ def run_experiment(out_dir: str | Path, seeds: Sequence[int], planners: Sequence
 
     order = {name: i for i, name in enumerate(planners)}
     peaks: list[float] = []
-    with RecordStore.open(records_path) as store:
+    with RecordStore.open(records_path, drop_failed=resume and retry_failed) as store:
         done = store.done()
         resumed = len(done)
         todo = [(s, tuple(p for p in planners if (s, p) not in done)) for s in seeds]

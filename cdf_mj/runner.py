@@ -118,6 +118,7 @@ class SeedWorker:
                 label = (rec["label"], rec["counterfactual_collision"])
             else:
                 rec["label"], rec["counterfactual_collision"] = label
+            rec["planner"] = name  # the experiment's name for it, whatever the class calls itself
             rec["status"] = OK
             records.append(rec)
         return SeedResult(seed, records, _peak_rss_mb(), os.getpid())
@@ -241,11 +242,13 @@ class RecordStore:
         self._fh = fh
 
     @classmethod
-    def open(cls, path: str | Path) -> RecordStore:
+    def open(cls, path: str | Path, drop_failed: bool = False) -> RecordStore:
         """Open ``path`` for appending, reading the records already there.
 
         A last line cut short by a killed run is dropped (truncated from the file); any
-        other line that is not a JSON object is an error naming its line number.
+        other line that is not a JSON object is an error naming its line number. With
+        ``drop_failed``, failed records are removed from the file (rewritten atomically)
+        so that their episodes run again.
         """
         path = Path(path)
         records: list[dict] = []
@@ -268,7 +271,15 @@ class RecordStore:
                     fh.truncate(end)
                     fh.flush()
                     os.fsync(fh.fileno())
-        fh = open(path, "a", encoding="utf-8")
+        if drop_failed and any(r.get("status") == FAILED for r in records):
+            records = [r for r in records if r.get("status") != FAILED]
+            tmp = path.with_name(path.name + ".tmp")
+            with open(tmp, "w", encoding="utf-8") as fh:
+                fh.write("".join(json.dumps(r, allow_nan=False) + "\n" for r in records))
+                fh.flush()
+                os.fsync(fh.fileno())
+            os.replace(tmp, path)
+        fh = open(path, "a", encoding="utf-8")  # noqa: SIM115 - closed by close() / __exit__
         return cls(path, records, fh)
 
     def done(self) -> set[tuple[int, str]]:

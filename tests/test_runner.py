@@ -119,6 +119,16 @@ def test_a_failing_episode_is_recorded_and_the_run_goes_on(tmp_path, monkeypatch
         if r["planner"] == "exploding" and r["status"] == OK:
             assert r["label"] == reactive[r["seed"]]["label"]
 
+    # Resuming keeps the failures; --retry-failed runs them again (here, once fixed).
+    args = ["experiment", "--episodes", "10", "--planners", "reactive,exploding", "--workers", "2",
+            "--out", str(tmp_path), "--quiet", "--resume"]
+    assert main(args) == 1 and len(load_records(tmp_path)) == 20
+    monkeypatch.setitem(PLANNERS, "exploding", ReactivePlanner)  # the bug is fixed
+    assert main([*args, "--retry-failed"]) == 0
+    retried = load_records(tmp_path)
+    assert len(retried) == 20 and all(r["status"] == OK for r in retried)
+    assert Counter(_key(r) for r in retried) == Counter(_key(r) for r in records)
+
 
 class DyingPlanner(ReactivePlanner):
     """Kills its own worker process once (while the marker file is missing)."""
