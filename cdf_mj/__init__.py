@@ -79,7 +79,10 @@ def _register_env() -> None:
     """
     import importlib.util
 
-    if importlib.util.find_spec("gymnasium") is None:
+    try:
+        if importlib.util.find_spec("gymnasium") is None:
+            return
+    except (ImportError, ValueError):  # a broken or blocked installation: nothing to register
         return
     from gymnasium.envs.registration import register, registry
 

@@ -171,7 +171,8 @@ def test_render_check_env_and_example_script_in_a_subprocess(tmp_path):
         "e.reset(seed=1); f = e.render(); assert f.shape == (120, 160, 3) and f.std() > 1\n"
         "print('render ok')\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=False,
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         check=False,
                          timeout=120)
     assert out.returncode == 0 and "render ok" in out.stdout, out.stderr[-2000:]
     video = tmp_path / "drive.mp4"
@@ -181,3 +182,14 @@ def test_render_check_env_and_example_script_in_a_subprocess(tmp_path):
                          check=False)
     assert out.returncode == 0, out.stderr[-2000:]
     assert video.stat().st_size > 1000 and "5 frames" in out.stdout
+
+
+def test_without_gymnasium_import_works_and_the_env_names_the_extra():
+    code = ("import sys; sys.modules['gymnasium'] = None\n"
+            "import cdf_mj\n"
+            "try:\n    cdf_mj.TIntersectionEnv\n"
+            "except ImportError as e:\n    print(e)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         timeout=60, check=False)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "cdf_mj.envs needs Gymnasium: pip install 'cdf-mj[gym]'"
