@@ -312,20 +312,22 @@ def filter_table(records: Iterable[object], times: Sequence[float] = (0.5, 1.0, 
                 k = np.flatnonzero(np.isclose(c.times, t))
                 at.append(_fmt(float(c.scores[k[0]]), 3) if k.size else "-")
             rows.append(f"| {name} | {q} | {c.episodes} | {c.ticks} | {_fmt(c.overall, 3)} | {' | '.join(at)} |")
-    ref_recs = [r for r in recs if _get(r, "planner") == planners[0]] if planners else []
-    if ref_recs:
-        y = np.array([1.0 if _get(r, "intent") == "left" else 0.0 for r in ref_recs])
+    if planners:
+        first = [r for r in recs if _get(r, "planner") == planners[0]]
+        y = np.array([1.0 if _get(r, "intent") == "left" else 0.0 for r in first])
         prior = float(np.mean((p_left - y) ** 2))
-        rows.append(f"| prior P(left) = {p_left:g}, held | p_left | {len(ref_recs)} | - | {_fmt(prior, 3)} | "
+        rows.append(f"| prior P(left) = {p_left:g}, held | p_left | {len(first)} | - | {_fmt(prior, 3)} | "
                     + " | ".join(_fmt(prior, 3) for _ in times) + " |")
-        for q in FILTER_QUANTITIES:
-            c = brier_over_time(ref_recs, q)
-            if c.episodes:
-                at = []
-                for t in times:
-                    k = np.flatnonzero(np.isclose(c.times, t))
-                    at.append(_fmt(float(c.reference[k[0]]), 3) if k.size else "-")
-                rows.append(f"| base rate per time (in-sample) | {q} | {c.episodes} | {c.ticks} "
-                            f"| {_fmt(c.reference_overall, 3)} | {' | '.join(at)} |")
-                break
+    for q in FILTER_QUANTITIES:
+        for name in planners:  # the episodes and ticks of the first filter with this history
+            c = brier_over_time([r for r in recs if _get(r, "planner") == name], q)
+            if not c.episodes:
+                continue
+            at = []
+            for t in times:
+                k = np.flatnonzero(np.isclose(c.times, t))
+                at.append(_fmt(float(c.reference[k[0]]), 3) if k.size else "-")
+            rows.append(f"| base rate per time (in-sample, {name}'s ticks) | {q} | {c.episodes} | {c.ticks} "
+                        f"| {_fmt(c.reference_overall, 3)} | {' | '.join(at)} |")
+            break
     return "\n".join(rows)

@@ -415,3 +415,83 @@ def load_rows(path: str | Path) -> list[dict]:
                         conv[k] = v
             out.append(conv)
     return out
+
+
+# ----------------------------------------------------------------- planner comparison figures
+def comparison_figures(records: Iterable[dict], out_dir: str | Path, p_left: float = 0.75) -> list[Path]:
+    """Figures of an experiment's records (planners on the same seeds), written to ``out_dir``:
+
+    ``brier_over_time.png``: Brier score of P(left) and P(seen) per tick time for every
+    planner with such a history, beside the prior ``p_left`` held constant and the per-time
+    base rate (in-sample); ``brake_times.png``: when each planner brakes, relative to the
+    obstacle entering the ego lane (Cutoff episodes), and the share of other episodes in
+    which it has braked by each time (its false alarms).
+    """
+    from cdf_mj.metrics import brier_over_time
+
+    plt = _pyplot()
+    recs = [r for r in records if r.get("status") != "failed" and r.get("label") is not None]
+    planners = list(dict.fromkeys(r["planner"] for r in recs))
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = []
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4))
+    for ax, q, title in ((axes[0], "p_left", "P(left) against the true intent"),
+                         (axes[1], "p_seen", "P(seen) against 'observed the ego on an earlier tick'")):
+        ref = None
+        for j, p in enumerate(planners):
+            c = brier_over_time([r for r in recs if r["planner"] == p], q)
+            if not c.episodes:
+                continue
+            keep = c.counts >= max(10, 0.1 * c.episodes)
+            ax.plot(c.times[keep], c.scores[keep], color=f"C{j}", label=f"{p} (all ticks {c.overall:.3f})")
+            ref = ref or c
+        if ref is not None:
+            keep = ref.counts >= max(10, 0.1 * ref.episodes)
+            if q == "p_left":
+                first = [r for r in recs if r["planner"] == planners[0]]
+                y = np.array([r["intent"] == "left" for r in first], dtype=float)
+                ax.axhline(float(np.mean((p_left - y) ** 2)), color="0.5", ls=":",
+                           label=f"prior {p_left:g}, held")
+            else:
+                ax.plot(ref.times[keep], ref.reference[keep], color="0.5", ls=":",
+                        label="base rate per time (in-sample)")
+        ax.set_title(title, fontsize=10)
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel("Brier score (lower is better)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    paths.append(out / "brier_over_time.png")
+    fig.savefig(paths[-1], dpi=110)
+    plt.close(fig)
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4))
+    for j, p in enumerate(planners):
+        mine = [r for r in recs if r["planner"] == p]
+        lead = sorted(r["entered_lane_time"] - r["brake_time"] for r in mine if r["label"] == Labels.CUTOFF
+                      and r["brake_time"] is not None and r["entered_lane_time"] is not None)
+        n_cut = sum(1 for r in mine if r["label"] == Labels.CUTOFF)
+        if lead and n_cut:
+            axes[0].step(lead, np.arange(1, len(lead) + 1) / n_cut * 100, where="post", color=f"C{j}", label=p)
+        other = [r for r in mine if r["label"] != Labels.CUTOFF]
+        fa = sorted(r["brake_time"] for r in other if r["brake_time"] is not None)
+        if other:
+            axes[1].step([0.0, *fa, 8.0], [0.0, *(np.arange(1, len(fa) + 1) / len(other) * 100), len(fa) / len(other) * 100],
+                         where="post", color=f"C{j}", label=p)
+    axes[0].invert_xaxis()
+    axes[0].set_xlabel("lead time: obstacle enters the ego lane minus brake [s]")
+    axes[0].set_ylabel("Cutoff episodes braked with at least this lead [%]")
+    axes[1].set_xlabel("time [s]")
+    axes[1].set_ylabel("Yield and Right episodes braked by then [%]")
+    axes[0].set_title("Lead time in Cutoff episodes", fontsize=10)
+    axes[1].set_title("False alarms over time", fontsize=10)
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    paths.append(out / "brake_times.png")
+    fig.savefig(paths[-1], dpi=110)
+    plt.close(fig)
+    return paths
