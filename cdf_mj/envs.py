@@ -216,8 +216,8 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         self._s = s
         if tick.collision is not None:
             reward -= self.collision_penalty
-        truncated = tick.done and tick.collision is None and world.t >= self.config.duration - 1e-9
-        terminated = tick.done and not truncated
+        truncated = world.end_reason == "duration"
+        terminated = world.end_reason in ("collision", "passed")
         in_lane = m.obstacle_in_lane if m is not None else tick.obstacle_in_lane
         return (self._observation(poses), float(reward), bool(terminated), bool(truncated),
                 self._info(in_lane, gap=0.0 if tick.collision else tick.gap,

@@ -170,7 +170,9 @@ class World:
     Attributes after :meth:`reset` (updated by :meth:`step`): ``seed``, ``intent``
     (:class:`cdf_mj.driver.Intent`), ``ego_start_offset`` [m], ``first_seen`` [s],
     ``yielded``, ``entered_lane`` [s], ``min_gap`` [m], ``collision``
-    (``"obstacle"``/``"building"``/``None``), ``collision_time`` [s], ``done``.
+    (``"obstacle"``/``"building"``/``None``), ``collision_time`` [s], ``done`` and
+    ``end_reason`` (``None`` while running, then ``"collision"``, ``"passed"``: the ego's
+    rear axle 20 m past the conflict point, or ``"duration"``).
     """
 
     def __init__(self, scene: Scene, config: ScenarioConfig | None = None) -> None:
@@ -213,6 +215,7 @@ class World:
         self.collision: str | None = None
         self.collision_time: float | None = None
         self.done = False
+        self.end_reason: str | None = None
         self._k = 0
         self._measured: Measurement | None = None
         return self.measure()
@@ -304,11 +307,13 @@ class World:
             self.collision = hit
             self.collision_time = self.end_time
             self.min_gap = 0.0
-            self.done = True
+            self.end_reason = "collision"
         # The ego's rear axle is 20 m past the conflict point: nothing more can happen to it.
-        elif (self._k >= config.n_ticks or
-              scene.route_ego.project(scene.pose(scene.ego)[:2])[0] > self._s_conflict + 20.0):
-            self.done = True
+        elif scene.route_ego.project(scene.pose(scene.ego)[:2])[0] > self._s_conflict + 20.0:
+            self.end_reason = "passed"
+        elif self._k >= config.n_ticks:
+            self.end_reason = "duration"
+        self.done = self.end_reason is not None
         return Tick(t=t, poses=poses, obstacle_in_lane=m.obstacle_in_lane, observed=observed,
                     mode=mode, seen=bool(self._has_belief[0]), belief=self._belief[0].copy(),
                     gap=gap, collision=hit, done=self.done)
