@@ -67,9 +67,11 @@ __all__ = [
     "PARTICLE_COLORS",
     "VIZ_HINT",
     "RenderError",
+    "RenderRequest",
     "RenderResult",
     "Replay",
     "check_request",
+    "frame_times",
     "gl_backend",
     "record_episode",
     "render_episode",
@@ -539,7 +541,10 @@ class _Panel:
 
 # ----------------------------------------------------------------- checking a request
 @dataclass(frozen=True)
-class _Request:
+class RenderRequest:
+    """A checked request: output path and format, camera id, size [px], frame rate
+    [frames per simulated second], and the time [s] of a single frame (PNG only)."""
+
     out: Path
     fmt: str
     camera_id: int
@@ -558,7 +563,7 @@ def _require(module: str) -> Any:
 
 def check_request(out: str | Path, model: mujoco.MjModel, camera: str = "top", width: int = 640,
                   height: int = 480, fps: float | None = None,
-                  frame_time: float | None = None) -> _Request:
+                  frame_time: float | None = None) -> RenderRequest:
     """Validate a render request without simulating anything; :class:`RenderError` names
     the first problem. Returns the checked request (format, camera id, frame rate)."""
     out = Path(out)
@@ -602,7 +607,7 @@ def check_request(out: str | Path, model: mujoco.MjModel, camera: str = "top", w
     _require("PIL")
     if fmt == "mp4":
         _require("imageio_ffmpeg")
-    return _Request(out, fmt, names.index(camera), int(width), int(height), float(fps), frame_time)
+    return RenderRequest(out, fmt, names.index(camera), int(width), int(height), float(fps), frame_time)
 
 
 # ----------------------------------------------------------------- rendering
@@ -689,7 +694,7 @@ class _Painter:
                   OVERLAY_COLORS["brake"], emission=1.0)
 
 
-def _writer(req: _Request) -> tuple[Callable[[np.ndarray], None], Callable[[], None]]:
+def _writer(req: RenderRequest) -> tuple[Callable[[np.ndarray], None], Callable[[], None]]:
     """``(append(frame), close())`` for the request's format."""
     iio = _require("imageio.v2")
     if req.fmt == "mp4":
