@@ -42,6 +42,7 @@ import importlib
 import math
 import os
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -118,8 +119,15 @@ def _try_backend(name: str) -> Any:
     try:
         module = importlib.import_module(f"mujoco.{name}")
         ctx = module.GLContext(16, 16)
-        ctx.make_current()
-        ctx.free()
+        try:
+            ctx.make_current()
+            # Some backends (glfw without a display) "make" a context that cannot render:
+            # only a MuJoCo render context proves it.
+            con = mujoco.MjrContext(mujoco.MjModel.from_xml_string("<mujoco/>"),
+                                    mujoco.mjtFontScale.mjFONTSCALE_100.value)
+            con.free()
+        finally:
+            ctx.free()
         return module.GLContext
     except BaseException:
         # mujoco.egl / mujoco.osmesa set PYOPENGL_PLATFORM on import; undo it so that the
@@ -146,7 +154,9 @@ def gl_backend() -> tuple[str, Any]:
             errors.append(f"{name}: not a backend MuJoCo offers on this system")
             continue
         try:
-            cls = _try_backend(name)
+            with warnings.catch_warnings():  # glfw warns on stderr when there is no display
+                warnings.simplefilter("ignore")
+                cls = _try_backend(name)
         except Exception as exc:  # noqa: BLE001 - any failure means "not this backend"
             errors.append(f"{name}: {' '.join(str(exc).split()) or type(exc).__name__}")
             continue

@@ -13,7 +13,13 @@ from cdf_mj import render
 from cdf_mj.cli import main
 from cdf_mj.config import ScenarioConfig
 from cdf_mj.episode import run_episode
-from cdf_mj.render import RenderError, check_request, frame_times, record_episode, render_episode
+from cdf_mj.render import (
+    RenderError,
+    check_request,
+    frame_times,
+    record_episode,
+    render_episode,
+)
 
 iio = pytest.importorskip("imageio.v3", reason="the viz extra (imageio) is not installed")
 
@@ -101,6 +107,23 @@ def test_no_gl_backend_names_the_fix(monkeypatch) -> None:
         render.gl_backend()
     msg = str(info.value)
     assert "\n" not in msg and "MUJOCO_GL" in msg and "apt-get install libegl1 libosmesa6" in msg
+
+
+def test_egl_first_then_osmesa(monkeypatch) -> None:
+    tried = []
+
+    def fake(name):
+        tried.append(name)
+        if name == "egl":
+            raise OSError("libEGL.so.1: cannot open shared object file")
+        return "OSMesaContext"
+
+    monkeypatch.setattr(render, "_BACKEND", None)
+    monkeypatch.setattr(render, "_try_backend", fake)
+    monkeypatch.setenv("MUJOCO_GL", "")  # unset for gl_backend, and restored afterwards
+    assert render.gl_backend() == ("osmesa", "OSMesaContext")
+    assert tried == ["egl", "osmesa"]
+    assert render.os.environ["MUJOCO_GL"] == "osmesa"  # for any later context in this process
 
 
 # ----------------------------------------------------------------- drawing
