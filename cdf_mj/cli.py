@@ -355,10 +355,14 @@ def _cmd_render(args: argparse.Namespace) -> int:
                             scene=scene, camera=args.camera, width=args.width, height=args.height,
                             fps=args.fps, frame_time=args.frame, max_particles=args.max_particles,
                             shadows=args.shadows, antialias=args.antialias)
-    rate = result.n_frames / result.render_seconds if result.render_seconds > 0 else float("inf")
-    print(f"wrote {result.path}: {result.n_frames} frame(s), {result.duration:.2f} s of simulated time "
-          f"at {result.frames_per_second:g} fps, label {result.label}, brake "
-          f"{result.record.brake_time}; rendered at {rate:.1f} frames/s ({result.backend})")
+    if result.n_frames > 1:
+        rate = result.n_frames / max(result.render_seconds, 1e-9)
+        what = (f"{result.n_frames} frames, {result.duration:.2f} s of simulated time at "
+                f"{result.frames_per_second:g} fps; rendered at {rate:.1f} frames/s")
+    else:
+        what = f"the frame at {result.duration:.2f} s"
+    print(f"wrote {result.path}: {what} ({result.backend}); label {result.label}, "
+          f"brake {result.record.brake_time}")
     return 0
 
 
