@@ -168,3 +168,13 @@ def test_cli_renders_a_frame(gl, tmp_path, capsys) -> None:
     assert status == 0, capsys.readouterr().err
     assert iio.imread(out).shape == (64, 96, 3)
     assert "wrote" in capsys.readouterr().out
+
+
+def test_frame_wider_than_the_models_buffer(gl, scene, tmp_path) -> None:
+    """The offscreen buffer is enlarged for the render context, and the model left as it was."""
+    offwidth = scene.model.vis.global_.offwidth
+    out = tmp_path / "wide.png"
+    render_episode(out, seed=1, config=SHORT, scene=scene, frame_time=0.0, width=offwidth + 320,
+                   height=96)
+    assert iio.imread(out).shape == (96, offwidth + 320, 3)
+    assert scene.model.vis.global_.offwidth == offwidth
