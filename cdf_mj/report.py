@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import mujoco
 import numpy as np
 
 from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames
@@ -254,7 +255,7 @@ def _draw_layout(ax: Any, scene: Scene) -> None:
     m, d = scene.model, scene.data
     boxes = []
     for i in range(m.ngeom):
-        if m.geom_bodyid[i] != 0 or m.geom_type[i] != 6:  # world body, mjGEOM_BOX
+        if m.geom_bodyid[i] != 0 or m.geom_type[i] != mujoco.mjtGeom.mjGEOM_BOX:
             continue
         rgba = m.mat_rgba[m.geom_matid[i]] if m.geom_matid[i] >= 0 else m.geom_rgba[i]
         boxes.append((float(d.geom_xpos[i][2] + m.geom_size[i][2]), i, rgba))
@@ -291,6 +292,10 @@ def _trajectories(exp: Experiment, planner: str, seeds: Sequence[int], path: Pat
     if not seeds:
         return f"no records of planner {planner}"
     config, cdf = _scenario(exp.settings), _cdf(exp.settings)
+    try:
+        _planner(planner, cdf)
+    except ValueError:
+        return f"planner {planner!r} is not registered in this process, so it cannot be re-run"
     scene_path = Path(exp.settings.get("scene") or DEFAULT_SCENE)
     if not scene_path.is_file():
         notes.append(f"The scene {scene_path} of the settings was not found; the default scene was used.")

@@ -87,3 +87,16 @@ def test_cli_report(experiment, tmp_path, capsys) -> None:
     assert "5 figure(s)" in out and "skipped 1 failed episode(s)" in out
     assert main(["report", str(tmp_path / "none")]) == 2
     assert capsys.readouterr().err.startswith("cdf-mj: error: ")
+
+
+def test_unregistered_planner_is_reported_without_trajectories(experiment, tmp_path) -> None:
+    d = tmp_path / "plugin"
+    d.mkdir()
+    shutil.copy(experiment / "settings.json", d)
+    lines = [line.replace('"planner": "reactive"', '"planner": "plugin_only"')
+             for line in (experiment / "episodes.jsonl").read_text().splitlines()
+             if '"planner": "reactive"' in line]
+    (d / "episodes.jsonl").write_text("\n".join(lines) + "\n")
+    res = write_report(d)
+    assert "not registered" in res.omitted["trajectories"]
+    assert {"avoidance", "lead_times"} <= set(res.figures)
