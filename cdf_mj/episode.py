@@ -101,18 +101,20 @@ class EpisodeRecord:
         return asdict(self)
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class Measurement:
-    """What the ego measures at the start of a tick, before it chooses its controls."""
+    """What the ego measures at the start of a tick, before it chooses its controls
+    (read-only by convention; not frozen, which would cost microseconds every tick)."""
 
     t: float  # [s] episode time
     poses: np.ndarray  # (2, 4) system pose S_t: ego, obstacle [x m, y m, theta rad, v m/s], world frame
     obstacle_in_lane: bool  # any corner of the obstacle's collision box inside the ego lane
 
 
-@dataclass(frozen=True)
+@dataclass(slots=True)
 class Tick:
-    """What one :meth:`World.step` did. Times in seconds from the start of the episode."""
+    """What one :meth:`World.step` did (read-only by convention). Times in seconds from the
+    start of the episode."""
 
     t: float  # [s] time at the start of the tick
     poses: np.ndarray  # (2, 4) the system pose S_t the tick started from (world frame)
