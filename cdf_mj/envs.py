@@ -106,7 +106,8 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
     (None, ``"obstacle"`` or ``"building"``), ``label`` (``Cutoff``/``Yield``/``Right``
     from the constant-speed counterfactual of the same seed, None with ``label=False``),
     ``intent`` (``left``/``right``), ``t`` [s], ``obstacle_in_lane``, ``gap`` [m] between
-    the two collision boxes, ``episode_seed``. ``label`` and ``intent`` are ground truth
+    the two collision boxes at the start of the step (0 on contact; None after reset),
+    ``episode_seed``. ``label`` and ``intent`` are ground truth
     for evaluation: a policy should not read them.
 
     **Seeding**: ``reset(seed=n)`` plays the world of ``run_episode(seed=n)`` (same
