@@ -51,7 +51,9 @@ __all__ = [
     "NonFiniteStateError",
     "Tick",
     "World",
+    "counterfactual",
     "episode_label",
+    "label_of",
     "run_episode",
 ]
 
@@ -373,11 +375,24 @@ def _label(intent: int, counterfactual_collision: bool) -> str:
     return Labels.CUTOFF if counterfactual_collision else Labels.YIELD
 
 
+def label_of(intent: str, counterfactual_collision: bool) -> str:
+    """The scenario label from a record's ``intent`` (``"left"``/``"right"``) and whether
+    the constant-speed run of its seed hit the obstacle (see :class:`EpisodeRecord`)."""
+    return _label(Intent[intent.upper()], counterfactual_collision)
+
+
+def counterfactual(config: ScenarioConfig, seed: int, scene: Scene) -> tuple[str, bool]:
+    """``(label, counterfactual_collision)`` of a seed, from its run with the ego holding
+    its speed (resets ``scene``)."""
+    cf = _simulate(scene, config, seed, make_planner("constant"), False)
+    hit = cf.collision == "obstacle"
+    return _label(cf.intent, hit), hit
+
+
 def episode_label(config: ScenarioConfig, seed: int, scene: Scene) -> str:
     """The scenario label of a seed (``Cutoff``, ``Yield`` or ``Right``), from its
     counterfactual run with the ego holding its speed (resets ``scene``)."""
-    cf = _simulate(scene, config, seed, make_planner("constant"), False)
-    return _label(cf.intent, cf.collision == "obstacle")
+    return counterfactual(config, seed, scene)[0]
 
 
 def run_episode(config: ScenarioConfig | None = None, seed: int = 0,
@@ -405,9 +420,14 @@ def run_episode(config: ScenarioConfig | None = None, seed: int = 0,
     cf_collision: bool | None = None
     lab: str | None = None
     if label:
-        cf = run if plan.name == "constant" else _simulate(scene, config, seed, make_planner("constant"), False)
-        cf_collision = cf.collision == "obstacle"
-        lab = _label(run.intent, cf_collision)
+        # A run whose ego never braked is the constant-speed run: the same random streams,
+        # the same controls (the planner's own stream does not touch the world). Only a
+        # braking run needs the counterfactual simulated.
+        if run.brake_time is None:
+            cf_collision = run.collision == "obstacle"
+            lab = _label(run.intent, cf_collision)
+        else:
+            lab, cf_collision = counterfactual(config, seed, scene)
 
     return EpisodeRecord(
         seed=seed, planner=plan.name, intent=Intent(run.intent).name.lower(), label=lab,

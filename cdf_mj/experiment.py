@@ -39,6 +39,7 @@ from cdf_mj.metrics import Rate
 from cdf_mj.planners import PLANNERS, CDFPlanner, Planner, make_planner
 from cdf_mj.runner import (
     FAILED,
+    START_METHOD,
     Backend,
     RecordStore,
     SeedJob,
@@ -169,10 +170,10 @@ def run_experiment(out_dir: str | Path, seeds: Sequence[int], planners: Sequence
     n_workers = 1 if backend == "serial" else check_backend(backend, workers)
     job = SeedJob(config=config, scene=str(scene), planners=planners,
                   factories={name: _factory(name, cdf) for name in planners})
-    if n_workers > 1:
-        try:
+    if n_workers > 1 and backend == "process" and START_METHOD != "fork":
+        try:  # spawned workers get the job pickled: refuse early what cannot be
             pickle.dumps(job)
-        except Exception as exc:
+        except Exception as exc:  # noqa: BLE001 - any pickling failure means the same
             raise ValueError(f"the planners cannot be sent to worker processes ({exc}); register "
                              "module-level planner classes, or run with workers=1") from None
     Scene.load(scene, names=config.names)  # a broken scene is refused before anything is written

@@ -9,7 +9,9 @@ workers give the same records; only the order in which seeds finish differs.
 backend       where the seeds run
 ============  ===================================================================
 ``serial``    in this process (``workers=1``)
-``process``   a ``concurrent.futures`` process pool (``spawn``), one scene per worker
+``process``   a ``concurrent.futures`` process pool, one scene per worker (``fork`` on
+              Linux, so scripts need no ``__main__`` guard and planners registered
+              anywhere are inherited; ``spawn`` elsewhere)
 ``ray``       Ray actors (``pip install 'cdf-mj[ray]'``), one scene per actor; a local
               Ray instance, or an existing cluster with ``address``
 ============  ===================================================================
@@ -43,7 +45,7 @@ from typing import Literal
 from cdf_mj.config import ScenarioConfig
 
 __all__ = ["SeedJob", "SeedResult", "RecordStore", "run_seeds", "Backend", "BACKENDS",
-           "WorkerDiedError", "OK", "FAILED", "check_backend"]
+           "WorkerDiedError", "OK", "FAILED", "check_backend", "START_METHOD"]
 
 Backend = Literal["serial", "process", "ray"]
 BACKENDS: tuple[str, ...] = ("serial", "process", "ray")
@@ -101,30 +103,46 @@ class SeedWorker:
         self.scene = Scene.load(job.scene, names=job.config.names)
 
     def run(self, seed: int, planners: Sequence[str] | None = None) -> SeedResult:
-        """Every planner (or those named) on ``seed``; a planner that raises gives a failed record."""
-        from cdf_mj.episode import run_episode
+        """Every planner (or those named) on ``seed``; a planner that raises gives a failed record.
+
+        The seed's label needs the constant-speed counterfactual. A planner that never
+        braked *is* that run (same random streams, same controls), so it is simulated
+        only when every planner braked, and then once for all of them.
+        """
+        from cdf_mj.episode import counterfactual, label_of, run_episode
 
         job = self.job
-        label: tuple[str, bool] | None = None  # (label, counterfactual collision) once known
-        records = []
+        records: list[dict] = []
         for name in planners or job.planners:
             try:
-                rec = run_episode(job.config, seed, job.factories[name](), self.scene,
-                                  label=label is None).to_dict()
+                rec = run_episode(job.config, seed, job.factories[name](), self.scene, label=False).to_dict()
             except Exception as exc:  # noqa: BLE001 - recorded with its traceback; the run goes on
                 records.append(_failed(seed, name, exc))
                 continue
-            if label is None:  # the label depends on the seed only: one counterfactual per seed
-                label = (rec["label"], rec["counterfactual_collision"])
-            else:
-                rec["label"], rec["counterfactual_collision"] = label
             rec["planner"] = name  # the experiment's name for it, whatever the class calls itself
             rec["status"] = OK
             records.append(rec)
+        done = [r for r in records if r["status"] == OK]
+        if done:
+            hit = next((r["collision_with"] == "obstacle" for r in done if r["brake_time"] is None), None)
+            try:
+                label, hit = (label_of(done[0]["intent"], hit), hit) if hit is not None else \
+                    counterfactual(job.config, seed, self.scene)
+            except Exception as exc:  # noqa: BLE001 - without a label no record of this seed is usable
+                records = [_failed(seed, r["planner"], exc) if r["status"] == OK else r for r in records]
+            else:
+                for r in done:
+                    r["label"], r["counterfactual_collision"] = label, hit
         return SeedResult(seed, records, _peak_rss_mb(), os.getpid())
 
 
 # ----------------------------------------------------------------- process pool
+#: How worker processes start. ``fork`` (Linux) inherits the parent's imports and planner
+#: registry and needs no ``if __name__ == "__main__"`` guard in a user's script; ``spawn``
+#: (macOS, Windows, where forking a process with system frameworks loaded is unsafe)
+#: needs both, and pickles the job.
+START_METHOD = "fork" if sys.platform.startswith("linux") else "spawn"
+
 _WORKER: SeedWorker | None = None
 
 
@@ -147,10 +165,8 @@ def _serial(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], workers: 
 
 def _process_pool(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], workers: int,
                   address: str | None) -> Iterator[SeedResult]:
-    # spawn: no state inherited from the parent (threads, MuJoCo contexts); the same on
-    # every platform. At most 2 seeds in flight per worker keeps memory flat and
-    # cancellation prompt.
-    ctx = get_context("spawn")
+    # At most 2 seeds in flight per worker keeps memory flat and cancellation prompt.
+    ctx = get_context(START_METHOD)
     pending: set = set()
     queue = list(todo)[::-1]
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_process,

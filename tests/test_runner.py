@@ -18,7 +18,7 @@ from cdf_mj.cli import main
 from cdf_mj.config import CDFConfig
 from cdf_mj.experiment import experiment_tables, load_records, run_experiment
 from cdf_mj.planners import PLANNERS, Planner, PlannerInput, ReactivePlanner
-from cdf_mj.runner import FAILED, OK, RecordStore, WorkerDiedError
+from cdf_mj.runner import FAILED, OK, START_METHOD, RecordStore, WorkerDiedError
 
 SMALL = CDFConfig(n_particles=200)
 SEEDS = range(30, 38)
@@ -190,15 +190,22 @@ def test_bad_runner_arguments_are_refused_before_work(tmp_path):
     with pytest.raises(ValueError, match="distinct"):
         run_experiment(tmp_path / "c", range(4), ("reactive", "reactive"), progress=False)
 
-    class Local(Planner):  # not importable by a worker process
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_a_planner_defined_inside_a_function_runs_where_it_can(tmp_path, monkeypatch):
+    class Local(Planner):  # not importable by name: a spawned worker cannot unpickle it
+        name = "local"
+
         def brake(self, obs: PlannerInput) -> bool:
             return False
 
-    PLANNERS["local"] = Local
-    try:
+    monkeypatch.setitem(PLANNERS, "local", Local)
+    assert len(run_experiment(tmp_path / "serial", range(2), ("local",), progress=False, workers=1)) == 2
+    if START_METHOD == "fork":  # forked workers inherit it
+        result = run_experiment(tmp_path / "pool", range(4), ("local",), progress=False, workers=2)
+        assert [r["status"] for r in result] == [OK] * 4
+    else:
         with pytest.raises(ValueError, match="cannot be sent to worker processes"):
-            run_experiment(tmp_path / "d", range(4), ("local",), progress=False, workers=2)
-        assert len(run_experiment(tmp_path / "e", range(2), ("local",), progress=False, workers=1)) == 2
-    finally:
-        del PLANNERS["local"]
-    assert not (tmp_path / "a").exists() and not (tmp_path / "d").exists()
+            run_experiment(tmp_path / "pool", range(4), ("local",), progress=False, workers=2)
+        assert not (tmp_path / "pool").exists()
