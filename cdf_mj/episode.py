@@ -58,6 +58,9 @@ __all__ = [
 ]
 
 
+_HELD_BACK = frozenset((int(Mode.YIELDING), int(Mode.WAITING)))  # plain ints: a cheap test per tick
+
+
 class NonFiniteStateError(FloatingPointError):
     """The simulation produced a NaN or infinite pose, or MuJoCo found its state unstable."""
 
@@ -290,11 +293,11 @@ class World:
                                           self._has_belief, self._intents)
         mode = int(self._mode[0])
         # Held back by what it believes: braking to yield, or still waiting after its first look.
-        self.yielded |= mode in (Mode.YIELDING, Mode.WAITING)
+        self.yielded |= mode in _HELD_BACK
         if m.obstacle_in_lane and self.entered_lane is None:
             self.entered_lane = t
-        gap = float(shapely.distance(shapely.Polygon(scene.ego.footprint(ego)),
-                                     shapely.Polygon(self._hull)))
+        hulls = shapely.polygons(np.stack([scene.ego.footprint(ego), self._hull]))  # one call for both
+        gap = float(shapely.distance(hulls[0], hulls[1]))
         self.min_gap = min(self.min_gap, gap)
 
         scene.set_controls("obstacle", *(u1[0] + nu1))

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Polyline", "OrientedBox", "wrap_angle"]
+__all__ = ["Polyline", "OrientedBox", "wrap_angle", "box_corners", "rotated_corners"]
 
 
 def wrap_angle(a: np.ndarray | float) -> np.ndarray:
@@ -160,10 +160,17 @@ def box_corners(center: np.ndarray, heading: np.ndarray | float, half: np.ndarra
     and half sizes ``(2,)`` [m], counter-clockwise."""
     center = np.asarray(center, dtype=float)
     heading = np.asarray(heading, dtype=float)
-    c, s = np.cos(heading)[..., None], np.sin(heading)[..., None]
+    return rotated_corners(center[..., 0], center[..., 1], np.cos(heading), np.sin(heading), half)
+
+
+def rotated_corners(cx: np.ndarray, cy: np.ndarray, cos: np.ndarray, sin: np.ndarray,
+                    half: np.ndarray) -> np.ndarray:
+    """:func:`box_corners` from centre coordinates and the heading's cosine and sine
+    (arrays of one shape ``(...)``), for callers that already have them."""
     local = _UNIT_CORNERS * np.asarray(half, dtype=float)  # (4, 2)
     lx, ly = local[:, 0], local[:, 1]
-    out = np.empty(np.broadcast_shapes(center.shape[:-1], heading.shape) + (4, 2))
-    out[..., 0] = center[..., None, 0] + c * lx - s * ly
-    out[..., 1] = center[..., None, 1] + s * lx + c * ly
+    c, s = np.asarray(cos)[..., None], np.asarray(sin)[..., None]
+    out = np.empty(np.broadcast_shapes(np.shape(cx), np.shape(cos)) + (4, 2))
+    out[..., 0] = np.asarray(cx)[..., None] + c * lx - s * ly
+    out[..., 1] = np.asarray(cy)[..., None] + s * lx + c * ly
     return out

@@ -24,7 +24,7 @@ import mujoco
 import numpy as np
 
 from cdf_mj.config import SceneNames
-from cdf_mj.geometry import OrientedBox, Polyline, box_corners
+from cdf_mj.geometry import OrientedBox, Polyline, rotated_corners
 
 __all__ = [
     "CAR_XML",
@@ -100,8 +100,8 @@ class Car:
         pose = np.asarray(pose, dtype=float)
         c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
         ox, oy = self.hull_offset
-        center = np.stack([pose[..., 0] + c * ox - s * oy, pose[..., 1] + s * ox + c * oy], axis=-1)
-        return box_corners(center, pose[..., 2], self.hull_half)
+        return rotated_corners(pose[..., 0] + c * ox - s * oy, pose[..., 1] + s * ox + c * oy, c, s,
+                               self.hull_half)
 
     def eye(self, pose: np.ndarray) -> np.ndarray:
         """World position(s) ``(..., 3)`` [m] of the driver's eye for pose(s) ``(..., 4)``."""

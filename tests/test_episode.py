@@ -130,3 +130,25 @@ def test_scenario_summary_counts(scene):
     assert summary["avoided"].n == len(cut)
     assert summary["avoided"].k == sum(r.collision_with != "obstacle" for r in cut)
     assert np.isclose(summary[Labels.RIGHT].value, np.mean([r.intent == "right" for r in recs]))
+
+
+def test_a_run_that_never_brakes_is_the_counterfactual(scene):
+    """The premise that lets a non-braking run stand in for the constant-speed run that
+    labels its seed (run_episode and the experiment runner skip simulating it)."""
+    from cdf_mj.episode import counterfactual
+
+    cfg = ScenarioConfig()
+    compared = braked = 0
+    for seed in range(12):
+        constant = run_episode(cfg, seed, "constant", scene, label=False).to_dict()
+        run = run_episode(cfg, seed, "reactive", scene).to_dict()
+        label, hit = counterfactual(cfg, seed, scene)
+        assert (run["label"], run["counterfactual_collision"]) == (label, hit)
+        assert hit == (constant["collision_with"] == "obstacle")
+        if run["brake_time"] is None:
+            compared += 1
+            for key in constant.keys() - {"planner", "planner_info", "label", "counterfactual_collision"}:
+                assert run[key] == constant[key], (seed, key)
+        else:
+            braked += 1
+    assert compared and braked  # both paths exercised
