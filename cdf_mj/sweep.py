@@ -339,28 +339,40 @@ def _figure(spec: SweepSpec, rows: list[dict], extra: dict, path: Path) -> None:
     plt = _pyplot()
     planners = list(dict.fromkeys(r["planner"] for r in rows))
     if spec.name == "tau":
-        fig, ax = plt.subplots(figsize=(6.4, 4.8))
-        curve = extra.get("curve") or []
-        if curve:
-            ax.plot([100 * c["false_alarms"] for c in curve], [100 * c["detected"] for c in curve],
-                    color="0.6", lw=1, label="cdf: cut-offs detected before lane entry (from histories)")
+        fig, (ax, bx) = plt.subplots(1, 2, figsize=(12, 4.5))
         cdf_rows = sorted((r for r in rows if r["planner"] == "cdf"), key=lambda r: r["value"])
         ax.errorbar([100 * r["false_alarms"] for r in cdf_rows], [100 * r["avoided"] for r in cdf_rows],
                     yerr=[[100 * (r["avoided"] - r["avoided_lo"]) for r in cdf_rows],
                           [100 * (r["avoided_hi"] - r["avoided"]) for r in cdf_rows]],
-                    fmt="o-", color="C0", capsize=2, label="cdf: imminent collisions avoided (braking runs)")
-        for r in cdf_rows:
-            ax.annotate(f"τ={_value_text(r['value'])}", (100 * r["false_alarms"], 100 * r["avoided"]),
-                        textcoords="offset points", xytext=(4, -10), fontsize=7)
+                    fmt="o-", color="C0", capsize=2, label="cdf over tau (braking runs)")
+        for k, r in enumerate(cdf_rows):
+            ax.annotate(f"{_value_text(r['value'])}", (100 * r["false_alarms"], 100 * r["avoided"]),
+                        textcoords="offset points", xytext=(3, 6 if k % 2 else -11), fontsize=7, color="C0")
         for j, p in enumerate(x for x in planners if x != "cdf"):
             r = next(r for r in rows if r["planner"] == p)
-            ax.plot(100 * r["false_alarms"], 100 * r["avoided"], marker="s", ls="", color=f"C{j + 1}",
-                    label=f"{p}: avoided")
+            ax.plot(100 * r["false_alarms"], 100 * r["avoided"], marker="s", ls="", color=f"C{j + 1}", label=p)
         ax.set_xlabel("false alarms [% of episodes]")
-        ax.set_ylabel("[% of Cutoff episodes]")
-        ax.set_title("Operating curve of the CDF over tau")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="lower right")
+        ax.set_ylabel("imminent collisions avoided [% of Cutoff episodes]")
+        ax.set_title("Operating curve (labels: tau)", fontsize=10)
+        curve = extra.get("curve") or []
+        if curve:
+            taus = [c["tau"] for c in curve]
+            bx.plot(taus, [100 * c["false_alarms"] for c in curve], color="C3",
+                    label="false alarms, every 0.01 (from the histories, exact)")
+            bx.fill_between(taus, [100 * c["false_alarms_lo"] for c in curve],
+                            [100 * c["false_alarms_hi"] for c in curve], color="C3", alpha=0.15, lw=0)
+            bx.plot(taus, [100 * c["detected"] for c in curve], color="0.5", ls=":",
+                    label="cut-offs braked for before lane entry (from the histories)")
+        bx.plot([r["value"] for r in cdf_rows], [100 * r["false_alarms"] for r in cdf_rows], "o", color="C3",
+                mfc="none", label="false alarms (braking runs)")
+        bx.plot([r["value"] for r in cdf_rows], [100 * r["avoided"] for r in cdf_rows], "o-", color="C0",
+                label="avoided (braking runs)")
+        bx.set_xlabel("tau")
+        bx.set_ylabel("[%]")
+        bx.set_title("Against the threshold", fontsize=10)
+        for a in (ax, bx):
+            a.grid(alpha=0.3)
+            a.legend(fontsize=7)
     else:
         fig, axes = plt.subplots(1, 3 if any(r["brier_left"] is not None for r in rows) else 2,
                                  figsize=(13, 4))
