@@ -291,6 +291,15 @@ def planner_table(records: Iterable[object]) -> str:
     return "\n".join(rows)
 
 
+def _cells_at(times: np.ndarray, values: np.ndarray, at: Sequence[float]) -> str:
+    """Markdown cells of ``values`` at the tick times ``at`` ("-" where no tick is there)."""
+    cells = []
+    for t in at:
+        k = np.flatnonzero(np.isclose(times, t))
+        cells.append(_fmt(float(values[k[0]]), 3) if k.size else "-")
+    return " | ".join(cells)
+
+
 def filter_table(records: Iterable[object], times: Sequence[float] = (0.5, 1.0, 1.5, 2.0),
                  p_left: float = 0.75) -> str:
     """Markdown: Brier scores of each filter's P(left) and P(seen), over all ticks and at
@@ -307,11 +316,8 @@ def filter_table(records: Iterable[object], times: Sequence[float] = (0.5, 1.0, 
             c = brier_over_time(mine, q)
             if not c.episodes:
                 continue
-            at = []
-            for t in times:
-                k = np.flatnonzero(np.isclose(c.times, t))
-                at.append(_fmt(float(c.scores[k[0]]), 3) if k.size else "-")
-            rows.append(f"| {name} | {q} | {c.episodes} | {c.ticks} | {_fmt(c.overall, 3)} | {' | '.join(at)} |")
+            rows.append(f"| {name} | {q} | {c.episodes} | {c.ticks} | {_fmt(c.overall, 3)} "
+                        f"| {_cells_at(c.times, c.scores, times)} |")
     if planners:
         first = [r for r in recs if _get(r, "planner") == planners[0]]
         y = np.array([1.0 if _get(r, "intent") == "left" else 0.0 for r in first])
@@ -323,11 +329,7 @@ def filter_table(records: Iterable[object], times: Sequence[float] = (0.5, 1.0, 
             c = brier_over_time([r for r in recs if _get(r, "planner") == name], q)
             if not c.episodes:
                 continue
-            at = []
-            for t in times:
-                k = np.flatnonzero(np.isclose(c.times, t))
-                at.append(_fmt(float(c.reference[k[0]]), 3) if k.size else "-")
             rows.append(f"| base rate per time (in-sample, {name}'s ticks) | {q} | {c.episodes} | {c.ticks} "
-                        f"| {_fmt(c.reference_overall, 3)} | {' | '.join(at)} |")
+                        f"| {_fmt(c.reference_overall, 3)} | {_cells_at(c.times, c.reference, times)} |")
             break
     return "\n".join(rows)
