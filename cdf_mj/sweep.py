@@ -402,6 +402,10 @@ def _figure(spec: SweepSpec, rows: list[dict], extra: dict, path: Path) -> None:
             ax.set_xlabel(spec.label, fontsize=8)
             if spec.log_x:
                 ax.set_xscale("log")
+                ax.minorticks_off()
+            values = sorted({r["value"] for r in rows})
+            ax.set_xticks(values)
+            ax.set_xticklabels([_value_text(v) for v in values], fontsize=8)
             ax.grid(alpha=0.3)
             ax.legend(fontsize=7)
         fig.suptitle(f"Sweep: {spec.name}", fontsize=11)
