@@ -298,10 +298,11 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     cdf = CDFConfig(n_particles=args.particles, tau=args.tau, cutoff_rule=args.cutoff_rule)
     seeds = range(args.seed0, args.seed0 + args.episodes)
+    if args.values is not None and len(args.sweeps) > 1:
+        raise CLIError("--values applies to one sweep at a time; name a single sweep")
     for name in args.sweeps:
         try:
-            result = run_sweep(name, args.out, seeds, planners=args.planners,
-                               values=args.values if len(args.sweeps) == 1 else None, config=config,
+            result = run_sweep(name, args.out, seeds, planners=args.planners, values=args.values, config=config,
                                cdf=cdf, scene=args.scene, workers=args.workers,
                                progress=not args.quiet, figure=not args.no_figure)
         except VizUnavailableError as exc:

@@ -14,7 +14,8 @@ from cdf_mj.sweep import SWEEPS, run_sweep, tau_curve
 def test_tiny_beta_sweep_writes_table_and_figure(tmp_path):
     res = run_sweep("beta", tmp_path, seeds=range(2), planners=("reactive", "cv"), values=(0.05, 0.2),
                     workers=1)
-    rows = list(csv.DictReader(open(res.csv_path, encoding="utf-8")))
+    with open(res.csv_path, encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
     assert [(r["value"], r["planner"]) for r in rows] == [("0.05", "reactive"), ("0.05", "cv"),
                                                           ("0.2", "reactive"), ("0.2", "cv")]
     assert all(r["episodes"] == "2" for r in rows)
@@ -68,3 +69,4 @@ def test_cli_sweep(tmp_path, capsys, monkeypatch):
     assert len(err) == 1 and "pip install 'cdf-mj[viz]'" in err[0]
     assert (tmp_path / "novis" / "noise.csv").is_file()
     assert main(["sweep", "noise", "--values", "x"]) == 2
+    assert main(["sweep", "noise", "beta", "--values", "1"]) == 2
