@@ -40,7 +40,7 @@ from filterpy.kalman import IMMEstimator, KalmanFilter
 from cdf_mj.config import ScenarioConfig
 from cdf_mj.driver import Intent
 from cdf_mj.geometry import Polyline, wrap_angle
-from cdf_mj.planners import Planner, PlannerInput
+from cdf_mj.planners import Planner, PlannerInput, predicted_label
 
 __all__ = [
     "CVConfig",
@@ -356,10 +356,5 @@ class IMMPlanner(Planner):
         return self.decision_time is not None
 
     def summary(self) -> dict:
-        if self.decision_time is not None:
-            prediction = "Cutoff"
-        else:
-            p_left = self.history["p_left"]
-            prediction = "Yield" if p_left and p_left[-1] >= 0.5 else "Right"
-        return {"prediction": prediction, "decision_time": self.decision_time,
-                "history": self.history}
+        return {"prediction": predicted_label(self.decision_time, self.history["p_left"]),
+                "decision_time": self.decision_time, "history": self.history}

@@ -28,7 +28,7 @@ from typing import Any, Callable, Iterable, NoReturn, Sequence
 import numpy as np
 
 from cdf_mj import __version__
-from cdf_mj.config import ScenarioConfig
+from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.episode import run_episode
 from cdf_mj.planners import PLANNERS
 from cdf_mj.runner import WorkerDiedError
@@ -146,6 +146,24 @@ def scene_from_args(args: argparse.Namespace, config: ScenarioConfig) -> Scene:
     return Scene.load(args.scene, names=config.names)
 
 
+def add_cdf_arguments(parser: argparse.ArgumentParser, swept: bool = False) -> None:
+    """``--particles``, ``--tau`` and ``--cutoff-rule``: the CDF planner's settings
+    (:class:`cdf_mj.config.CDFConfig`). ``swept``: say they apply where not swept."""
+    d = CDFConfig()
+    where = " where not swept" if swept else ""
+    parser.add_argument("--particles", type=_positive_int, default=d.n_particles,
+                        help=f"CDF particle count N{where} (default {d.n_particles})")
+    parser.add_argument("--tau", type=float, default=d.tau,
+                        help=f"CDF braking threshold on P(cutoff){where} (default {d.tau})")
+    parser.add_argument("--cutoff-rule", choices=("predictive", "paper"), default=d.cutoff_rule,
+                        help=f"how P(cutoff) is computed (default {d.cutoff_rule}; see docs/RESULTS.md)")
+
+
+def cdf_from_args(args: argparse.Namespace) -> CDFConfig:
+    """The :class:`cdf_mj.config.CDFConfig` of :func:`add_cdf_arguments` (validated)."""
+    return CDFConfig(n_particles=args.particles, tau=args.tau, cutoff_rule=args.cutoff_rule)
+
+
 def _json_default(obj: Any) -> Any:
     """NumPy values in records (planner summaries, traces) as plain JSON."""
     if isinstance(obj, np.ndarray):
@@ -203,11 +221,10 @@ def _planner_list(text: str) -> list[str]:
 
 
 def _cmd_experiment(args: argparse.Namespace) -> int:
-    from cdf_mj.config import CDFConfig
     from cdf_mj.experiment import experiment_tables, run_experiment
 
     config = config_from_args(args)
-    cdf = CDFConfig(n_particles=args.particles, tau=args.tau, cutoff_rule=args.cutoff_rule)
+    cdf = cdf_from_args(args)
     seeds = range(args.seed0, args.seed0 + args.episodes)
     if args.retry_failed and not args.resume:
         raise CLIError("--retry-failed needs --resume")
@@ -235,19 +252,12 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
 
 
 def _add_experiment_arguments(p: argparse.ArgumentParser, episodes: int, out: str) -> None:
-    from cdf_mj.config import CDFConfig
-
-    d = CDFConfig()
     p.add_argument("--episodes", type=_positive_int, default=episodes, help=f"default {episodes}")
     p.add_argument("--seed0", type=_non_negative_int, default=0, help="first seed (default 0)")
     p.add_argument("--planners", type=_planner_list, default=["cdf", "reactive"],
                    help="comma-separated planners run on the same seeds (default cdf,reactive)")
     p.add_argument("--out", default=out, help=f"result directory (default {out})")
-    p.add_argument("--particles", type=_positive_int, default=d.n_particles,
-                   help=f"CDF particle count N (default {d.n_particles})")
-    p.add_argument("--tau", type=float, default=d.tau, help=f"CDF braking threshold (default {d.tau})")
-    p.add_argument("--cutoff-rule", choices=("predictive", "paper"), default=d.cutoff_rule,
-                   help=f"how P(cutoff) is computed (default {d.cutoff_rule}; see docs/RESULTS.md)")
+    add_cdf_arguments(p)
     p.add_argument("--workers", type=_positive_int, default=None,
                    help="worker processes (default: the CPU count; 1 runs in this process)")
     p.add_argument("--backend", choices=("process", "ray"), default="process",
@@ -292,11 +302,10 @@ def _value_list(text: str) -> list[float]:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from cdf_mj.config import CDFConfig
     from cdf_mj.sweep import VizUnavailableError, run_sweep
 
     config = config_from_args(args)
-    cdf = CDFConfig(n_particles=args.particles, tau=args.tau, cutoff_rule=args.cutoff_rule)
+    cdf = cdf_from_args(args)
     seeds = range(args.seed0, args.seed0 + args.episodes)
     if args.values is not None and len(args.sweeps) > 1:
         raise CLIError("--values applies to one sweep at a time; name a single sweep")
@@ -314,10 +323,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def _add_sweep(subparsers: argparse._SubParsersAction) -> None:
-    from cdf_mj.config import CDFConfig
     from cdf_mj.sweep import SWEEPS
 
-    d = CDFConfig()
     p = subparsers.add_parser(
         "sweep", help="run the planners over a range of one setting; table (CSV, Markdown) and figure",
         description="Sweep one setting (beta, particle count, threshold tau, noise levels) over "
@@ -332,11 +339,7 @@ def _add_sweep(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--planners", type=_planner_list, default=["cdf", "reactive"],
                    help="comma-separated planners (default cdf,reactive)")
     p.add_argument("--out", default="results/sweeps", help="output directory (default results/sweeps)")
-    p.add_argument("--particles", type=_positive_int, default=d.n_particles,
-                   help=f"CDF particle count where not swept (default {d.n_particles})")
-    p.add_argument("--tau", type=float, default=d.tau, help=f"CDF threshold where not swept (default {d.tau})")
-    p.add_argument("--cutoff-rule", choices=("predictive", "paper"), default=d.cutoff_rule,
-                   help=f"how P(cutoff) is computed (default {d.cutoff_rule})")
+    add_cdf_arguments(p, swept=True)
     p.add_argument("--workers", type=_positive_int, default=None,
                    help="worker processes per point (default: the CPU count; 1 runs in this process)")
     p.add_argument("--no-figure", action="store_true", help="tables only (no matplotlib needed)")
@@ -346,12 +349,11 @@ def _add_sweep(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _cmd_render(args: argparse.Namespace) -> int:
-    from cdf_mj.config import CDFConfig
     from cdf_mj.render import render_episode
 
     config = config_from_args(args)
     scene = scene_from_args(args, config)
-    cdf = CDFConfig(n_particles=args.particles, tau=args.tau)
+    cdf = cdf_from_args(args)
     result = render_episode(args.out, seed=args.seed, planner=args.planner, config=config, cdf=cdf,
                             scene=scene, camera=args.camera, width=args.width, height=args.height,
                             fps=args.fps, frame_time=args.frame, max_particles=args.max_particles,
@@ -368,9 +370,6 @@ def _cmd_render(args: argparse.Namespace) -> int:
 
 
 def _add_render(subparsers: argparse._SubParsersAction) -> None:
-    from cdf_mj.config import CDFConfig
-
-    d = CDFConfig()
     p = subparsers.add_parser(
         "render", help="render one episode offscreen to MP4, GIF or a PNG frame",
         description="Run one episode and render it offscreen (MUJOCO_GL=egl unless set, else "
@@ -388,9 +387,7 @@ def _add_render(subparsers: argparse._SubParsersAction) -> None:
                    help="frames per simulated second (default 30 for MP4, 25 for GIF)")
     p.add_argument("--frame", type=float, default=None, metavar="T",
                    help="render the one frame at T seconds to a .png")
-    p.add_argument("--particles", type=_positive_int, default=d.n_particles,
-                   help=f"CDF particle count N (default {d.n_particles})")
-    p.add_argument("--tau", type=float, default=d.tau, help=f"CDF braking threshold (default {d.tau})")
+    add_cdf_arguments(p)
     p.add_argument("--max-particles", type=_non_negative_int, default=100,
                    help="most distinct particles drawn per frame (default 100)")
     p.add_argument("--shadows", action="store_true", help="draw shadows (slower)")

@@ -20,14 +20,14 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass
-from typing import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
 from cdf_mj.config import CDFConfig, ScenarioConfig
 
 __all__ = ["Planner", "PlannerInput", "ConstantPlanner", "ReactivePlanner", "CDFPlanner",
-           "make_planner", "register", "PLANNERS"]
+           "make_planner", "register", "predicted_label", "PLANNERS"]
 
 
 @dataclass(frozen=True)
@@ -112,13 +112,18 @@ class CDFPlanner(Planner):
         return self.decision_time is not None
 
     def summary(self) -> dict:
-        if self.decision_time is not None:
-            prediction = "Cutoff"
-        else:
-            prediction = "Yield" if self.history["p_left"] and self.history["p_left"][-1] >= 0.5 else "Right"
-        return {"prediction": prediction, "decision_time": self.decision_time,
+        return {"prediction": predicted_label(self.decision_time, self.history["p_left"]),
+                "decision_time": self.decision_time,
                 "skipped_updates": self.filter.skipped_updates, "reinits": self.filter.reinits,
                 "history": self.history}
+
+
+def predicted_label(decision_time: float | None, p_left: Sequence[float]) -> str:
+    """A predicting planner's label for its episode: ``Cutoff`` if it decided to brake,
+    else ``Yield`` or ``Right`` by its last P(left) (``p_left`` over ticks; ``Right`` if empty)."""
+    if decision_time is not None:
+        return "Cutoff"
+    return "Yield" if p_left and p_left[-1] >= 0.5 else "Right"
 
 
 PLANNERS: dict[str, Callable[[], Planner]] = {}

@@ -334,6 +334,17 @@ def _pyplot():
     return plt
 
 
+def _save(fig, path: Path) -> Path:
+    """Lay out, write as PNG (110 dpi, parents created) and close a figure; returns ``path``."""
+    import matplotlib.pyplot as plt
+
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def _figure(spec: SweepSpec, rows: list[dict], extra: dict, path: Path) -> None:
     """Avoided and false alarms against the swept value (tau: the operating curve)."""
     plt = _pyplot()
@@ -409,10 +420,7 @@ def _figure(spec: SweepSpec, rows: list[dict], extra: dict, path: Path) -> None:
             ax.grid(alpha=0.3)
             ax.legend(fontsize=7)
         fig.suptitle(f"Sweep: {spec.name}", fontsize=11)
-    fig.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, path)
 
 
 def load_rows(path: str | Path) -> list[dict]:
@@ -478,10 +486,7 @@ def comparison_figures(records: Iterable[dict], out_dir: str | Path, p_left: flo
         ax.set_ylabel("Brier score (lower is better)")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
-    fig.tight_layout()
-    paths.append(out / "brier_over_time.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    paths.append(_save(fig, out / "brier_over_time.png"))
 
     fig, axes = plt.subplots(1, 2, figsize=(12, 4))
     for j, p in enumerate(planners):
@@ -506,8 +511,5 @@ def comparison_figures(records: Iterable[dict], out_dir: str | Path, p_left: flo
     for ax in axes:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
-    fig.tight_layout()
-    paths.append(out / "brake_times.png")
-    fig.savefig(paths[-1], dpi=110)
-    plt.close(fig)
+    paths.append(_save(fig, out / "brake_times.png"))
     return paths

@@ -127,3 +127,11 @@ def test_parse_overrides_types_values_like_the_config():
         "beta": 0.1, "ego_start_spread": (-4.0, 4.0)}
     with pytest.raises(ValueError, match="names"):
         cli.parse_overrides(["names=x"])  # the nested SceneNames is not a --set field
+
+
+@pytest.mark.parametrize("command", [["experiment"], ["reproduce"], ["sweep", "tau"],
+                                     ["render", "--out", "x.mp4"]])
+def test_every_command_that_runs_the_cdf_takes_the_same_cdf_settings(command):
+    args = cli.build_parser().parse_args([*command, "--particles", "300", "--tau", "0.6", "--cutoff-rule", "paper"])
+    cdf = cli.cdf_from_args(args)
+    assert (cdf.n_particles, cdf.tau, cdf.cutoff_rule) == (300, 0.6, "paper")
