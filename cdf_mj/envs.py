@@ -162,7 +162,7 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
                              f"the scene's offscreen buffer {m.vis.global_.offwidth} x "
                              f"{m.vis.global_.offheight}")
         self.camera, self.width, self.height = camera, int(width), int(height)
-        self._renderer: mujoco.Renderer | None = None
+        self._renderer = None  # cdf_mj.render._Offscreen, made on the first render()
 
         ego = self.scene.ego
         self._ctrl_low = np.array([ego.accel_range[0], ego.steer_range[0]])
@@ -231,16 +231,17 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
             gym.logger.warn("render() called without render_mode='rgb_array'; returning None")
             return None
         if self._renderer is None:
-            try:
-                self._renderer = mujoco.Renderer(self.scene.model, self.height, self.width)
-            except (mujoco.FatalError, RuntimeError, ImportError, OSError, AttributeError) as exc:
-                # no OpenGL context: the exception type depends on the backend
-                raise RuntimeError(f"cannot create an OpenGL context for rendering "
-                                   f"({' '.join(str(exc).split())}); without a display set "
-                                   "MUJOCO_GL=egl (or osmesa) before importing mujoco") from None
+            # The renderer of `cdf-mj render`: the OpenGL backend is chosen when the first
+            # frame is asked for (MUJOCO_GL if set, else EGL, then OSMesa), so a headless
+            # machine needs no MUJOCO_GL before importing mujoco; RenderError names the fix.
+            from cdf_mj.render import _Offscreen
+
+            self._renderer = _Offscreen(self.scene.model, self.width, self.height)
+            self._renderer.use_camera(mujoco.mj_name2id(self.scene.model, mujoco.mjtObj.mjOBJ_CAMERA,
+                                                        self.camera))
         self.scene.sync()
-        self._renderer.update_scene(self.scene.data, camera=self.camera)
-        return self._renderer.render()
+        self._renderer.update(self.scene.data)
+        return self._renderer.render().copy()
 
     def close(self) -> None:
         """Free the renderer."""

@@ -226,6 +226,7 @@ class _Offscreen:
     def render(self) -> np.ndarray:
         """The scene as an RGB image ``(height, width, 3)`` uint8, top row first (a view
         of an internal buffer: copy it to keep it)."""
+        self._gl.make_current()  # another renderer (another env) may have taken the thread
         mujoco.mjr_render(self._rect, self.scene, self._con)
         mujoco.mjr_readPixels(self._rgb, None, self._rect, self._con)
         return self._rgb[::-1]

@@ -7,17 +7,15 @@ controllers, and brake hard once P(cut-off) passes a threshold. ::
     python scripts/drive_env.py --seed 1 --out drive.mp4
     python scripts/drive_env.py --seed 1 --scene models/xml/scene_fourway.xml --camera ego_chase
 
-Without a display, rendering uses EGL unless ``MUJOCO_GL`` says otherwise.
+Without a display, the environment renders through EGL (or OSMesa) unless ``MUJOCO_GL``
+says otherwise.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
-import os
 import sys
-
-os.environ.setdefault("MUJOCO_GL", "egl")  # before MuJoCo is imported: headless by default
 
 import gymnasium as gym
 import imageio.v2 as imageio

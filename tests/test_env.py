@@ -1,6 +1,6 @@
 """The Gymnasium environment cdf_mj/TIntersection-v0: Gymnasium's own checker, seeding,
 the same world as run_episode, actions, rewards and episode ends, vectorised workers,
-rendering and the example script (in a subprocess: OpenGL is chosen at MuJoCo import)."""
+rendering (two envs in turn; headless without MUJOCO_GL, in a subprocess) and the example script."""
 
 from __future__ import annotations
 
@@ -21,6 +21,7 @@ from cdf_mj.driver import ego_control
 from cdf_mj.episode import Labels, run_episode
 
 ROOT = Path(__file__).resolve().parent.parent
+ORIGINAL_MUJOCO_GL = os.environ.get("MUJOCO_GL")  # the user's; render.gl_backend may set it later
 # The one message check_env gives for an action box in physical units (see the class
 # docstring): a recommendation to normalise, which normalized_actions=True follows.
 NORMALISE_HINT = "we recommend using a symmetric and normalized space"
@@ -156,10 +157,40 @@ def test_make_vec_with_worker_processes():
         envs.close()
 
 
-def test_render_check_env_and_example_script_in_a_subprocess(tmp_path):
-    """With MUJOCO_GL=egl: check_env including its render checks, and the example script
-    driving the env with its own policy into a video."""
-    env = {**os.environ, "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
+@pytest.fixture(scope="module")
+def gl() -> str:
+    """The OpenGL backend's name; skips the test when no backend can be created."""
+    from cdf_mj.render import RenderError, gl_backend
+
+    try:
+        return gl_backend()[0]
+    except RenderError as exc:
+        pytest.skip(f"no OpenGL backend can be created here: {exc}")
+
+
+def test_two_envs_render_their_own_cameras_in_turn(gl):
+    a = gym.make(cdf_mj.ENV_ID, render_mode="rgb_array", label=False, run_filter=False,
+                 width=160, height=120, camera="top")
+    b = gym.make(cdf_mj.ENV_ID, render_mode="rgb_array", label=False, run_filter=False,
+                 width=160, height=120, camera="ego_chase")
+    try:
+        a.reset(seed=1)
+        b.reset(seed=1)
+        first = a.render()
+        other = b.render()
+        again = a.render()  # each renderer makes its own context current
+        assert first.shape == other.shape == (120, 160, 3) and first.std() > 1
+        assert np.array_equal(first, again) and not np.array_equal(first, other)
+    finally:
+        a.close()
+        b.close()
+
+
+def test_render_check_env_and_example_script_in_a_subprocess(tmp_path, gl):
+    """Headless without MUJOCO_GL (the env picks EGL or OSMesa itself, as `cdf-mj render`
+    does): check_env including its render checks, and the example script driving the env
+    with its own policy into a video."""
+    env = {k: v for k, v in os.environ.items() if k != "MUJOCO_GL" or ORIGINAL_MUJOCO_GL}
     code = (
         "import warnings, gymnasium as gym, cdf_mj\n"
         "from gymnasium.utils.env_checker import check_env\n"
