@@ -238,9 +238,10 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
               f"continue with the same command and --resume", file=sys.stderr)
         return 130
     resumed = f", {result.resumed} already on disk" if result.resumed else ""
+    peak = f"{result.peak_worker_rss_mb:.0f} MiB" if result.ran else "n/a (nothing ran)"
     print(f"{args.episodes} episodes from seed {args.seed0}, planners {','.join(args.planners)}: "
           f"{result.ran} run in {result.wall_time:.1f} s on {result.workers} worker(s) ({result.backend})"
-          f"{resumed}; peak memory per worker {result.peak_worker_rss_mb:.0f} MiB; "
+          f"{resumed}; peak memory per worker {peak}; "
           f"records in {args.out}/episodes.jsonl\n")
     print(experiment_tables(result.records))
     if result.failed:
@@ -509,15 +510,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         return args.func(args)
     # ValueError: bad parameters or seed (SceneError, CLIError are ValueErrors too);
     # FloatingPointError: a diverged simulation (NonFiniteStateError, SimulationDivergedError);
-    # WorkerDiedError: a worker process died (the finished episodes are saved).
-    except (ValueError, FloatingPointError, WorkerDiedError) as exc:
+    # WorkerDiedError: a worker process died (the finished episodes are saved);
+    # OSError: a path that cannot be written (not a directory, no permission, disk full).
+    except (ValueError, FloatingPointError, WorkerDiedError, OSError) as exc:
         if args.debug:
             raise
         return _fail(exc)
 
 
 def _fail(exc: Exception) -> int:
-    message = " ".join(str(exc).split()) or type(exc).__name__  # one line
+    if isinstance(exc, OSError) and exc.filename is not None:
+        message = f"{exc.filename}: {exc.strerror or type(exc).__name__}"
+    else:
+        message = " ".join(str(exc).split()) or type(exc).__name__  # one line
     print(f"{PROG}: error: {message}", file=sys.stderr)
     return EXIT_USAGE
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import functools
 import json
+import os
 import pickle
 import statistics
 import time
@@ -45,6 +46,7 @@ from cdf_mj.runner import (
     SeedJob,
     WorkerDiedError,
     check_backend,
+    locked,
     run_seeds,
 )
 from cdf_mj.scene import DEFAULT_SCENE, Scene
@@ -181,40 +183,58 @@ def run_experiment(out_dir: str | Path, seeds: Sequence[int], planners: Sequence
     out = Path(out_dir)
     settings = _settings(seeds, planners, config, cdf, scene)
     settings_path, records_path = out / "settings.json", out / "episodes.jsonl"
-    if settings_path.exists():
-        old = json.loads(settings_path.read_text())
-        diff = _differences(old, json.loads(json.dumps(settings)))
-        if diff:
-            raise ValueError(f"{out} holds results from other settings (differing: {', '.join(diff)}); "
-                             "choose another directory")
-    if not resume and records_path.exists() and records_path.stat().st_size > 0:
-        raise ValueError(f"{records_path} already holds results: pass resume=True (--resume) to "
-                         "continue that run, or choose another directory")
     out.mkdir(parents=True, exist_ok=True)
-    settings_path.write_text(json.dumps(settings, indent=2) + "\n")
-
-    order = {name: i for i, name in enumerate(planners)}
-    peaks: list[float] = []
-    with RecordStore.open(records_path, drop_failed=resume and retry_failed) as store:
-        done = store.done()
-        resumed = len(done)
-        todo = [(s, tuple(p for p in planners if (s, p) not in done)) for s in seeds]
-        todo = [(s, ps) for s, ps in todo if ps]
-        total = sum(len(ps) for _, ps in todo)
-        with tqdm(total=total, unit="ep", disable=not progress, desc="episodes") as bar:
-            try:
-                for result in run_seeds(job, todo, backend=backend, workers=workers, address=address):
-                    store.append(result.records)
-                    peaks.append(result.peak_rss_mb)
-                    bar.update(len(result.records))
-            except WorkerDiedError as exc:
-                raise WorkerDiedError(f"{exc}; {len(store.records)} episodes are saved in {records_path}: "
-                                      "run again with resume=True (--resume) to finish") from None
-        records = sorted(store.records, key=lambda r: (r["seed"], order.get(r["planner"], len(order))))
+    with locked(out):  # a second run into this directory is refused here, before any check
+        _check_directory(out, settings, resume)
+        tmp = settings_path.with_name(settings_path.name + ".tmp")
+        tmp.write_text(json.dumps(settings, indent=2) + "\n")
+        os.replace(tmp, settings_path)  # never a half-written settings file
+        order = {name: i for i, name in enumerate(planners)}
+        peaks: list[float] = []
+        with RecordStore.open(records_path, drop_failed=resume and retry_failed) as store:
+            done = store.done()
+            resumed = len(done)
+            todo = [(s, tuple(p for p in planners if (s, p) not in done)) for s in seeds]
+            todo = [(s, ps) for s, ps in todo if ps]
+            total = sum(len(ps) for _, ps in todo)
+            with tqdm(total=total, unit="ep", disable=not progress, desc="episodes") as bar:
+                try:
+                    for result in run_seeds(job, todo, backend=backend, workers=workers, address=address):
+                        store.append(result.records)
+                        peaks.append(result.peak_rss_mb)
+                        bar.update(len(result.records))
+                except WorkerDiedError as exc:
+                    raise WorkerDiedError(f"{exc}; {len(store.records)} episodes are saved in {records_path}: "
+                                          "run again with resume=True (--resume) to finish") from None
+            records = sorted(store.records, key=lambda r: (r["seed"], order.get(r["planner"], len(order))))
     return ExperimentResult(out_dir=out, records=records, ran=total, resumed=resumed,
                             failed=sum(1 for r in records if r.get("status") == FAILED),
                             backend=backend if n_workers > 1 else "serial", workers=n_workers, wall_time=time.perf_counter() - t0,
                             peak_worker_rss_mb=max(peaks, default=float("nan")))
+
+
+def _check_directory(out: Path, settings: dict, resume: bool) -> None:
+    """Refuse a directory whose results were made with other settings, results that
+    cannot be checked, or results without ``resume``. An empty directory passes."""
+    settings_path, records_path = out / "settings.json", out / "episodes.jsonl"
+    if not (records_path.exists() and records_path.stat().st_size > 0):
+        return  # settings only matter where there are results made with them
+    if not settings_path.exists():
+        raise ValueError(f"{records_path} has no {settings_path.name} beside it, so its settings "
+                         "cannot be checked: choose another directory")
+    try:
+        old = json.loads(settings_path.read_text())
+        if not isinstance(old, dict):
+            raise ValueError("not a JSON object")
+    except ValueError as exc:
+        raise ValueError(f"{settings_path} is damaged ({exc}): choose another directory") from None
+    diff = _differences(old, json.loads(json.dumps(settings)))
+    if diff:
+        raise ValueError(f"{out} holds results from other settings (differing: {', '.join(diff)}); "
+                         "choose another directory")
+    if not resume:
+        raise ValueError(f"{records_path} already holds results: pass resume=True (--resume) to "
+                         "continue that run, or choose another directory")
 
 
 def completed(records: Iterable[dict]) -> list[dict]:

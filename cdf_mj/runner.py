@@ -37,6 +37,7 @@ import traceback
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from contextlib import contextmanager
 from dataclasses import dataclass
 from multiprocessing import get_context
 from pathlib import Path
@@ -45,7 +46,7 @@ from typing import Literal
 from cdf_mj.config import ScenarioConfig
 
 __all__ = ["SeedJob", "SeedResult", "RecordStore", "run_seeds", "Backend", "BACKENDS",
-           "WorkerDiedError", "OK", "FAILED", "check_backend", "START_METHOD"]
+           "WorkerDiedError", "OK", "FAILED", "check_backend", "START_METHOD", "locked"]
 
 Backend = Literal["serial", "process", "ray"]
 BACKENDS: tuple[str, ...] = ("serial", "process", "ray")
@@ -121,6 +122,11 @@ class SeedWorker:
                 continue
             rec["planner"] = name  # the experiment's name for it, whatever the class calls itself
             rec["status"] = OK
+            try:  # a record the store cannot write (NumPy scalar, NaN) fails here, not the run
+                json.dumps(rec, allow_nan=False)
+            except (TypeError, ValueError) as exc:
+                records.append(_failed(seed, name, TypeError(f"the record is not JSON-serialisable: {exc}")))
+                continue
             records.append(rec)
         done = [r for r in records if r["status"] == OK]
         if done:
@@ -146,8 +152,25 @@ START_METHOD = "fork" if sys.platform.startswith("linux") else "spawn"
 _WORKER: SeedWorker | None = None
 
 
-def _init_process(job: SeedJob) -> None:
+def _die_with_parent(parent: int) -> None:
+    """Linux: make this worker receive SIGTERM when its parent dies (killed with SIGKILL
+    included), so that a killed run leaves no orphaned workers. Elsewhere: nothing."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+    import signal
+
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM), 0, 0, 0)  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent:  # the parent died before the request took effect
+        os._exit(1)
+
+
+def _init_process(job: SeedJob, parent: int) -> None:
     global _WORKER
+    _die_with_parent(parent)
     _WORKER = SeedWorker(job)
 
 
@@ -170,7 +193,7 @@ def _process_pool(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], wor
     pending: set = set()
     queue = list(todo)[::-1]
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_process,
-                             initargs=(job,)) as pool:
+                             initargs=(job, os.getpid())) as pool:
         try:
             while queue or pending:
                 while queue and len(pending) < 2 * workers:
@@ -199,7 +222,10 @@ def _ray(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], workers: int
         ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False, **kwargs)
     try:
         actor = ray.remote(num_cpus=1)(SeedWorker)
-        n_actors = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
+        # One CPU per actor: more actors than the cluster has CPUs would never start and
+        # the pool would wait for them for ever.
+        cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
+        n_actors = min(workers, cpus) if workers else cpus
         pool = ActorPool([actor.remote(job) for _ in range(n_actors)])
         for seed, planners in todo:
             pool.submit(lambda a, item: a.run.remote(*item), (seed, planners))
@@ -246,6 +272,30 @@ def check_backend(backend: str, workers: int | None) -> int:
 
 
 # ----------------------------------------------------------------- persistence
+@contextmanager
+def locked(directory: str | Path) -> Iterator[None]:
+    """Hold an exclusive ``flock`` on ``directory`` (which must exist) for the block, so
+    that a second run into the same directory is refused (ValueError, at once) instead
+    of writing the same episodes twice. The lock goes when the block ends or every
+    process holding it has exited, however it ended. No lock where ``fcntl`` does not
+    exist (Windows)."""
+    try:
+        import fcntl
+    except ImportError:
+        yield
+        return
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise ValueError(f"{directory} is in use by another run: wait for it to finish, "
+                             "or choose another directory") from None
+        yield
+    finally:
+        os.close(fd)
+
+
 class RecordStore:
     """Append-only JSON lines of episode records: every seed is flushed and ``fsync``-ed.
 
@@ -264,7 +314,8 @@ class RecordStore:
         A last line cut short by a killed run is dropped (truncated from the file); any
         other line that is not a JSON object is an error naming its line number. With
         ``drop_failed``, failed records are removed from the file (rewritten atomically)
-        so that their episodes run again.
+        so that their episodes run again. Writers of one file must not overlap: hold
+        :func:`locked` on its directory.
         """
         path = Path(path)
         records: list[dict] = []
@@ -313,6 +364,7 @@ class RecordStore:
         self.records.extend(records)
 
     def close(self) -> None:
+        """Close the file."""
         self._fh.close()
 
     def __enter__(self) -> RecordStore:

@@ -12,13 +12,14 @@ import time
 from collections import Counter
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from cdf_mj.cli import main
 from cdf_mj.config import CDFConfig
 from cdf_mj.experiment import experiment_tables, load_records, run_experiment
 from cdf_mj.planners import PLANNERS, Planner, PlannerInput, ReactivePlanner
-from cdf_mj.runner import FAILED, OK, START_METHOD, RecordStore, WorkerDiedError
+from cdf_mj.runner import FAILED, OK, START_METHOD, RecordStore, WorkerDiedError, locked
 
 SMALL = CDFConfig(n_particles=200)
 SEEDS = range(30, 38)
@@ -58,20 +59,44 @@ def _count_lines(path: Path) -> int:
         return 0
 
 
+def _children(pid: int) -> list[int] | None:
+    """Child process ids of ``pid`` (Linux /proc); None where that cannot be read."""
+    try:
+        return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+    except OSError:
+        return None
+
+
+def _state(pid: int) -> str:
+    """A process's state letter (Z: exited, not yet reaped); "" once it is gone."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return ""
+
+
 def test_sigkilled_run_resumes_without_loss_or_duplicates(tmp_path):
     out, seeds = tmp_path / "killed", range(0, 40)
     cmd = [sys.executable, "-m", "cdf_mj.cli", "experiment", "--episodes", str(len(seeds)),
            "--planners", "reactive", "--workers", "2", "--out", str(out), "--quiet"]
-    # Its own session, so that the kill reaches the worker processes too.
     proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 120
     while _count_lines(out / "episodes.jsonl") < 5 and proc.poll() is None:
         assert time.monotonic() < deadline, "the experiment wrote nothing in 120 s"
         time.sleep(0.02)
-    os.killpg(proc.pid, signal.SIGKILL)
+    workers = _children(proc.pid)
+    os.kill(proc.pid, signal.SIGKILL)  # the main process only: its workers must not outlive it
     proc.wait()
     assert proc.returncode == -signal.SIGKILL
+    if workers is not None:  # Linux: the workers exit with their parent (no orphans left behind)
+        assert len(workers) == 2
+        deadline = time.monotonic() + 30
+        while any(Path(f"/proc/{pid}").exists() and _state(pid) != "Z" for pid in workers):
+            assert time.monotonic() < deadline, f"worker processes {workers} outlived their parent"
+            time.sleep(0.05)
+    else:
+        os.killpg(proc.pid, signal.SIGKILL)
     saved = _count_lines(out / "episodes.jsonl")
     assert 5 <= saved < len(seeds)  # really killed in the middle
 
@@ -209,3 +234,48 @@ def test_a_planner_defined_inside_a_function_runs_where_it_can(tmp_path, monkeyp
         with pytest.raises(ValueError, match="cannot be sent to worker processes"):
             run_experiment(tmp_path / "pool", range(4), ("local",), progress=False, workers=2)
         assert not (tmp_path / "pool").exists()
+
+
+def test_a_second_run_into_a_busy_directory_is_refused(tmp_path):
+    with locked(tmp_path):  # as a run in another process holds it
+        with pytest.raises(ValueError, match="in use by another run"):
+            run_experiment(tmp_path, range(2), ("reactive",), progress=False, workers=1)
+    assert not (tmp_path / "episodes.jsonl").exists()
+    assert run_experiment(tmp_path, range(2), ("reactive",), progress=False, workers=1).ran == 2
+
+
+def test_results_without_their_settings_are_refused(serial, tmp_path):
+    out = tmp_path / "copy"
+    out.mkdir()
+    (out / "episodes.jsonl").write_bytes((serial.out_dir / "episodes.jsonl").read_bytes())
+    with pytest.raises(ValueError, match="no settings.json beside it"):
+        run_experiment(out, SEEDS, ("cdf", "reactive"), cdf=SMALL, progress=False, resume=True)
+    (out / "settings.json").write_text("")
+    with pytest.raises(ValueError, match="settings.json is damaged"):
+        run_experiment(out, SEEDS, ("cdf", "reactive"), cdf=SMALL, progress=False, resume=True)
+
+
+class NumpySummaryPlanner(ReactivePlanner):
+    """Puts a NumPy scalar into its record: JSON cannot hold it."""
+
+    name = "numpy-summary"
+
+    def summary(self) -> dict:
+        return {"score": np.float32(1.0)}
+
+
+def test_a_record_that_cannot_be_written_is_a_failed_episode(tmp_path, monkeypatch):
+    monkeypatch.setitem(PLANNERS, "numpy-summary", NumpySummaryPlanner)
+    result = run_experiment(tmp_path, range(3), ("reactive", "numpy-summary"), progress=False, workers=1)
+    bad = [r for r in result if r["planner"] == "numpy-summary"]
+    assert result.failed == 3 and all(r["status"] == FAILED for r in bad)
+    assert "not JSON-serialisable" in bad[0]["error"]
+    assert all(r["status"] == OK for r in result if r["planner"] == "reactive")
+
+
+def test_an_unwritable_output_is_one_line(tmp_path, capsys):
+    afile = tmp_path / "afile"
+    afile.write_text("")
+    assert main(["experiment", "--episodes", "2", "--planners", "reactive", "--out", str(afile), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("cdf-mj: error: ") and "afile" in err and err.count("\n") == 1
