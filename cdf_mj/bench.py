@@ -65,10 +65,11 @@ def bench_core(episodes: int = 60) -> list[tuple[str, float, str]]:
 
 
 def format_rows(rows: list[tuple[str, float, str]]) -> str:
-    """Markdown table of benchmark rows, times in the most readable unit."""
+    """Markdown table of benchmark rows, times in the most readable unit: medians, except
+    the reproduction rows, which are the wall time of one run (their notes say so)."""
     out = [f"Machine: {platform.processor() or platform.machine()}, Python {platform.python_version()}, "
            f"MuJoCo {mujoco.__version__}, NumPy {np.__version__}", "",
-           "| what | median | note |", "|---|---|---|"]
+           "| what | time | note |", "|---|---|---|"]
     for what, sec, note in rows:
         if sec < 1e-3:
             val = f"{sec * 1e6:.1f} µs"
@@ -177,7 +178,8 @@ def bench_reproduction(episodes: int = 1000, workers: tuple[int, ...] = (1, 2),
         with tempfile.TemporaryDirectory(prefix="cdf-mj-bench-") as tmp:
             result = run_experiment(tmp, range(episodes), planners, progress=progress, workers=k)
         wall = result.wall_time
-        notes = [f"{len(result)} records, {result.failed} failed",
+        notes = [f"wall time of one run on {result.workers} worker(s) ({result.backend}); "
+                 f"{len(result)} records, {result.failed} failed",
                  f"peak memory per worker {result.peak_worker_rss_mb:.0f} MiB "
                  f"(target <= 500 MB: {'met' if result.peak_worker_rss_mb * 1.048576 <= 500 else 'MISSED'})"]
         if base is None:

@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import sys
 from typing import Any, Callable, Iterable, NoReturn, Sequence
 
@@ -228,6 +229,8 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     seeds = range(args.seed0, args.seed0 + args.episodes)
     if args.retry_failed and not args.resume:
         raise CLIError("--retry-failed needs --resume")
+    if args.address is not None and args.backend != "ray":
+        raise CLIError("--address is the address of a Ray cluster: it needs --backend ray")
     try:
         result = run_experiment(args.out, seeds, args.planners, config, cdf, args.scene,
                                 progress=not args.quiet, workers=args.workers, backend=args.backend,
@@ -508,6 +511,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return _fail(exc)
     try:
         return args.func(args)
+    except BrokenPipeError:  # `cdf-mj episode | head`: the reader left; no traceback
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # Python's flush at exit
+        return 1
     # ValueError: bad parameters or seed (SceneError, CLIError are ValueErrors too);
     # FloatingPointError: a diverged simulation (NonFiniteStateError, SimulationDivergedError);
     # WorkerDiedError: a worker process died (the finished episodes are saved);

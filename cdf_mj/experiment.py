@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import functools
 import json
+import operator
 import os
 import pickle
 import statistics
@@ -46,6 +47,7 @@ from cdf_mj.runner import (
     SeedJob,
     WorkerDiedError,
     check_backend,
+    effective_backend,
     locked,
     run_seeds,
 )
@@ -163,7 +165,10 @@ def run_experiment(out_dir: str | Path, seeds: Sequence[int], planners: Sequence
     """
     t0 = time.perf_counter()
     config, cdf = config or ScenarioConfig(), cdf or CDFConfig()
-    seeds = [int(s) for s in seeds]
+    try:
+        seeds = [operator.index(s) for s in seeds]  # 1.5 is refused, not truncated
+    except TypeError:
+        raise ValueError("seeds must be integers") from None
     if not seeds or seeds[0] < 0 or seeds != list(range(seeds[0], seeds[0] + len(seeds))):
         raise ValueError("seeds must be a non-empty contiguous range of non-negative integers")
     planners = tuple(planners)
@@ -207,9 +212,11 @@ def run_experiment(out_dir: str | Path, seeds: Sequence[int], planners: Sequence
                     raise WorkerDiedError(f"{exc}; {len(store.records)} episodes are saved in {records_path}: "
                                           "run again with resume=True (--resume) to finish") from None
             records = sorted(store.records, key=lambda r: (r["seed"], order.get(r["planner"], len(order))))
+    ran_on = effective_backend(backend, n_workers, len(todo))
     return ExperimentResult(out_dir=out, records=records, ran=total, resumed=resumed,
                             failed=sum(1 for r in records if r.get("status") == FAILED),
-                            backend=backend if n_workers > 1 else "serial", workers=n_workers, wall_time=time.perf_counter() - t0,
+                            backend=ran_on, workers=1 if ran_on == "serial" else n_workers,
+                            wall_time=time.perf_counter() - t0,
                             peak_worker_rss_mb=max(peaks, default=float("nan")))
 
 

@@ -46,7 +46,8 @@ from typing import Literal
 from cdf_mj.config import ScenarioConfig
 
 __all__ = ["SeedJob", "SeedResult", "RecordStore", "run_seeds", "Backend", "BACKENDS",
-           "WorkerDiedError", "OK", "FAILED", "check_backend", "START_METHOD", "locked"]
+           "WorkerDiedError", "OK", "FAILED", "check_backend", "effective_backend",
+           "START_METHOD", "locked"]
 
 Backend = Literal["serial", "process", "ray"]
 BACKENDS: tuple[str, ...] = ("serial", "process", "ray")
@@ -254,11 +255,18 @@ def run_seeds(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], backend
     """
     cluster_default = backend == "ray" and address is not None and workers is None
     workers = check_backend(backend, workers)
-    if backend == "process" and (workers == 1 or len(todo) < 2):
-        backend = "serial"
+    backend = effective_backend(backend, workers, len(todo))
     if cluster_default:
         workers = 0  # one actor per CPU of the cluster
     return _BACKENDS[backend](job, todo, min(workers, max(1, len(todo))), address)
+
+
+def effective_backend(backend: str, workers: int, n_items: int) -> str:
+    """Where ``n_items`` seeds on ``workers`` really run: a process pool of one worker,
+    or for fewer than two seeds, is this process (``serial``)."""
+    if backend == "process" and (workers == 1 or n_items < 2):
+        return "serial"
+    return backend
 
 
 def check_backend(backend: str, workers: int | None) -> int:

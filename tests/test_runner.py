@@ -214,8 +214,11 @@ def test_bad_runner_arguments_are_refused_before_work(tmp_path):
         run_experiment(tmp_path / "b", range(4), ("reactive",), progress=False, backend="mpi")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="distinct"):
         run_experiment(tmp_path / "c", range(4), ("reactive", "reactive"), progress=False)
+    with pytest.raises(ValueError, match="integers"):
+        run_experiment(tmp_path / "d", [0.5, 1.5], ("reactive",), progress=False)
+    assert main(["experiment", "--episodes", "2", "--address", "host:6379", "--out", str(tmp_path / "e")]) == 2
 
-    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+    assert not any((tmp_path / name).exists() for name in "abcde")
 
 
 def test_a_planner_defined_inside_a_function_runs_where_it_can(tmp_path, monkeypatch):
