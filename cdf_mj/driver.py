@@ -194,7 +194,8 @@ def update_belief(belief: np.ndarray, has_belief: np.ndarray, observed: np.ndarr
     Shapes: ``belief``/``observation`` ``(N, 4)``, ``has_belief``/``observed`` ``(N,)``.
     """
     new = belief.copy()
-    observation = np.broadcast_to(observation, belief.shape)
+    if observation.shape != belief.shape:  # one observation for every driver
+        observation = np.broadcast_to(observation, belief.shape)
     carry = has_belief & ~observed  # only these are dead-reckoned; the rest are replaced or kept
     if carry.any():
         rows = belief[carry]

@@ -33,6 +33,7 @@ the conflict point and within the critical gap of it), else 0. ::
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -45,6 +46,15 @@ from cdf_mj.occlusion import Occluders
 from cdf_mj.resampling import effective_sample_size, stratified_resample
 
 __all__ = ["ParticleFilter", "Posterior"]
+
+
+# Plain ints for the per-tick code (IntEnum attribute access costs a Python call each time).
+_LEFT, _GOING, _COMMITTED = int(Intent.LEFT), int(Mode.GOING), int(Mode.COMMITTED)
+
+
+def _finite(a: np.ndarray) -> bool:
+    """Whether a small array (a pose) is all finite."""
+    return all(math.isfinite(x) for x in a.flat)
 
 
 def _unit(p: float) -> float:
@@ -93,6 +103,9 @@ class ParticleFilter:
         self.reinits = 0  # times every likelihood vanished
         self._ego: np.ndarray | None = None
         self._ego_targets: np.ndarray | None = None
+        self.logw = np.zeros(0)
+        self._w: np.ndarray | None = None  # weights of the log-weight array _w_of
+        self._w_of: np.ndarray | None = None
 
     @classmethod
     def from_scene(cls, scene, scenario: ScenarioConfig, cdf: CDFConfig,
@@ -121,14 +134,17 @@ class ParticleFilter:
 
     @property
     def weights(self) -> np.ndarray:
-        """Normalised weights (N,)."""
-        w = np.exp(self.logw - self.logw.max())
-        return w / w.sum()
+        """Normalised weights (N,). Computed once per ``logw`` array: the filter assigns
+        a new array whenever the log-weights change, never edits one it has weighed."""
+        if self._w_of is not self.logw:
+            w = np.exp(self.logw - self.logw.max())
+            self._w, self._w_of = w / w.sum(), self.logw
+        return self._w
 
     def posterior(self) -> Posterior:
         """P(left), P(right), P(seen), P(cutoff) and ESS of the current weights."""
         w = self.weights
-        left = self.intent == Intent.LEFT
+        left = self.intent == _LEFT
         p_left = _unit(w[left].sum())
         p_cutoff = _unit(w @ self.cutoff_probability()) if self.ego_exposed() else 0.0
         return Posterior(p_left=p_left, p_right=1.0 - p_left, p_seen=_unit(w[self.has_belief].sum()),
@@ -136,17 +152,17 @@ class ParticleFilter:
 
     def cutoff_probability(self) -> np.ndarray:
         """Per particle, the probability that it cuts the ego off (N,), see ``cutoff_rule``."""
-        left = self.intent == Intent.LEFT
-        p = (left & (self.mode == Mode.COMMITTED)).astype(float)
-        going = left & (self.mode == Mode.GOING)
+        left = self.intent == _LEFT
+        p = (left & (self.mode == _COMMITTED)).astype(float)
+        going = left & (self.mode == _GOING)
         if self.cdf.cutoff_rule == "paper":
             p[going] = 1.0
             return p
         idx = np.flatnonzero(going)
         if idx.size:
             cfg = self.scenario
-            s = self.model.routes[Intent.LEFT].project(self.pose[idx, :2])[0]
-            remaining = np.maximum(self.model.s_commit[Intent.LEFT] - s, 0.0)  # [m]
+            s = self.model.routes[_LEFT].project(self.pose[idx, :2])[0]
+            remaining = np.maximum(self.model.s_commit[_LEFT] - s, 0.0)  # [m]
             v = self.pose[idx, 3]
             t_commit = (np.sqrt(v * v + 2.0 * cfg.obstacle_accel * remaining) - v) / cfg.obstacle_accel
             ticks = np.ceil(t_commit / cfg.dt - 1e-9)  # looks left before the commit point
@@ -184,7 +200,7 @@ class ParticleFilter:
         """Take the ego's pose from ``system_pose[0]`` where it is finite."""
         if system_pose is not None:
             ego = np.asarray(system_pose, dtype=float)[0]
-            if np.all(np.isfinite(ego)) and (self._ego is None or not np.array_equal(ego, self._ego)):
+            if _finite(ego) and (self._ego is None or not np.array_equal(ego, self._ego)):
                 self._ego = ego.copy()
                 self._ego_targets = None
 
@@ -236,7 +252,7 @@ class ParticleFilter:
         system_pose = np.asarray(system_pose, dtype=float)
         self.set_ego(system_pose)  # the ego's pose now, for P(cutoff)
         meas = system_pose[1]
-        if not np.all(np.isfinite(meas)):
+        if not _finite(meas):
             self.skipped_updates += 1
             return self.posterior()
         d = self.pose - meas

@@ -108,8 +108,11 @@ class Car:
         pose = np.asarray(pose, dtype=float)
         c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
         ex, ey, ez = self.eye_offset
-        return np.stack([pose[..., 0] + c * ex - s * ey, pose[..., 1] + s * ex + c * ey,
-                         np.full_like(pose[..., 0], ez)], axis=-1)
+        out = np.empty(pose.shape[:-1] + (3,))
+        out[..., 0] = pose[..., 0] + c * ex - s * ey
+        out[..., 1] = pose[..., 1] + s * ex + c * ey
+        out[..., 2] = ez
+        return out
 
 
 class Scene:
