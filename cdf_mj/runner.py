@@ -201,8 +201,16 @@ def _process_pool(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], wor
                     seed, planners = queue.pop()
                     pending.add(pool.submit(_run_in_process, seed, planners))
                 done, pending = wait(pending, return_when=FIRST_COMPLETED)
-                for fut in done:
-                    yield fut.result()
+                broken = None
+                for fut in done:  # every finished seed is handed over before a death is reported
+                    try:
+                        result = fut.result()
+                    except BrokenProcessPool as exc:
+                        broken = exc
+                        continue
+                    yield result
+                if broken is not None:
+                    raise broken
         except BrokenProcessPool as exc:
             raise WorkerDiedError(f"a worker process died ({exc})") from None
         finally:
