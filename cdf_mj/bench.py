@@ -13,14 +13,15 @@ from __future__ import annotations
 import platform
 import statistics
 import time
-from typing import Callable
+from collections.abc import Callable
+from pathlib import Path
 
 import mujoco
 import numpy as np
 
 from cdf_mj.config import ScenarioConfig
 from cdf_mj.episode import run_episode
-from cdf_mj.scene import Scene
+from cdf_mj.scene import DEFAULT_SCENE, Scene
 from cdf_mj.visibility import ego_visible, isovist
 
 __all__ = ["median_time", "bench_core", "bench_filter", "bench_planners", "bench_reproduction",
@@ -38,27 +39,34 @@ def median_time(fn: Callable[[int], object], repeats: int) -> float:
     return statistics.median(times)
 
 
-def bench_core(episodes: int = 60) -> list[tuple[str, float, str]]:
-    """Rows ``(what, median seconds, note)`` for the scenario's building blocks."""
-    scene = Scene.load()
-    cfg = ScenarioConfig()
+def _setup(scene: str | Path, config: ScenarioConfig | None) -> tuple[Scene, ScenarioConfig]:
+    cfg = config or ScenarioConfig()
+    return Scene.load(scene, names=cfg.names), cfg
+
+
+def bench_core(episodes: int = 60, scene: str | Path = DEFAULT_SCENE,
+               config: ScenarioConfig | None = None) -> list[tuple[str, float, str]]:
+    """Rows ``(what, median seconds, note)`` for the scenario's building blocks, on
+    ``scene`` (an MJCF path) with ``config``."""
+    world, cfg = _setup(scene, config)
     rows: list[tuple[str, float, str]] = []
-    ego = np.array([-30.0, -1.85, 0.0, 13.4])
-    scene.reset(ego, scene.obstacle_start)
-    n_sub = int(round(cfg.dt / scene.model.opt.timestep))
-    rows.append(("mj_step (two cars)", median_time(lambda i: mujoco.mj_step(scene.model, scene.data), 2000), ""))
+    ego = world.ego_start.copy()
+    ego[3] = cfg.ego_speed  # at its start, at speed
+    world.reset(ego, world.obstacle_start)
+    n_sub = int(round(cfg.dt / world.model.opt.timestep))
+    rows.append(("mj_step (two cars)", median_time(lambda i: mujoco.mj_step(world.model, world.data), 2000), ""))
     rows.append((f"planner tick of physics ({n_sub} steps + contact check)",
-                 median_time(lambda i: scene.step(n_sub), 300), ""))
-    scene.reset(ego, scene.obstacle_start)
-    scene.sync()
-    eye = scene.obstacle.eye(scene.obstacle_start)
-    rows.append(("ego_visible (5 sight lines, mj_multiRay)", median_time(lambda i: ego_visible(scene), 500), ""))
+                 median_time(lambda i: world.step(n_sub), 300), ""))
+    world.reset(ego, world.obstacle_start)
+    world.sync()
+    eye = world.obstacle.eye(world.obstacle_start)
+    rows.append(("ego_visible (5 sight lines, mj_multiRay)", median_time(lambda i: ego_visible(world), 500), ""))
     rows.append(("isovist 360 rays + shapely polygon",
-                 median_time(lambda i: isovist(scene, eye).polygon, 300), ""))
+                 median_time(lambda i: isovist(world, eye).polygon, 300), ""))
     seed = lambda i: 1000 + max(i, 0)  # noqa: E731
     rows.append(("episode, constant (labels itself)",
-                 median_time(lambda i: run_episode(cfg, seed(i), "constant", scene), episodes), ""))
-    reactive = median_time(lambda i: run_episode(cfg, seed(i), "reactive", scene), episodes)
+                 median_time(lambda i: run_episode(cfg, seed(i), "constant", world), episodes), ""))
+    reactive = median_time(lambda i: run_episode(cfg, seed(i), "reactive", world), episodes)
     rows.append(("episode, reactive + counterfactual", reactive,
                  f"target < 50 ms: {'met' if reactive < 0.05 else 'MISSED'}"))
     return rows
@@ -81,7 +89,9 @@ def format_rows(rows: list[tuple[str, float, str]]) -> str:
     return "\n".join(out)
 
 
-def bench_filter(n_values: tuple[int, ...] = (250, 1000, 4000), passes: int = 3) -> list[tuple[str, float, str]]:
+def bench_filter(n_values: tuple[int, ...] = (250, 1000, 4000), passes: int = 3,
+                 scene: str | Path = DEFAULT_SCENE,
+                 config: ScenarioConfig | None = None) -> list[tuple[str, float, str]]:
     """Median time of one particle-filter tick at each N, stage by stage.
 
     Replays the measured system poses of a recorded cut-off episode (seed 1, constant
@@ -93,14 +103,13 @@ def bench_filter(n_values: tuple[int, ...] = (250, 1000, 4000), passes: int = 3)
     from cdf_mj.config import CDFConfig
     from cdf_mj.inference import ParticleFilter
 
-    scene = Scene.load()
-    cfg = ScenarioConfig()
-    rec = run_episode(cfg, 1, "constant", scene, trace=True)
+    world, cfg = _setup(scene, config)
+    rec = run_episode(cfg, 1, "constant", world, trace=True)
     poses = np.array(rec.trace["poses"])
     stages = ("look + believe", "act", "move", "weigh", "resample")
     rows: list[tuple[str, float, str]] = []
     for n in n_values:
-        pf = ParticleFilter.from_scene(scene, cfg, CDFConfig(n_particles=n), np.random.default_rng(0))
+        pf = ParticleFilter.from_scene(world, cfg, CDFConfig(n_particles=n), np.random.default_rng(0))
         times: dict[str, list[float]] = {s: [] for s in ("tick", *stages)}
         for pass_i in range(passes + 1):  # the first pass warms up and is not timed
             pf.reset(poses[0])
@@ -134,20 +143,20 @@ def bench_filter(n_values: tuple[int, ...] = (250, 1000, 4000), passes: int = 3)
     return rows
 
 
-def bench_planners(episodes: int = 20) -> list[tuple[str, float, str]]:
+def bench_planners(episodes: int = 20, scene: str | Path = DEFAULT_SCENE,
+                   config: ScenarioConfig | None = None) -> list[tuple[str, float, str]]:
     """Median wall time of one episode (no counterfactual) for every registered planner,
     and how many times faster than real time it runs (median over seeds)."""
     from cdf_mj.planners import PLANNERS, make_planner
 
-    scene = Scene.load()
-    cfg = ScenarioConfig()
+    world, cfg = _setup(scene, config)
     rows = []
     for name in sorted(PLANNERS):
-        run_episode(cfg, 1999, make_planner(name), scene, label=False)  # warm-up
+        run_episode(cfg, 1999, make_planner(name), world, label=False)  # warm-up
         walls, factors = [], []
         for i in range(episodes):
             t0 = time.perf_counter()
-            ep = run_episode(cfg, 2000 + i, make_planner(name), scene, label=False)
+            ep = run_episode(cfg, 2000 + i, make_planner(name), world, label=False)
             walls.append(time.perf_counter() - t0)
             factors.append(ep.end_time / walls[-1])
         speed = statistics.median(factors)
@@ -160,7 +169,8 @@ def bench_planners(episodes: int = 20) -> list[tuple[str, float, str]]:
 
 def bench_reproduction(episodes: int = 1000, workers: tuple[int, ...] = (1, 2),
                        planners: tuple[str, ...] = ("cdf", "reactive"),
-                       progress: bool = False) -> list[tuple[str, float, str]]:
+                       progress: bool = False, scene: str | Path = DEFAULT_SCENE,
+                       config: ScenarioConfig | None = None) -> list[tuple[str, float, str]]:
     """Wall time of the paper's reproduction (``episodes`` seeds from 0, every planner,
     labels included) with each worker count, in fresh temporary directories.
 
@@ -176,7 +186,8 @@ def bench_reproduction(episodes: int = 1000, workers: tuple[int, ...] = (1, 2),
     base: tuple[int, float] | None = None
     for k in workers:
         with tempfile.TemporaryDirectory(prefix="cdf-mj-bench-") as tmp:
-            result = run_experiment(tmp, range(episodes), planners, progress=progress, workers=k)
+            result = run_experiment(tmp, range(episodes), planners, config, scene=scene,
+                                    progress=progress, workers=k)
         wall = result.wall_time
         notes = [f"wall time of one run on {result.workers} worker(s) ({result.backend}); "
                  f"{len(result)} records, {result.failed} failed",

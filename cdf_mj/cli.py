@@ -444,10 +444,14 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     from cdf_mj.bench import bench_core, bench_filter, bench_planners, bench_reproduction, format_rows
 
     sizes = tuple(args.particles)
-    rows = [] if args.only_reproduce else [*bench_core(args.episodes), *bench_filter(sizes),
-                                           *bench_planners(args.episodes)]
+    config = config_from_args(args)
+    where = {"scene": args.scene, "config": config}
+    rows = [] if args.only_reproduce else [*bench_core(args.episodes, **where),
+                                           *bench_filter(sizes, **where),
+                                           *bench_planners(args.episodes, **where)]
     if args.reproduce or args.only_reproduce:
-        rows += bench_reproduction(args.reproduce_episodes, tuple(args.workers), progress=not args.quiet)
+        rows += bench_reproduction(args.reproduce_episodes, tuple(args.workers), progress=not args.quiet,
+                                   **where)
     print(format_rows(rows))
     return 0
 
@@ -479,6 +483,7 @@ def _add_bench(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--workers", type=_int_list, default=[1, 2],
                    help="worker counts for the reproduction (default 1,2)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_scenario_arguments(p)
     p.set_defaults(func=_cmd_bench)
 
 

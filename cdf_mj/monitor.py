@@ -15,9 +15,10 @@ You step the physics yourself; every ``config.dt`` (0.1 s) of simulated time you
     add_car(spec, "obstacle_", pos=(-1.85, 8.35), yaw=-1.5708)
     model = spec.compile(); data = mujoco.MjData(model)
     monitor = attach(model, data, SceneNames(route_ego="my_ego_path"))
+    nstep = round(monitor.scenario.dt / model.opt.timestep)  # physics steps per 0.1 s tick
     for _ in range(80):
         ...                                   # your controls into data.ctrl
-        mujoco.mj_step(model, data, nstep=20) # 0.1 s at timestep 0.005 s
+        mujoco.mj_step(model, data, nstep=nstep)
         decision = monitor.step()
         if decision.brake: ...                # P(cutoff) reached tau: brake at the maximum rate
 
@@ -79,7 +80,10 @@ class CDFMonitor:
         self.reset()
 
     def reset(self) -> None:
-        """Forget the episode: the next :meth:`step` starts the filter from the prior."""
+        """Forget the episode: the next :meth:`step` starts the filter from the prior.
+
+        The filter's random stream goes on from where it was, so a replayed episode gets
+        other draws; build a new monitor with the same ``rng`` seed to repeat one exactly."""
         self._last_t: float | None = None
         self.brake_time: float | None = None
         self.decision: Decision | None = None

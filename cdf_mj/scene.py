@@ -219,9 +219,23 @@ class Scene:
         def has(kind: str, name: str) -> bool:
             return exists[(kind, name)]
 
+        d = self.data
+        not_finite = [f"{kind} '{name}'" for kind, name in self._required()
+                      if kind in ("site", "body") and has(kind, name)
+                      and not np.all(np.isfinite((d.site if kind == "site" else d.body)(name).xpos))]
+        if not_finite:
+            wrong.append(f"positions that are not finite numbers: {', '.join(not_finite)}")
         for route in (n.route_ego, n.route_left, n.route_right):
-            if has("body", route) and np.count_nonzero(m.site_bodyid == m.body(route).id) < 2:
+            if not has("body", route):
+                continue
+            ids = np.flatnonzero(m.site_bodyid == m.body(route).id)
+            xy = d.site_xpos[ids, :2]
+            if len(ids) < 2:
                 wrong.append(f"body '{route}' has fewer than 2 waypoint sites")
+            elif not np.all(np.isfinite(xy)):
+                wrong.append(f"body '{route}' has waypoints that are not finite numbers")
+            elif np.any(np.hypot(*np.diff(xy, axis=0).T) <= 1e-9):
+                wrong.append(f"body '{route}' has two consecutive waypoints at the same place")
         for site in (n.stop_line, n.ego_lane):
             if has("site", site) and m.site(site).type[0] != mujoco.mjtGeom.mjGEOM_BOX:
                 wrong.append(f"site '{site}' must be a box (its half sizes give the area)")
@@ -251,6 +265,9 @@ class Scene:
                 if acc.dyntype[0] != mujoco.mjtDyn.mjDYN_INTEGRATOR or not acc.ctrllimited[0]:
                     wrong.append(f"actuator '{p}{n.accel}' must be a ctrl-limited integrator "
                                  "(ctrl = acceleration, act = speed)")
+                elif not acc.ctrlrange[0] < 0.0 < acc.ctrlrange[1]:
+                    wrong.append(f"actuator '{p}{n.accel}' needs a ctrlrange from braking (< 0) "
+                                 f"to accelerating (> 0) [m/s^2], has {acc.ctrlrange.tolist()}")
             if has("actuator", p + n.steer) and not m.actuator(p + n.steer).ctrllimited[0]:
                 wrong.append(f"actuator '{p}{n.steer}' must be ctrl-limited (steering range)")
         not_box, tilted = [], []
@@ -422,6 +439,13 @@ class Scene:
         mujoco.mj_kinematics(self.model, self.data)
 
 
+#: Named elements a car file can bring into a spec (MjSpec finder, list), for name clashes.
+_CAR_ELEMENT_KINDS = (("body", "bodies"), ("geom", "geoms"), ("site", "sites"), ("joint", "joints"),
+                      ("actuator", "actuators"), ("sensor", "sensors"), ("tendon", "tendons"),
+                      ("camera", "cameras"), ("light", "lights"), ("material", "materials"),
+                      ("mesh", "meshes"), ("texture", "textures"))
+
+
 def add_car(spec: mujoco.MjSpec, prefix: str, pos: tuple[float, float] = (0.0, 0.0),
             yaw: float = 0.0, paint: tuple[float, float, float, float] = (0.8, 0.8, 0.8, 1.0),
             car_file: str | Path = CAR_XML, set_options: bool = True) -> mujoco.MjsBody:
@@ -435,23 +459,34 @@ def add_car(spec: mujoco.MjSpec, prefix: str, pos: tuple[float, float] = (0.0, 0
     becomes ``implicitfast`` and its timestep at most 0.005 s, which the car's stiff speed
     servo and tyre dampers need to stay stable.
 
-    SceneError if the spec already has a body named ``<prefix>chassis`` or the car file
-    cannot be read.
+    SceneError, before anything is added to ``spec``, if the car file cannot be read or has
+    no ``chassis`` body, or if any prefixed name of the car is already in the spec;
+    ValueError for a pose that is not two finite numbers and a finite yaw.
     """
     if not prefix:
         raise SceneError("add_car: prefix must be a non-empty string (e.g. 'ego_')")
     chassis = SceneNames().chassis
-    if spec.body(prefix + chassis) is not None:
-        raise SceneError(f"add_car: the spec already has a body '{prefix}{chassis}'; choose "
-                         "another prefix")
-    x, y = (float(v) for v in pos)
-    if not all(math.isfinite(v) for v in (x, y, yaw)):
+    try:
+        x, y = (float(v) for v in pos)
+    except (TypeError, ValueError):
+        raise ValueError(f"add_car: pos must be (x, y) in metres, got {pos!r}") from None
+    if not all(math.isfinite(v) for v in (x, y, float(yaw))):
         raise ValueError(f"add_car: pose must be finite, got pos={pos}, yaw={yaw}")
     try:
         car = mujoco.MjSpec.from_file(str(car_file))
     except ValueError as exc:
         raise SceneError(f"add_car: cannot read car file {car_file}: "
                          f"{' '.join(str(exc).split())}") from None
+    if car.body(chassis) is None:
+        raise SceneError(f"add_car: car file {car_file} has no body '{chassis}'")
+    clashes = [f"{kind} '{prefix}{element.name}'" for kind, plural in _CAR_ELEMENT_KINDS
+               for element in getattr(car, plural)
+               if element.name and element.name != "world"
+               and getattr(spec, kind)(prefix + element.name) is not None]
+    if clashes:
+        more = f" and {len(clashes) - 6} more" if len(clashes) > 6 else ""
+        raise SceneError(f"add_car: the spec already has {', '.join(clashes[:6])}{more}; "
+                         "choose another prefix")
     if spec.material(prefix + "paint") is None:
         spec.add_material(name=prefix + "paint", rgba=list(paint))
     frame = spec.worldbody.add_frame(pos=[x, y, 0.0],

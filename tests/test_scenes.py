@@ -62,9 +62,10 @@ def test_cdf_brakes_for_a_cutoff_on_the_fourway(fourway: Scene):
     ["episode", "--seed", "3", "--planner", "reactive"],
     ["experiment", "--episodes", "2", "--planners", "reactive", "--quiet", "--workers", "1"],
     ["reproduce", "--episodes", "2", "--planners", "constant", "--quiet", "--workers", "1"],
+    ["bench", "--only-reproduce", "--reproduce-episodes", "2", "--workers", "1", "--quiet"],
 ])
 def test_cli_runs_on_the_fourway(argv, tmp_path, capsys):
-    extra = ["--out", str(tmp_path / "out")] if argv[0] != "episode" else []
+    extra = ["--out", str(tmp_path / "out")] if argv[0] in ("experiment", "reproduce") else []
     assert main([*argv, "--scene", str(FOURWAY), *extra]) == 0
     out = capsys.readouterr().out
     if argv[0] == "episode":
@@ -176,6 +177,32 @@ def test_add_car_refuses_a_taken_prefix():
         add_car(spec, MY_NAMES.ego_prefix)
 
 
+def test_add_car_refuses_any_name_clash_before_touching_the_spec():
+    spec = _spec_from_scratch(cars=False)
+    spec.worldbody.add_body(name="marker").add_site(name="av/eye")
+    spec.add_material(name="av/glass")
+    before = spec.to_xml()
+    with pytest.raises(SceneError) as err:
+        add_car(spec, "av/")
+    assert "site 'av/eye'" in str(err.value) and "material 'av/glass'" in str(err.value)
+    assert spec.to_xml() == before  # no frame, no paint material left behind
+    with pytest.raises(ValueError, match=r"pos must be \(x, y\)"):
+        add_car(spec, "b/", pos=(0.0, 0.0, 0.0))
+
+
+def test_monitor_example_steps_with_the_models_own_timestep():
+    spec = _spec_from_scratch()
+    spec.option.timestep = 0.002  # a user's finer timestep: 50 steps per 0.1 s tick
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    monitor = CDFMonitor(Scene.from_model(model, data, MY_NAMES), rng=1)
+    nstep = round(monitor.scenario.dt / model.opt.timestep)  # as the module docstring does
+    for _ in range(3):
+        decision = monitor.step()
+        mujoco.mj_step(model, data, nstep=nstep)
+    assert nstep == 50 and decision.t == pytest.approx(0.2)
+
+
 # ------------------------------------------------------------------ bad scenes, bad names
 def test_bad_scene_gives_one_error_listing_everything():
     spec = _spec_from_scratch()
@@ -193,6 +220,22 @@ def test_bad_scene_gives_one_error_listing_everything():
     for fragment in ("site 'crossing'", "site 'point_of_no_return'", "site 'av_lane' must be a box",
                      "body 'av_path' has fewer than 2 waypoint sites",
                      "'house_corner' is a cylinder"):
+        assert fragment in msg, fragment
+
+
+def test_bad_numbers_in_a_scene_are_listed_too():
+    spec = _spec_from_scratch()
+    spec.site(MY_NAMES.ego_start).pos = [float("nan"), -1.75, 0.0]
+    left = spec.body(MY_NAMES.route_left).sites
+    left[2].pos = left[1].pos  # two waypoints at one place
+    spec.actuator("av/accel").ctrlrange = [1.0, 3.0]  # cannot brake
+    model = spec.compile()
+    with pytest.raises(SceneError) as err:
+        attach(model, mujoco.MjData(model), MY_NAMES)
+    msg = str(err.value)
+    for fragment in ("not finite numbers: site 'av_home'",
+                     "body 'other_path_left' has two consecutive waypoints at the same place",
+                     "actuator 'av/accel' needs a ctrlrange from braking"):
         assert fragment in msg, fragment
 
 
