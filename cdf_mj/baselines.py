@@ -105,7 +105,10 @@ class IMMConfig:
     pos_std: float = 0.25  # [m] measurement std of the obstacle's position about its route
     heading_std: float = 0.1  # [rad] measurement std of its heading about the route tangent
     speed_std: float = 0.2  # [m/s] measurement std of its speed
-    jerk_std: float = 1.0  # [m/s^2 per tick] std of the change of acceleration (process noise)
+    # [m/s^2] std of the change of the acceleration over one tick (process noise: the variance
+    # of filterpy's Q_discrete_white_noise(dim=3)). 10 m/s^2 per tick is a loose model (more
+    # than the car's own limits allow): the filter follows the measured progress closely.
+    accel_change_std: float = 10.0
     init_std: tuple[float, float, float] = (0.2, 0.3, 1.5)  # [m, m/s, m/s^2] of [s, v, a] at t=0
     max_speed: float | None = None  # [m/s] cap of predicted speed; None: obstacle_turn_speed
     heading_window: float = 0.5  # [m] half window of the route tangent's central difference
@@ -119,7 +122,7 @@ class IMMConfig:
                  self.threshold, "in (0, 1]")
         _require(_finite_number(self.switch_prob) and 0 < self.switch_prob < 0.5, "switch_prob",
                  self.switch_prob, "in (0, 0.5)")
-        for name in ("pos_std", "heading_std", "speed_std", "jerk_std", "heading_window"):
+        for name in ("pos_std", "heading_std", "speed_std", "accel_change_std", "heading_window"):
             v = getattr(self, name)
             _require(_finite_number(v) and v > 0, name, v, "a finite number > 0")
         init = tuple(self.init_std)
@@ -238,7 +241,7 @@ class RouteKalmanFilter(KalmanFilter):
         self.route = route
         self.window = params.heading_window
         self.F = np.array([[1.0, dt, 0.5 * dt * dt], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
-        self.Q = Q_discrete_white_noise(dim=3, dt=dt, var=params.jerk_std ** 2 / (dt * dt))
+        self.Q = Q_discrete_white_noise(dim=3, dt=dt, var=params.accel_change_std ** 2)
         self.R = np.diag(np.square([params.pos_std, params.pos_std, params.heading_std,
                                     params.speed_std]))
         self.P = np.diag(np.square(params.init_std))

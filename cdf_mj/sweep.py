@@ -19,7 +19,8 @@ Every point is one :func:`cdf_mj.experiment.run_experiment` call in its own dire
 ``OUT/<sweep>/<value>/`` (so a point that finished is reused by a later call with the same
 settings, and an interrupted one resumes), on the same seeds for every point (common
 random numbers). Settings that only the CDF reads (``particles``, ``tau``) run the other
-planners once, at the first point, as references. Each sweep writes ``OUT/<sweep>.csv``,
+planners once, as references, in ``OUT/<sweep>/reference/`` (reported at the first point),
+so that a point's directory holds the same settings whatever the other values are. Each sweep writes ``OUT/<sweep>.csv``,
 ``OUT/<sweep>.md`` (the metrics of :func:`cdf_mj.metrics.planner_metrics` per point and
 planner) and ``OUT/<sweep>.png`` (matplotlib, the optional extra ``viz``).
 
@@ -39,10 +40,8 @@ and the sweep reports how many derived brake times agree with those runs. ::
 from __future__ import annotations
 
 import csv
-import inspect
 import json
 import math
-import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -127,22 +126,14 @@ def _value_text(value: float) -> str:
 
 def _run_point(out: Path, seeds: Sequence[int], planners: Sequence[str], config: ScenarioConfig,
                cdf: CDFConfig, scene: str | Path, progress: bool, workers: int | None) -> tuple[list[dict], float]:
-    """One :func:`run_experiment` call (keyword arguments; ``workers`` and ``resume`` where the
-    runner takes them); returns its completed records and its wall time [s]."""
-    from cdf_mj.experiment import run_experiment
+    """One :func:`run_experiment` call, resumed where ``out`` holds the same settings (a
+    finished point is reused, an interrupted one continues); returns its completed records
+    and its wall time [s]."""
+    from cdf_mj.experiment import completed, run_experiment
 
-    params = inspect.signature(run_experiment).parameters
-    extra: dict = {}
-    if "workers" in params:
-        extra["workers"] = workers
-    if "resume" in params:
-        extra["resume"] = True  # a finished point is reused, an interrupted one continues
-    t0 = time.perf_counter()
-    result = run_experiment(out_dir=out, seeds=seeds, planners=list(planners), config=config, cdf=cdf,
-                            scene=scene, progress=progress, **extra)
-    wall = float(getattr(result, "wall_time", time.perf_counter() - t0))
-    records = [r for r in result if r.get("status") != "failed"]
-    return records, wall
+    result = run_experiment(out, seeds, list(planners), config, cdf, scene, progress,
+                            workers=workers, resume=True)
+    return completed(result), result.wall_time
 
 
 def run_sweep(name: str, out_dir: str | Path, seeds: Iterable[int], planners: Sequence[str] = ("cdf", "reactive"),
@@ -187,10 +178,15 @@ def run_sweep(name: str, out_dir: str | Path, seeds: Iterable[int], planners: Se
 
     rows: list[dict] = []
     records_by_value: dict[float, list[dict]] = {}
+    references = [p for p in planners if p != "cdf"] if spec.cdf_only else []
     for i, (value, cfg, cdf_v) in enumerate(points):
-        names = planners if (i == 0 or not spec.cdf_only) else ["cdf"]
+        names = ["cdf"] if spec.cdf_only else planners
         recs, wall = _run_point(out / name / _value_text(value), seeds, names, cfg, cdf_v, scene,
                                 progress, workers)
+        if i == 0 and references:  # unaffected by the swept CDF setting: run once, at the base
+            ref, ref_wall = _run_point(out / name / "reference", seeds, references, config, cdf, scene,
+                                       progress, workers)
+            recs, wall = recs + ref, wall + ref_wall
         records_by_value[value] = recs
         for m in planner_metrics(recs).values():
             rows.append({"sweep": name, "value": value, **m.to_row(), "point_wall_s": round(wall, 2)})
@@ -313,13 +309,14 @@ def _markdown(spec: SweepSpec, rows: list[dict], extra: dict) -> str:
             f"| {_num(r['brier_left'], 3)} | {_num(r['brier_seen'], 3)} | {_num(r['point_wall_s'], 1)} |")
     others = sorted({_value_text(r["value"]) for r in rows if r["planner"] != "cdf"})
     if spec.cdf_only and others:
-        lines += ["", (f"Planners other than `cdf` do not read this setting: they ran once, at "
-                       f"{spec.name} = {', '.join(others)}.")]
+        lines += ["", (f"Planners other than `cdf` do not read this setting: they ran once (in "
+                       f"`{spec.name}/reference/`) and are listed at {spec.name} = {', '.join(others)}.")]
     if "agreement" in extra:
         a = extra["agreement"]
         lines += ["", (f"Brake times derived from the histories of the largest-tau run agree with the "
                       f"braking runs in {a['agree']}/{a['episodes']} CDF episodes (`tau_curve.csv` "
-                      "holds the fine curve; its false alarms are exact, its avoidance is not computed).")]
+                      "holds the fine curve; its false alarms are exact up to the 5-decimal rounding of the stored "
+                      "P(cutoff), its avoidance is not computed).")]
     return "\n".join(lines)
 
 
@@ -369,7 +366,7 @@ def _figure(spec: SweepSpec, rows: list[dict], extra: dict, path: Path) -> None:
         if curve:
             taus = [c["tau"] for c in curve]
             bx.plot(taus, [100 * c["false_alarms"] for c in curve], color="C3",
-                    label="false alarms, every 0.01 (from the histories, exact)")
+                    label="false alarms, every 0.01 (from the histories)")
             bx.fill_between(taus, [100 * c["false_alarms_lo"] for c in curve],
                             [100 * c["false_alarms_hi"] for c in curve], color="C3", alpha=0.15, lw=0)
             bx.plot(taus, [100 * c["detected"] for c in curve], color="0.5", ls=":",

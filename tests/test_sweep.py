@@ -70,3 +70,12 @@ def test_cli_sweep(tmp_path, capsys, monkeypatch):
     assert (tmp_path / "novis" / "noise.csv").is_file()
     assert main(["sweep", "noise", "--values", "x"]) == 2
     assert main(["sweep", "noise", "beta", "--values", "1"]) == 2
+
+
+def test_points_are_reused_when_the_value_list_changes(tmp_path):
+    kwargs = {"seeds": range(2), "planners": ("cdf", "reactive"), "workers": 1, "figure": False}
+    run_sweep("tau", tmp_path, values=(0.9, 0.5), **kwargs)
+    kept = (tmp_path / "tau" / "0.9" / "episodes.jsonl").read_bytes()
+    result = run_sweep("tau", tmp_path, values=(0.95, 0.9), **kwargs)  # 0.9 is no longer first
+    assert (tmp_path / "tau" / "0.9" / "episodes.jsonl").read_bytes() == kept
+    assert {(r["value"], r["planner"]) for r in result.rows} == {(0.9, "cdf"), (0.95, "cdf"), (0.95, "reactive")}
