@@ -32,6 +32,7 @@ __all__ = [
     "brier_score",
     "filter_table",
     "format_scenario_summary",
+    "paired_table",
     "planner_metrics",
     "planner_table",
     "scenario_summary",
@@ -288,6 +289,36 @@ def planner_table(records: Iterable[object]) -> str:
         rows.append(f"| {m.planner} | {m.episodes} | {m.imminent} | {m.collisions} | {m.avoided} "
                     f"| {m.false_alarms} | {_fmt(m.lead_time)} | {_fmt(m.min_gap)} | {_fmt(m.time_lost)} "
                     f"| {_fmt(m.brier_left, 3)} | {_fmt(m.brier_seen, 3)} |")
+    return "\n".join(rows)
+
+
+def paired_table(records: Iterable[object], pairs: Sequence[tuple[str, str]]) -> str:
+    """Markdown: two planners compared seed by seed (common random numbers), on the seeds
+    both ran: Cutoff episodes in which only the first or only the second collides with the
+    obstacle, and episodes not labelled Cutoff in which only the first, only the second,
+    or both brake (false alarms)."""
+    by_key = {(_get(r, "planner"), _get(r, "seed")): r for r in _usable(records)
+              if _get(r, "label") is not None}
+    rows = ["| pair | collides only with the first | only with the second "
+            "| false alarm only with the first | only with the second | both |",
+            "|---|---|---|---|---|---|"]
+    for first, second in pairs:
+        seeds = sorted({seed for planner, seed in by_key if planner == first}
+                       & {seed for planner, seed in by_key if planner == second})
+        counts = [0] * 5
+        for seed in seeds:
+            a, b = by_key[(first, seed)], by_key[(second, seed)]
+            if _get(a, "label") == Labels.CUTOFF:
+                hit_a = _get(a, "collision_with") == "obstacle"
+                hit_b = _get(b, "collision_with") == "obstacle"
+                counts[0] += hit_a and not hit_b
+                counts[1] += hit_b and not hit_a
+            else:
+                alarm_a, alarm_b = _get(a, "brake_time") is not None, _get(b, "brake_time") is not None
+                counts[2] += alarm_a and not alarm_b
+                counts[3] += alarm_b and not alarm_a
+                counts[4] += alarm_a and alarm_b
+        rows.append(f"| {first} / {second} | " + " | ".join(str(c) for c in counts) + " |")
     return "\n".join(rows)
 
 

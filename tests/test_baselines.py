@@ -25,7 +25,7 @@ from cdf_mj.baselines import (
 from cdf_mj.config import ScenarioConfig
 from cdf_mj.episode import run_episode
 from cdf_mj.geometry import box_corners
-from cdf_mj.metrics import brier_over_time, brier_score, planner_metrics, planner_table
+from cdf_mj.metrics import brier_over_time, brier_score, paired_table, planner_metrics, planner_table
 from cdf_mj.planners import PLANNERS, PlannerInput, make_planner
 
 
@@ -156,3 +156,17 @@ def test_planner_metrics_and_table():
     assert m.lead_time == pytest.approx(1.0)
     assert m.brier_seen is None and m.brier_left == pytest.approx(0.01)
     assert "| imm | 4 | 2 | 1 |" in planner_table(recs)
+
+
+def test_paired_table_counts_seed_by_seed():
+    def rec(planner, seed, label, brake=None, collision=None):
+        return {**_rec(planner, "left", label, None, [0.9] * 3, [0.0] * 3, brake=brake, collision=collision),
+                "seed": seed}
+
+    recs = [rec("cdf", 0, "Cutoff", brake=0.9), rec("imm", 0, "Cutoff", collision="obstacle"),
+            rec("cdf", 1, "Cutoff", collision="obstacle"), rec("imm", 1, "Cutoff", collision="obstacle"),
+            rec("cdf", 2, "Yield", brake=0.9), rec("imm", 2, "Yield"),
+            rec("cdf", 3, "Right", brake=1.0), rec("imm", 3, "Right", brake=1.2),
+            rec("cdf", 4, "Yield"), rec("imm", 4, "Yield", brake=1.5),
+            rec("cdf", 5, "Yield", brake=0.9)]  # seed 5: the IMM did not run it, not counted
+    assert paired_table(recs, [("cdf", "imm")]).splitlines()[2] == "| cdf / imm | 0 | 1 | 1 | 1 | 1 |"
