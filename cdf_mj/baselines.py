@@ -68,9 +68,10 @@ def _finite_number(v: object) -> bool:
 class CVConfig:
     """Parameters of the constant-velocity planner ``cv`` (chosen on seeds 0-199)."""
 
-    # Chosen on seeds 0-199 by the largest (avoided - false-alarm rate) over horizon
-    # {0.5, 1, 1.5, 2, 2.5} s x margin {0, 0.15, 0.3} m: 1.5 s, 0 m avoided 72/80 with 50/200
-    # false alarms, every one a right-turner (docs/ANALYSIS.md).
+    # Chosen on seeds 0-199 by the largest (avoided - false-alarm rate) over horizons
+    # {0.5, 1, 1.5, 2, 2.5} s at margin 0.3 m, then margins 0 and 0.15 m at 1-2 s (the grid
+    # in docs/ANALYSIS.md): 1.5 s, 0 m avoided 72/80 with 50/200 false alarms, every one a
+    # right-turner.
     horizon: float = 1.5  # [s] look-ahead of the straight-line extrapolation
     margin: float = 0.0  # [m] added to each half size of the obstacle's collision box
 
