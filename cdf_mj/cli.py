@@ -28,6 +28,16 @@ from typing import Any, Callable, Iterable, NoReturn, Sequence
 
 import numpy as np
 
+try:  # MuJoCo loads the OpenGL backend named by MUJOCO_GL as it is imported
+    import mujoco  # noqa: F401
+except (ImportError, AttributeError, RuntimeError) as _exc:
+    if not os.environ.get("MUJOCO_GL"):
+        raise
+    print(f"cdf-mj: error: MuJoCo cannot load the OpenGL backend MUJOCO_GL={os.environ['MUJOCO_GL']} "
+          f"({' '.join(str(_exc).split()) or type(_exc).__name__}); unset MUJOCO_GL (cdf-mj render "
+          "then tries EGL, then OSMesa) or set it to one installed here", file=sys.stderr)
+    raise SystemExit(2) from None
+
 from cdf_mj import __version__
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.episode import run_episode

@@ -52,7 +52,7 @@ import mujoco
 import numpy as np
 
 from cdf_mj.config import CDFConfig, ScenarioConfig
-from cdf_mj.episode import EpisodeRecord, run_episode
+from cdf_mj.episode import EpisodeRecord, episode_label, run_episode
 from cdf_mj.inference import ParticleFilter
 from cdf_mj.planners import CDFPlanner, Planner, make_planner
 from cdf_mj.scene import Scene
@@ -82,6 +82,8 @@ __all__ = [
 FORMATS = {".mp4": "mp4", ".gif": "gif", ".png": "png"}
 #: Largest width or height [px]; the model's offscreen buffer is enlarged up to this.
 MAX_RESOLUTION = 4096
+#: Smallest frame side [px] the overlays and the panel are laid out for.
+MIN_RESOLUTION = 32
 #: The fix for a missing optional dependency.
 VIZ_HINT = "pip install 'cdf-mj[viz]'"
 #: RGBA of the particles by (intent, has seen the ego).
@@ -333,7 +335,7 @@ def record_episode(seed: int, planner: str | Planner = "cdf", config: ScenarioCo
     trace = record.trace or {}
     times = np.append(np.asarray(trace["t"], dtype=float), record.end_time)
     poses = np.concatenate([np.asarray(trace["poses"], dtype=float).reshape(-1, 2, 4), final[None]])
-    lab = run_episode(config, seed, "constant", scene, label=True).label if label else None
+    lab = episode_label(config, seed, scene) if label else None
     particles = posterior = tau = None
     if isinstance(plan, _RecordingCDFPlanner):
         particles = plan.filter.snapshots
@@ -594,8 +596,10 @@ def check_request(out: str | Path, model: mujoco.MjModel, camera: str = "top", w
     for name, v in (("width", width), ("height", height)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v <= 0:
             raise RenderError(f"--{name} {v!r}: must be a positive integer [px]")
-        if v % 2:
-            raise RenderError(f"--{name} {v}: must be even (MP4's yuv420p needs even sizes; "
+        if v < MIN_RESOLUTION:
+            raise RenderError(f"--{name} {v}: below the smallest frame this draws ({MIN_RESOLUTION} px)")
+        if v % 2 and fmt == "mp4":
+            raise RenderError(f"--{name} {v}: must be even for MP4 (its yuv420p needs even sizes; "
                               f"try {v + 1})")
         if v > MAX_RESOLUTION:
             raise RenderError(f"--{name} {v}: above the largest offscreen buffer this renders "
@@ -612,8 +616,15 @@ def check_request(out: str | Path, model: mujoco.MjModel, camera: str = "top", w
         raise RenderError(f"--out {out}: is a directory")
     if not parent.is_dir():
         raise RenderError(f"--out {out}: directory {parent} does not exist")
-    if not os.access(parent, os.W_OK | os.X_OK) or (out.exists() and not os.access(out, os.W_OK)):
-        raise RenderError(f"--out {out}: not writable")
+    existed = out.exists()
+    try:  # really open it: permissions alone miss read-only and virtual file systems
+        with open(out, "ab"):
+            pass
+    except OSError as exc:
+        raise RenderError(f"--out {out}: not writable ({exc.strerror or type(exc).__name__})") from None
+    finally:
+        if not existed and out.exists():
+            out.unlink()
     _require("imageio")
     _require("PIL")
     if fmt == "mp4":

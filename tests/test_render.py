@@ -6,6 +6,11 @@ reason, only when none can be created. Requests are checked before any simulatio
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -67,6 +72,8 @@ def test_recorded_episode_is_the_plain_episode(scene) -> None:
     ({"width": 161}, "must be even"),
     ({"height": 0}, "must be a positive integer"),
     ({"width": 10000}, "above the largest offscreen buffer"),
+    ({"width": 16}, "below the smallest frame this draws (32 px)"),
+    ({"out": "x.gif", "fps": 25, "height": 31}, "below the smallest frame"),
     ({"out": "nowhere/x.mp4"}, "does not exist"),
     ({"out": "."}, "unknown format"),
     ({"out": "x.avi"}, "unknown format"),
@@ -98,6 +105,27 @@ def test_cli_bad_camera_is_one_line(tmp_path, capsys) -> None:
     assert status == 2
     assert err.count("\n") == 1 and err.startswith("cdf-mj: error: unknown camera 'bird'")
     assert not (tmp_path / "e.mp4").exists()
+
+
+@pytest.mark.skipif(not Path("/proc/self").is_dir(), reason="needs Linux's /proc")
+def test_an_output_no_one_can_write_is_refused_before_any_work(scene) -> None:
+    # Permissions alone would pass it for root; opening it does not.
+    with pytest.raises(RenderError, match="not writable"):
+        render.check_request("/proc/cdf_mj_test.mp4", scene.model)
+
+
+def test_odd_sizes_are_fine_for_png_and_gif(scene, tmp_path) -> None:
+    req = render.check_request(tmp_path / "x.gif", scene.model, width=161, height=121, fps=25)
+    assert (req.width, req.height) == (161, 121) and not (tmp_path / "x.gif").exists()
+
+
+def test_a_broken_mujoco_gl_is_one_line_before_anything(tmp_path) -> None:
+    env = {**os.environ, "MUJOCO_GL": "nonesuch"}
+    out = subprocess.run([sys.executable, "-m", "cdf_mj.cli", "episode"], env=env, capture_output=True,
+                         text=True, timeout=60, check=False)
+    assert out.returncode == 2 and out.stdout == ""
+    assert out.stderr.startswith("cdf-mj: error: MuJoCo cannot load the OpenGL backend MUJOCO_GL=nonesuch")
+    assert out.stderr.count("\n") == 1
 
 
 def test_no_gl_backend_names_the_fix(monkeypatch) -> None:
