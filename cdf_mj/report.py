@@ -121,6 +121,8 @@ def load_experiment(path: str | Path) -> Experiment:
                 unreadable += 1
             elif rec.get("status") == "failed":
                 failed += 1
+            elif not all(key in rec for key in _RECORD_KEYS):  # not an episode record of ours
+                unreadable += 1
             else:
                 records.append(rec)
     if not records:
@@ -176,6 +178,10 @@ def _save(fig: Any, path: Path) -> Path:
     return path
 
 
+#: Fields every figure reads from a completed record.
+_RECORD_KEYS = ("seed", "label", "collision_with", "brake_time", "entered_lane_time")
+
+
 def _prediction(rec: dict) -> str | None:
     return (rec.get("planner_info") or {}).get("prediction")
 
@@ -217,24 +223,26 @@ def _rates(recs: list[dict]) -> tuple[Rate, Rate]:
 
 def _avoidance(exp: Experiment, path: Path) -> Path | str:
     rates = {p: _rates(exp.by_planner(p)) for p in exp.planners}
-    if not any(r[0].n for r in rates.values()):
-        return "no Cutoff episodes"
-    fig = _figure(8.0, 3.4)
+    fig = _figure(8.0, 3.8)
     axes = fig.subplots(1, 2)
     x = np.arange(len(exp.planners))
     colors = [_PLANNER_COLORS[i % len(_PLANNER_COLORS)] for i in range(len(exp.planners))]
-    titles = ("imminent collisions avoided (Cutoff episodes)", "false alarms (braked, not Cutoff; of all episodes)")
+    titles = ("imminent collisions avoided\n(of the Cutoff episodes)",
+              "false alarms\n(braked in an episode not Cutoff; of all episodes)")
     for k, ax in enumerate(axes):
         vals = [rates[p][k] for p in exp.planners]
         v = np.array([100 * r.value if r.n else np.nan for r in vals])
-        lo = np.array([100 * r.interval[0] for r in vals])
-        hi = np.array([100 * r.interval[1] for r in vals])
-        ax.bar(x, v, color=colors, alpha=0.8)
+        lo = np.array([100 * r.interval[0] if r.n else np.nan for r in vals])
+        hi = np.array([100 * r.interval[1] if r.n else np.nan for r in vals])
+        ax.bar(x, np.nan_to_num(v), color=colors, alpha=0.8)
         ax.errorbar(x, v, yerr=[np.nan_to_num(v - lo), np.nan_to_num(hi - v)], fmt="none", ecolor="black",
                     capsize=5, label="95 % Wilson interval")
         for xi, r, top in zip(x, vals, hi):
-            ax.text(xi + 0.08, min(top, 92) + 1.5, f"{r.k}/{r.n}", ha="left", va="bottom", fontsize=8)
+            y = min(top, 92) + 1.5 if r.n else 1.5  # inside the axes, above the interval
+            ax.text(xi + 0.08, y, f"{r.k}/{r.n}", ha="left", va="bottom", fontsize=8)
         if k == 0:
+            if not any(r.n for r in vals):
+                ax.text(0.5, 0.5, "no Cutoff episodes", transform=ax.transAxes, ha="center", va="center")
             paper = [(i, 100 * (PAPER_PLANNERS[p][0] - PAPER_PLANNERS[p][1]) / PAPER_PLANNERS[p][0])
                      for i, p in enumerate(exp.planners) if p in PAPER_PLANNERS]
             if paper:
@@ -244,7 +252,8 @@ def _avoidance(exp: Experiment, path: Path) -> Path | str:
         ax.set_ylim(0, 105)
         ax.set_ylabel("%")
         ax.set_title(titles[k], fontsize=10)
-        ax.legend(fontsize=8, loc="upper right")
+        # Below the axes: over the bars it would hide their k/n labels.
+        ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=2, frameon=False)
     return _save(fig, path)
 
 

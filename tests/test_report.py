@@ -30,7 +30,9 @@ def experiment(tmp_path_factory):
     failed = {"seed": 4, "planner": "cdf", "status": "failed", "error": "ValueError: boom",
               "traceback": "Traceback (most recent call last): ..."}
     with open(out / "episodes.jsonl", "a", encoding="utf-8") as fh:
-        fh.write(json.dumps(other) + "\n" + json.dumps(failed) + "\n" + '{"seed": 5, "plan')
+        fh.write(json.dumps(other) + "\n" + json.dumps(failed) + "\n"
+                 + json.dumps({"seed": 6, "planner": "cdf", "status": "ok"}) + "\n"  # not a record of ours
+                 + '{"seed": 5, "plan')
     return out
 
 
@@ -42,8 +44,8 @@ def test_report_writes_every_figure_it_lists(experiment, tmp_path) -> None:
         assert path.parent == tmp_path / "rep"
         assert path.read_bytes()[:8] == PNG_MAGIC and path.stat().st_size > 5000
         assert f"![{name}]({path.name})" in page
-    assert (res.records, res.failed, res.unreadable) == (9, 1, 1)
-    assert "1 failed episode(s)" in page and "1 unreadable line(s)" in page
+    assert (res.records, res.failed, res.unreadable) == (9, 1, 2)
+    assert "1 failed episode(s)" in page and "2 unreadable line(s)" in page
     assert "baseline_x" in page  # other planners are reported like the paper's two
     assert "re-simulated" not in page  # the trajectories' re-runs match the stored records
 
@@ -100,3 +102,17 @@ def test_unregistered_planner_is_reported_without_trajectories(experiment, tmp_p
     res = write_report(d)
     assert "not registered" in res.omitted["trajectories"]
     assert {"avoidance", "lead_times"} <= set(res.figures)
+
+
+def test_avoidance_figure_counts_agree_with_the_metrics(experiment) -> None:
+    from cdf_mj.metrics import planner_metrics
+    from cdf_mj.report import _rates
+
+    exp = load_experiment(experiment)
+    metrics = planner_metrics(exp.records)
+    for planner in exp.planners:
+        avoided, false_alarms = _rates(exp.by_planner(planner))
+        m = metrics[planner]
+        assert (avoided.k, avoided.n) == (m.avoided.k, m.avoided.n)
+        assert (false_alarms.k, false_alarms.n) == (m.false_alarms.k, m.false_alarms.n)
+    assert metrics["cdf"].avoided.n == 1  # seed 1 is the one Cutoff
