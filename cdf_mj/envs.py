@@ -146,9 +146,13 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ValueError("posterior_in_observation=True needs run_filter=True")
         self.config = config or ScenarioConfig()
         self.cdf = cdf or CDFConfig()
+        if isinstance(scene, Scene) and names is not None:
+            raise ValueError("names apply to a scene file; a Scene object was loaded with its own")
         self.scene = scene if isinstance(scene, Scene) else Scene.load(scene, names or self.config.names)
         self.world = World(self.scene, self.config)
         self.render_mode = render_mode
+        # One frame per planner tick of the scenario (the class default assumes dt = 0.1 s).
+        self.metadata = {**self.metadata, "render_fps": round(1.0 / self.config.dt)}
         self.posterior_in_observation = posterior_in_observation
         self.run_filter = run_filter
         self.label = label
@@ -203,9 +207,11 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         if a.shape != (2,) or not np.all(np.isfinite(a)):
             raise ValueError(f"action must be 2 finite numbers [acceleration m/s^2, steering "
                              f"rad], got {np.asarray(action).tolist()!r}")
-        a = np.clip(a, self.action_space.low, self.action_space.high)
         if self.normalized_actions:  # [-1, 1] -> [ctrl low, ctrl high], affinely
+            a = np.clip(a, -1.0, 1.0)
             a = self._ctrl_low + 0.5 * (a + 1.0) * (self._ctrl_high - self._ctrl_low)
+        else:  # the model's own limits in float64 (the float32 box would round -4.877 to -4.87699985)
+            a = np.clip(a, self._ctrl_low, self._ctrl_high)
         world = self.world
         tick = world.step(a)
         m = world.measure() if tick.collision is None else None

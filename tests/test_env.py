@@ -116,6 +116,19 @@ def test_out_of_range_actions_are_clipped_and_bad_ones_refused(scene):
     for bad in ([np.nan, 0.0], [0.0], [[0.0, 0.0]]):
         with pytest.raises(ValueError, match="action must be 2 finite numbers"):
             env.step(np.array(bad))
+    env.reset(seed=2)
+    applied = []
+    step = env.world.step
+    env.world.step = lambda controls: applied.append(controls.copy()) or step(controls)
+    env.step(np.array([-100.0, 0.0]))  # clipped to the model's own braking limit, not its float32 copy
+    assert applied[0][0] == scene.ego.accel_range[0] == -4.877
+
+
+def test_a_scene_object_keeps_its_names_and_frames_follow_dt(scene):
+    with pytest.raises(ValueError, match="names apply to a scene file"):
+        gym.make(cdf_mj.ENV_ID, scene=scene, names=cdf_mj.SceneNames())
+    env = gym.make(cdf_mj.ENV_ID, scene=scene, config=cdf_mj.ScenarioConfig(dt=0.05), run_filter=False)
+    assert env.unwrapped.metadata["render_fps"] == 20
 
 
 def test_right_turner_episode_ends_when_the_ego_is_past(scene):
