@@ -101,7 +101,10 @@ OVERLAY_COLORS = {
     "p_left": (1.0, 0.1, 1.0, 1.0),
     "p_seen": (1.0, 0.9, 0.15, 1.0),
     "p_cutoff": (1.0, 0.35, 0.1, 1.0),
+    "p_conflict": (1.0, 0.35, 0.1, 1.0),  # the imm baseline's braking quantity, as P(cutoff)
 }
+#: Probabilities a planner's ``history`` may hold, in panel order, with their labels.
+_PANEL_KEYS = {"p_left": "P(left)", "p_seen": "P(seen)", "p_cutoff": "P(cutoff)", "p_conflict": "P(conflict)"}
 _INTENT_NAMES = ("left", "right")  # cdf_mj.driver.Intent order
 _GIF_FPS = (10, 20, 25, 50)  # GIF delays are whole hundredths of a second
 
@@ -285,8 +288,10 @@ class Replay:
     seen: np.ndarray  # (K,) the obstacle has seen the ego, per tick
     belief: np.ndarray  # (K, 4) the obstacle's belief of the ego's pose, per tick
     particles: list[tuple[np.ndarray, np.ndarray, np.ndarray]] | None  # per tick, CDF only
-    posterior: dict[str, np.ndarray] | None  # t, p_left, p_seen, p_cutoff per tick, CDF only
-    tau: float | None  # the CDF's braking threshold
+    # t and the probabilities the planner keeps per tick (CDF: p_left, p_seen, p_cutoff;
+    # imm: p_left, p_conflict); None for a planner without any
+    posterior: dict[str, np.ndarray] | None
+    tau: float | None  # the threshold of the last of them at which the planner brakes
 
     @property
     def end_time(self) -> float:
@@ -339,9 +344,14 @@ def record_episode(seed: int, planner: str | Planner = "cdf", config: ScenarioCo
     particles = posterior = tau = None
     if isinstance(plan, _RecordingCDFPlanner):
         particles = plan.filter.snapshots
-        h = plan.history
-        posterior = {k: np.asarray(h[k], dtype=float) for k in ("t", "p_left", "p_seen", "p_cutoff")}
         tau = plan.cdf.tau
+    else:  # a baseline with a probability history (imm): its own threshold
+        tau = getattr(getattr(plan, "params", None), "threshold", None)
+    h = getattr(plan, "history", None)
+    if isinstance(h, dict) and "t" in h and any(k in h for k in _PANEL_KEYS):
+        posterior = {k: np.asarray(h[k], dtype=float) for k in ("t", *_PANEL_KEYS) if k in h}
+    else:
+        tau = None
     return Replay(record=record, label=lab, times=times, poses=poses,
                   seen=np.asarray(trace["seen"], dtype=bool),
                   belief=np.asarray(trace["belief"], dtype=float).reshape(-1, 4),
@@ -447,7 +457,7 @@ class _Panel:
         self.bar_h = max(2, round(line * 0.6))
         self.plot = (round(0.04 * self.w), round(line * 5.1), round(0.96 * self.w),
                      round(line * 7.9))  # x0, y0, x1, y1
-        self.keys = ("p_left", "p_seen", "p_cutoff")
+        self.keys = tuple(k for k in _PANEL_KEYS if replay.posterior is not None and k in replay.posterior)
         head = f"seed {replay.record.seed}  {planner}  label {replay.label or '-'}"
         self.base = self._background(head)
         self.curves = self._curves()
@@ -464,9 +474,8 @@ class _Panel:
         pad = max(2, self.w // 60)
         items = [(pad, self.rows[0], head, (235, 235, 235))]
         if self.replay.posterior is not None:
-            names = {"p_left": "P(left)", "p_seen": "P(seen)", "p_cutoff": "P(cutoff)"}
             for i, k in enumerate(self.keys):
-                items.append((pad, self.rows[2 + i], names[k], tuple(int(v) for v in _rgb(k))))
+                items.append((pad, self.rows[2 + i], _PANEL_KEYS[k], tuple(int(v) for v in _rgb(k))))
         else:
             items.append((pad, self.rows[2], "no filter: planner without a posterior", (200, 200, 200)))
         # Legend of particle colours on the last row.
@@ -494,7 +503,7 @@ class _Panel:
         tx = self._x(post["t"])
         if self.replay.tau is not None:
             ty = self._y(self.replay.tau)
-            img[ty, x0:x1 + 1:3] = _rgb("p_cutoff") // 2
+            img[ty, x0:x1 + 1:3] = _rgb(self.keys[-1]) // 2
         for k in self.keys:
             ys = self._y(post[k])
             col = _rgb(k)
@@ -542,7 +551,7 @@ class _Panel:
                 ya, yb = yc - self.bar_h // 2, yc - self.bar_h // 2 + self.bar_h
                 img[ya:yb, self.bar_x0:self.bar_x1] = 55
                 img[ya:yb, self.bar_x0:self.bar_x0 + round(p * span)] = _rgb(key)
-                if key == "p_cutoff" and rep.tau is not None:
+                if key == self.keys[-1] and rep.tau is not None:  # the braking quantity
                     tx = self.bar_x0 + round(rep.tau * span)
                     img[ya - 1:yb + 1, min(tx, self.w - 1)] = 255
                 items.append((self.bar_x1 + pad, yc, f"{p:.2f}", (235, 235, 235)))

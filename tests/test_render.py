@@ -206,3 +206,10 @@ def test_frame_wider_than_the_models_buffer(gl, scene, tmp_path) -> None:
                    height=96)
     assert iio.imread(out).shape == (96, offwidth + 320, 3)
     assert scene.model.vis.global_.offwidth == offwidth
+
+
+def test_a_baseline_with_probabilities_gets_them_in_the_panel(scene) -> None:
+    rep = record_episode(1, "imm", SHORT.replace(duration=2.0), scene, label=False)
+    assert set(rep.posterior) == {"t", "p_left", "p_conflict"} and rep.tau == 0.95
+    assert len(rep.posterior["t"]) == len(rep.posterior["p_conflict"]) > 0
+    assert record_episode(1, "reactive", SHORT, scene, label=False).posterior is None
