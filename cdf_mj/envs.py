@@ -152,7 +152,8 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         self.world = World(self.scene, self.config)
         self.render_mode = render_mode
         # One frame per planner tick of the scenario (the class default assumes dt = 0.1 s).
-        self.metadata = {**self.metadata, "render_fps": round(1.0 / self.config.dt)}
+        fps = 1.0 / self.config.dt
+        self.metadata = {**self.metadata, "render_fps": round(fps) if abs(fps - round(fps)) < 1e-9 else fps}
         self.posterior_in_observation = posterior_in_observation
         self.run_filter = run_filter
         self.label = label
@@ -242,7 +243,9 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
             # machine needs no MUJOCO_GL before importing mujoco; RenderError names the fix.
             from cdf_mj.render import _Offscreen
 
-            self._renderer = _Offscreen(self.scene.model, self.width, self.height)
+            model = self.scene.model  # the model's own multisampling, as mujoco.Renderer has
+            self._renderer = _Offscreen(model, self.width, self.height,
+                                        samples=int(model.vis.quality.offsamples))
             self._renderer.use_camera(mujoco.mj_name2id(self.scene.model, mujoco.mjtObj.mjOBJ_CAMERA,
                                                         self.camera))
         self.scene.sync()

@@ -103,6 +103,8 @@ class ParticleFilter:
         self.reinits = 0  # times every likelihood vanished
         self._ego: np.ndarray | None = None
         self._ego_targets: np.ndarray | None = None
+        # Log-weights (N,). Assign a new array to change them, never edit one in place:
+        # `weights` is computed once per array.
         self.logw = np.zeros(0)
         self._w: np.ndarray | None = None  # weights of the log-weight array _w_of
         self._w_of: np.ndarray | None = None
@@ -138,7 +140,9 @@ class ParticleFilter:
         a new array whenever the log-weights change, never edits one it has weighed."""
         if self._w_of is not self.logw:
             w = np.exp(self.logw - self.logw.max())
-            self._w, self._w_of = w / w.sum(), self.logw
+            w /= w.sum()
+            w.flags.writeable = False  # shared by every reader until the log-weights change
+            self._w, self._w_of = w, self.logw
         return self._w
 
     def posterior(self) -> Posterior:

@@ -142,6 +142,13 @@ def _try_backend(name: str) -> Any:
         raise
 
 
+# MuJoCo's own spellings of MUJOCO_GL (mujoco/rendering/classic/gl_context.py): these mean
+# its default window-system backend, GLFW; these turn rendering off.
+_GL_ALIASES = {"glx": "glfw", "wgl": "glfw", "enable": "glfw", "enabled": "glfw", "on": "glfw",
+               "true": "glfw", "1": "glfw"}
+_GL_OFF = ("disable", "disabled", "off", "false", "0")
+
+
 def gl_backend() -> tuple[str, Any]:
     """The OpenGL backend for offscreen rendering: ``(name, GLContext class)``.
 
@@ -152,10 +159,13 @@ def gl_backend() -> tuple[str, Any]:
     if _BACKEND is not None:
         return _BACKEND
     requested = os.environ.get("MUJOCO_GL", "").strip().lower()
-    candidates = [requested] if requested else ["egl", "osmesa"]
+    if requested in _GL_OFF:
+        raise RenderError(f"MUJOCO_GL={requested} turns MuJoCo's rendering off: unset it, or set "
+                          "it to a backend that works here (egl, osmesa or glfw)")
+    candidates = [_GL_ALIASES.get(requested, requested)] if requested else ["egl", "osmesa"]
     errors = []
     for name in candidates:
-        if name not in ("egl", "osmesa", "glfw"):
+        if name not in ("egl", "osmesa", "glfw", "cgl"):
             errors.append(f"{name}: not a backend MuJoCo offers on this system")
             continue
         try:

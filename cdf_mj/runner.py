@@ -33,6 +33,7 @@ import json
 import os
 import resource
 import sys
+import threading
 import traceback
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -169,9 +170,10 @@ def _die_with_parent(parent: int) -> None:
         os._exit(1)
 
 
-def _init_process(job: SeedJob, parent: int) -> None:
+def _init_process(job: SeedJob, parent: int, die_with_parent: bool) -> None:
     global _WORKER
-    _die_with_parent(parent)
+    if die_with_parent:
+        _die_with_parent(parent)
     _WORKER = SeedWorker(job)
 
 
@@ -194,7 +196,10 @@ def _process_pool(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], wor
     pending: set = set()
     queue = list(todo)[::-1]
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_process,
-                             initargs=(job, os.getpid())) as pool:
+                             # The death signal follows the thread that forks the workers:
+                             # only the main thread lives as long as the process.
+                             initargs=(job, os.getpid(),
+                                       threading.current_thread() is threading.main_thread())) as pool:
         try:
             while queue or pending:
                 while queue and len(pending) < 2 * workers:

@@ -124,6 +124,15 @@ def _value_text(value: float) -> str:
     return f"{value:g}"
 
 
+def _planners_in(point: Path) -> list[str] | None:
+    """The planners of the results already in a point's directory (None if there are none)."""
+    try:
+        planners = json.loads((point / "settings.json").read_text(encoding="utf-8")).get("planners")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return list(planners) if isinstance(planners, list) else None
+
+
 def _run_point(out: Path, seeds: Sequence[int], planners: Sequence[str], config: ScenarioConfig,
                cdf: CDFConfig, scene: str | Path, progress: bool, workers: int | None) -> tuple[list[dict], float]:
     """One :func:`run_experiment` call, resumed where ``out`` holds the same settings (a
@@ -180,9 +189,11 @@ def run_sweep(name: str, out_dir: str | Path, seeds: Iterable[int], planners: Se
     records_by_value: dict[float, list[dict]] = {}
     references = [p for p in planners if p != "cdf"] if spec.cdf_only else []
     for i, (value, cfg, cdf_v) in enumerate(points):
+        point = out / name / _value_text(value)
         names = ["cdf"] if spec.cdf_only else planners
-        recs, wall = _run_point(out / name / _value_text(value), seeds, names, cfg, cdf_v, scene,
-                                progress, workers)
+        if i == 0 and references and _planners_in(point) == list(planners):
+            names, references = planners, []  # an earlier version's layout: every planner here
+        recs, wall = _run_point(point, seeds, names, cfg, cdf_v, scene, progress, workers)
         if i == 0 and references:  # unaffected by the swept CDF setting: run once, at the base
             ref, ref_wall = _run_point(out / name / "reference", seeds, references, config, cdf, scene,
                                        progress, workers)
@@ -309,8 +320,8 @@ def _markdown(spec: SweepSpec, rows: list[dict], extra: dict) -> str:
             f"| {_num(r['brier_left'], 3)} | {_num(r['brier_seen'], 3)} | {_num(r['point_wall_s'], 1)} |")
     others = sorted({_value_text(r["value"]) for r in rows if r["planner"] != "cdf"})
     if spec.cdf_only and others:
-        lines += ["", (f"Planners other than `cdf` do not read this setting: they ran once (in "
-                       f"`{spec.name}/reference/`) and are listed at {spec.name} = {', '.join(others)}.")]
+        lines += ["", (f"Planners other than `cdf` do not read this setting: they ran once and are "
+                       f"listed at {spec.name} = {', '.join(others)}.")]
     if "agreement" in extra:
         a = extra["agreement"]
         lines += ["", (f"Brake times derived from the histories of the largest-tau run agree with the "

@@ -266,3 +266,12 @@ def test_cdf_planner_brakes_before_a_cutoff_and_not_for_a_right_turner(cdf_recor
         assert max(r.planner_info["history"]["p_cutoff"]) < CDFConfig().tau
     for r in cdf_records:  # real episodes never give the filter a bad measurement
         assert r.planner_info["skipped_updates"] == 0 and r.planner_info["reinits"] == 0
+
+
+def test_weights_are_read_only_and_follow_new_log_weights(scene):
+    pf = ParticleFilter.from_scene(scene, ScenarioConfig(), CDFConfig(n_particles=4), np.random.default_rng(0))
+    pf.reset(np.array([[-40.0, -1.85, 0.0, 13.4], [-1.85, 8.35, -np.pi / 2, 0.0]]))
+    w = pf.weights
+    assert pf.weights is w and not w.flags.writeable  # computed once, shared, not editable
+    pf.logw = np.array([0.0, -50.0, -50.0, -50.0])  # a new array: new weights
+    assert pf.weights[0] == pytest.approx(1.0)

@@ -128,6 +128,16 @@ def test_a_broken_mujoco_gl_is_one_line_before_anything(tmp_path) -> None:
     assert out.stderr.count("\n") == 1
 
 
+@pytest.mark.parametrize(("value", "fragment"), [("glx", "glfw:"), ("1", "glfw:"),
+                                                ("disable", "turns MuJoCo's rendering off")])
+def test_mujocos_own_spellings_of_mujoco_gl(monkeypatch, value, fragment) -> None:
+    monkeypatch.setattr(render, "_BACKEND", None)
+    monkeypatch.setenv("MUJOCO_GL", value)
+    monkeypatch.setattr(render, "_try_backend", lambda name: (_ for _ in ()).throw(OSError("no display")))
+    with pytest.raises(RenderError, match=fragment):  # glx and 1 mean GLFW to MuJoCo, not "unknown"
+        render.gl_backend()
+
+
 def test_no_gl_backend_names_the_fix(monkeypatch) -> None:
     monkeypatch.setattr(render, "_BACKEND", None)
     monkeypatch.setenv("MUJOCO_GL", "nonesuch")

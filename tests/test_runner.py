@@ -282,3 +282,24 @@ def test_an_unwritable_output_is_one_line(tmp_path, capsys):
     assert main(["experiment", "--episodes", "2", "--planners", "reactive", "--out", str(afile), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("cdf-mj: error: ") and "afile" in err and err.count("\n") == 1
+
+
+def test_a_pool_started_in_a_thread_that_ends_keeps_its_workers():
+    """The workers' death signal follows the thread that forked them: a pool started by a
+    short-lived thread must not lose its workers when that thread ends."""
+    import threading
+
+    from cdf_mj.config import ScenarioConfig
+    from cdf_mj.experiment import _factory
+    from cdf_mj.runner import SeedJob, run_seeds
+    from cdf_mj.scene import DEFAULT_SCENE
+
+    job = SeedJob(ScenarioConfig(), str(DEFAULT_SCENE), ("reactive",),
+                  {"reactive": _factory("reactive", CDFConfig())})
+    gen = run_seeds(job, [(s, ("reactive",)) for s in range(6)], backend="process", workers=2)
+    first = []
+    thread = threading.Thread(target=lambda: first.append(next(gen)))
+    thread.start()
+    thread.join()
+    rest = list(gen)  # the thread that started the pool is gone
+    assert sorted(r.seed for r in first + rest) == list(range(6))

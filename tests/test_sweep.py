@@ -8,6 +8,7 @@ import sys
 import pytest
 
 from cdf_mj.cli import main
+from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.sweep import SWEEPS, run_sweep, tau_curve
 
 
@@ -79,3 +80,17 @@ def test_points_are_reused_when_the_value_list_changes(tmp_path):
     result = run_sweep("tau", tmp_path, values=(0.95, 0.9), **kwargs)  # 0.9 is no longer first
     assert (tmp_path / "tau" / "0.9" / "episodes.jsonl").read_bytes() == kept
     assert {(r["value"], r["planner"]) for r in result.rows} == {(0.9, "cdf"), (0.95, "cdf"), (0.95, "reactive")}
+
+
+def test_a_sweep_directory_of_the_earlier_layout_is_reused(tmp_path):
+    """Earlier versions ran every planner in the first point's directory: still reused."""
+    from cdf_mj.experiment import run_experiment
+
+    run_experiment(tmp_path / "tau" / "0.9", range(2), ["cdf", "reactive"], cdf=SWEEPS["tau"].settings(
+        0.9, ScenarioConfig(), CDFConfig())[1], progress=False, workers=1)
+    kept = (tmp_path / "tau" / "0.9" / "episodes.jsonl").read_bytes()
+    result = run_sweep("tau", tmp_path, values=(0.9, 0.5), seeds=range(2), planners=("cdf", "reactive"),
+                       workers=1, figure=False)
+    assert (tmp_path / "tau" / "0.9" / "episodes.jsonl").read_bytes() == kept
+    assert not (tmp_path / "tau" / "reference").exists()
+    assert {(r["value"], r["planner"]) for r in result.rows} == {(0.9, "cdf"), (0.5, "cdf"), (0.9, "reactive")}
