@@ -26,8 +26,6 @@ import os
 import sys
 from typing import Any, Callable, Iterable, NoReturn, Sequence
 
-import numpy as np
-
 try:  # MuJoCo loads the OpenGL backend named by MUJOCO_GL as it is imported
     import mujoco  # noqa: F401
 except (ImportError, AttributeError, RuntimeError) as _exc:
@@ -42,7 +40,7 @@ from cdf_mj import __version__
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.episode import run_episode
 from cdf_mj.planners import PLANNERS
-from cdf_mj.runner import WorkerDiedError
+from cdf_mj.runner import WorkerDiedError, json_default
 from cdf_mj.scene import DEFAULT_SCENE, Scene
 
 __all__ = ["main", "build_parser", "add_scenario_arguments", "parse_overrides",
@@ -175,18 +173,9 @@ def cdf_from_args(args: argparse.Namespace) -> CDFConfig:
     return CDFConfig(n_particles=args.particles, tau=args.tau, cutoff_rule=args.cutoff_rule)
 
 
-def _json_default(obj: Any) -> Any:
-    """NumPy values in records (planner summaries, traces) as plain JSON."""
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
-
-
 def _print_json(obj: Any) -> None:
     # allow_nan=False: stdout is strict JSON or nothing (NaN is not JSON).
-    sys.stdout.write(json.dumps(obj, indent=2, allow_nan=False, default=_json_default) + "\n")
+    sys.stdout.write(json.dumps(obj, indent=2, allow_nan=False, default=json_default) + "\n")
 
 
 # ----------------------------------------------------------------- subcommands

@@ -44,11 +44,13 @@ from multiprocessing import get_context
 from pathlib import Path
 from typing import Literal
 
+import numpy as np
+
 from cdf_mj.config import ScenarioConfig
 
 __all__ = ["SeedJob", "SeedResult", "RecordStore", "run_seeds", "Backend", "BACKENDS",
            "WorkerDiedError", "OK", "FAILED", "check_backend", "effective_backend",
-           "START_METHOD", "locked"]
+           "START_METHOD", "locked", "json_default"]
 
 Backend = Literal["serial", "process", "ray"]
 BACKENDS: tuple[str, ...] = ("serial", "process", "ray")
@@ -124,11 +126,6 @@ class SeedWorker:
                 continue
             rec["planner"] = name  # the experiment's name for it, whatever the class calls itself
             rec["status"] = OK
-            try:  # a record the store cannot write (NumPy scalar, NaN) fails here, not the run
-                json.dumps(rec, allow_nan=False)
-            except (TypeError, ValueError) as exc:
-                records.append(_failed(seed, name, TypeError(f"the record is not JSON-serialisable: {exc}")))
-                continue
             records.append(rec)
         done = [r for r in records if r["status"] == OK]
         if done:
@@ -293,6 +290,15 @@ def check_backend(backend: str, workers: int | None) -> int:
 
 
 # ----------------------------------------------------------------- persistence
+def json_default(obj: object) -> object:
+    """NumPy values in records (planner summaries, traces) as plain JSON; TypeError otherwise."""
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
+
+
 @contextmanager
 def locked(directory: str | Path) -> Iterator[None]:
     """Hold an exclusive ``flock`` on ``directory`` (which must exist) for the block, so
@@ -375,14 +381,27 @@ class RecordStore:
         return {(int(r["seed"]), str(r["planner"])) for r in self.records}
 
     def append(self, records: Iterable[dict]) -> None:
-        """Write records as one block, then flush and fsync (one seed per call)."""
-        records = list(records)
-        if not records:
+        """Write records as one block, then flush and fsync (one seed per call).
+
+        NumPy values are written as plain JSON (:func:`json_default`); a record JSON cannot
+        hold (a NaN, an object) is stored as a failed record of its seed and planner
+        instead, so that one planner's odd summary never stops the run."""
+        kept, lines = [], []
+        for rec in records:
+            try:
+                line = json.dumps(rec, allow_nan=False, default=json_default)
+            except (TypeError, ValueError) as exc:
+                rec = {"seed": rec.get("seed"), "planner": rec.get("planner"), "status": FAILED,
+                       "error": f"the record is not JSON-serialisable: {exc}", "traceback": ""}
+                line = json.dumps(rec)
+            kept.append(rec)
+            lines.append(line + "\n")
+        if not lines:
             return
-        self._fh.write("".join(json.dumps(r, allow_nan=False) + "\n" for r in records))
+        self._fh.write("".join(lines))
         self._fh.flush()
         os.fsync(self._fh.fileno())
-        self.records.extend(records)
+        self.records.extend(kept)
 
     def close(self) -> None:
         """Close the file."""

@@ -259,20 +259,33 @@ def test_results_without_their_settings_are_refused(serial, tmp_path):
 
 
 class NumpySummaryPlanner(ReactivePlanner):
-    """Puts a NumPy scalar into its record: JSON cannot hold it."""
+    """Puts a NumPy scalar into its record (written as a plain number) and, on odd seeds,
+    a NaN, which JSON cannot hold."""
 
     name = "numpy-summary"
 
+    def reset(self, scene, config, rng) -> None:
+        super().reset(scene, config, rng)
+        self.odd = None
+
+    def brake(self, obs: PlannerInput) -> bool:
+        if self.odd is None:
+            self.odd = obs.poses[0, 0] < -40.8  # the ego's start: about half the seeds
+        return super().brake(obs)
+
     def summary(self) -> dict:
-        return {"score": np.float32(1.0)}
+        return {"score": np.float32(float("nan") if self.odd else 1.0)}
 
 
-def test_a_record_that_cannot_be_written_is_a_failed_episode(tmp_path, monkeypatch):
+def test_numpy_values_are_written_and_a_record_json_cannot_hold_is_a_failed_episode(tmp_path, monkeypatch):
     monkeypatch.setitem(PLANNERS, "numpy-summary", NumpySummaryPlanner)
-    result = run_experiment(tmp_path, range(3), ("reactive", "numpy-summary"), progress=False, workers=1)
-    bad = [r for r in result if r["planner"] == "numpy-summary"]
-    assert result.failed == 3 and all(r["status"] == FAILED for r in bad)
-    assert "not JSON-serialisable" in bad[0]["error"]
+    result = run_experiment(tmp_path, range(6), ("reactive", "numpy-summary"), progress=False, workers=1)
+    mine = [r for r in load_records(tmp_path) if r["planner"] == "numpy-summary"]
+    good = [r for r in mine if r["status"] == OK]
+    bad = [r for r in mine if r["status"] == FAILED]
+    assert good and bad and result.failed == len(bad)  # the run went on past the bad ones
+    assert all(r["planner_info"]["score"] == 1.0 for r in good)
+    assert all("not JSON-serialisable" in r["error"] and r["seed"] in range(6) for r in bad)
     assert all(r["status"] == OK for r in result if r["planner"] == "reactive")
 
 
