@@ -31,10 +31,12 @@ class Polyline:
         pts = np.asarray(self.points, dtype=float)
         if pts.ndim != 2 or pts.shape[1] != 2 or len(pts) < 2:
             raise ValueError(f"a polyline needs at least 2 points of shape (P, 2), got {pts.shape}")
+        if not np.all(np.isfinite(pts)):
+            raise ValueError("a polyline has waypoints that are not finite numbers")
         seg = np.diff(pts, axis=0)
         lengths = np.hypot(seg[:, 0], seg[:, 1])
         if np.any(lengths <= 1e-9):
-            raise ValueError("a polyline has two consecutive identical waypoints")
+            raise ValueError("a polyline has two consecutive waypoints at the same place")
         object.__setattr__(self, "points", pts)
         object.__setattr__(self, "_seg", seg)
         object.__setattr__(self, "_len", lengths)

@@ -229,13 +229,13 @@ class Scene:
             if not has("body", route):
                 continue
             ids = np.flatnonzero(m.site_bodyid == m.body(route).id)
-            xy = d.site_xpos[ids, :2]
             if len(ids) < 2:
                 wrong.append(f"body '{route}' has fewer than 2 waypoint sites")
-            elif not np.all(np.isfinite(xy)):
-                wrong.append(f"body '{route}' has waypoints that are not finite numbers")
-            elif np.any(np.hypot(*np.diff(xy, axis=0).T) <= 1e-9):
-                wrong.append(f"body '{route}' has two consecutive waypoints at the same place")
+                continue
+            try:  # the route as the drivers will use it: Polyline's own rules
+                Polyline(d.site_xpos[ids, :2])
+            except ValueError as exc:
+                wrong.append(f"body '{route}': {str(exc).replace('a polyline', 'the route')}")
         for site in (n.stop_line, n.ego_lane):
             if has("site", site) and m.site(site).type[0] != mujoco.mjtGeom.mjGEOM_BOX:
                 wrong.append(f"site '{site}' must be a box (its half sizes give the area)")

@@ -234,7 +234,7 @@ def test_bad_numbers_in_a_scene_are_listed_too():
         attach(model, mujoco.MjData(model), MY_NAMES)
     msg = str(err.value)
     for fragment in ("not finite numbers: site 'av_home'",
-                     "body 'other_path_left' has two consecutive waypoints at the same place",
+                     "body 'other_path_left': the route has two consecutive waypoints at the same place",
                      "actuator 'av/accel' needs a ctrlrange from braking"):
         assert fragment in msg, fragment
 
