@@ -24,7 +24,7 @@ from cdf_mj.episode import run_episode
 from cdf_mj.scene import DEFAULT_SCENE, Scene
 from cdf_mj.visibility import ego_visible, isovist
 
-__all__ = ["median_time", "bench_core", "bench_filter", "bench_planners", "bench_reproduction",
+__all__ = ["median_time", "bench_core", "bench_filter", "bench_planners", "bench_env", "bench_reproduction",
            "format_rows"]
 
 
@@ -164,6 +164,39 @@ def bench_planners(episodes: int = 20, scene: str | Path = DEFAULT_SCENE,
         if name == "cdf":
             note += f"; target >= 50x: {'met' if speed >= 50 else 'MISSED'}"
         rows.append((f"episode, {name} (no counterfactual)", statistics.median(walls), note))
+    return rows
+
+
+def bench_env(seconds: float = 1.0, repeats: int = 3, scene: str | Path = DEFAULT_SCENE,
+              config: ScenarioConfig | None = None) -> list[tuple[str, float, str]]:
+    """Time per step of the Gymnasium environment (one 0.1 s planner tick, seeded random
+    actions) without the filter, with it, and with the defaults (filter and the labelling
+    counterfactual at each reset): the median over ``repeats`` runs of ``seconds`` each.
+    No rows without Gymnasium."""
+    try:
+        import gymnasium  # noqa: F401
+    except ImportError:
+        return []
+    from cdf_mj.envs import TIntersectionEnv
+
+    world, cfg = _setup(scene, config)
+    rows = []
+    for what, kwargs in (("no filter", {"run_filter": False, "label": False}),
+                         ("with the filter", {"label": False}), ("defaults: filter and labels", {})):
+        env = TIntersectionEnv(scene=world, config=cfg, **kwargs)
+        env.action_space.seed(0)
+        per_step = []
+        for rep in range(repeats):
+            env.reset(seed=rep)
+            n, t0 = 0, time.perf_counter()
+            while time.perf_counter() - t0 < seconds:
+                _obs, _r, terminated, truncated, _info = env.step(env.action_space.sample())
+                n += 1
+                if terminated or truncated:
+                    env.reset()
+            per_step.append((time.perf_counter() - t0) / n)
+        step = statistics.median(per_step)
+        rows.append((f"env step, {what}", step, f"{1.0 / step:.0f} steps/s"))
     return rows
 
 

@@ -211,6 +211,16 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _positive_seconds(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not (value > 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text!r}")
+    return value
+
+
 def _planner_list(text: str) -> list[str]:
     names = [n.strip() for n in text.split(",") if n.strip()]
     unknown = [n for n in names if n not in PLANNERS]
@@ -440,14 +450,16 @@ def _add_report(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
-    from cdf_mj.bench import bench_core, bench_filter, bench_planners, bench_reproduction, format_rows
+    from cdf_mj.bench import (bench_core, bench_env, bench_filter, bench_planners, bench_reproduction,
+                              format_rows)
 
     sizes = tuple(args.particles)
     config = config_from_args(args)
     where = {"scene": args.scene, "config": config}
     rows = [] if args.only_reproduce else [*bench_core(args.episodes, **where),
                                            *bench_filter(sizes, **where),
-                                           *bench_planners(args.episodes, **where)]
+                                           *bench_planners(args.episodes, **where),
+                                           *bench_env(args.env_seconds, **where)]
     if args.reproduce or args.only_reproduce:
         rows += bench_reproduction(args.reproduce_episodes, tuple(args.workers), progress=not args.quiet,
                                    **where)
@@ -474,6 +486,8 @@ def _add_bench(subparsers: argparse._SubParsersAction) -> None:
                    help="episodes timed per planner (default 30)")
     p.add_argument("--particles", type=_int_list, default=[250, 1000, 4000],
                    help="filter sizes N to time (default 250,1000,4000)")
+    p.add_argument("--env-seconds", type=_positive_seconds, default=1.0,
+                   help="seconds of each of the 3 timed runs of the Gymnasium env per setting (default 1)")
     p.add_argument("--reproduce", action="store_true",
                    help="also time the paper's reproduction with each --workers count (minutes)")
     p.add_argument("--only-reproduce", action="store_true", help="only the reproduction rows")

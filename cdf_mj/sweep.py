@@ -20,9 +20,10 @@ Every point is one :func:`cdf_mj.experiment.run_experiment` call in its own dire
 settings, and an interrupted one resumes), on the same seeds for every point (common
 random numbers). Settings that only the CDF reads (``particles``, ``tau``) run the other
 planners once, as references, in ``OUT/<sweep>/reference/`` (reported at the first point),
-so that a point's directory holds the same settings whatever the other values are. Each sweep writes ``OUT/<sweep>.csv``,
-``OUT/<sweep>.md`` (the metrics of :func:`cdf_mj.metrics.planner_metrics` per point and
-planner) and ``OUT/<sweep>.png`` (matplotlib, the optional extra ``viz``).
+so that a point's directory holds the same settings whatever the other values are. Each
+sweep writes ``OUT/<sweep>.csv``, ``OUT/<sweep>.md`` (the metrics of
+:func:`cdf_mj.metrics.planner_metrics` per point and planner) and ``OUT/<sweep>.png``
+(matplotlib, the optional extra ``viz``).
 
 The ``tau`` sweep also writes ``OUT/tau_curve.csv``, the false alarms and detections for
 a fine grid of thresholds, read from the filter's P(cutoff) history of the run at the

@@ -9,12 +9,14 @@ from cdf_mj.planners import PLANNERS
 
 
 def test_bench_prints_filter_planner_and_scaling_rows(capsys):
-    assert main(["bench", "--episodes", "1", "--particles", "100", "--reproduce",
+    assert main(["bench", "--episodes", "1", "--particles", "100", "--env-seconds", "0.05", "--reproduce",
                  "--reproduce-episodes", "3", "--workers", "1,2", "--quiet"]) == 0
     out = capsys.readouterr().out
     assert "| filter tick N=100 " in out and "|   act (driver h" in out
     for name in PLANNERS:
         assert f"| episode, {name} (no counterfactual) |" in out
+    for what in ("no filter", "with the filter", "defaults: filter and labels"):
+        assert re.search(rf"\| env step, {what} \| [\d.]+ (µs|ms) \| \d+ steps/s \|", out), what
     one = re.search(r"\| reproduction: 3 seeds x cdf\+reactive, 1 worker\(s\) \| ([\d.]+) (ms|s) \| (.*) \|", out)
     two = re.search(r"\| reproduction: 3 seeds x cdf\+reactive, 2 worker\(s\) \| ([\d.]+) (ms|s) \| (.*) \|", out)
     assert one and two

@@ -1,0 +1,112 @@
+#!/usr/bin/env python3
+"""Where a particle-filter tick (or an episode) spends its time: cProfile shares.
+
+Replays the measured poses of seed 1 (constant planner, a Cutoff) through
+``ParticleFilter.predict`` / ``update`` (the benchmark's ticks), under cProfile, and prints
+each stage's and each hot helper's share of the whole (cumulative time, so nested rows
+overlap their parents), with its calls per tick. The figures of docs/PERFORMANCE.md
+("Where the time goes") come from::
+
+    taskset -c 0 python scripts/profile_filter.py --particles 1000 --replays 20
+
+and ``--episode reactive`` profiles whole episodes of a planner instead (50 seeds, no
+counterfactual) and prints the share of ``mj_step`` and of the functions with the most
+time of their own::
+
+    taskset -c 0 python scripts/profile_filter.py --episode reactive
+
+cProfile adds its own overhead to every Python call, so shares, not absolute times, are
+what to read.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import pstats
+import sys
+
+import numpy as np
+
+from cdf_mj.config import CDFConfig, ScenarioConfig
+from cdf_mj.episode import run_episode
+from cdf_mj.inference import ParticleFilter
+from cdf_mj.scene import Scene
+
+# (module file, function) rows to report, in the order of a tick.
+ROWS = [
+    ("inference.py", "predict"), ("inference.py", "look"), ("occlusion.py", "visible"),
+    ("inference.py", "believe"), ("inference.py", "act"), ("driver.py", "obstacle_control"),
+    ("driver.py", "_project_by_intent"), ("driver.py", "pure_pursuit"), ("geometry.py", "point_at"),
+    ("driver.py", "road_clear"), ("inference.py", "move"), ("inference.py", "update"),
+    ("inference.py", "weigh"), ("inference.py", "posterior"), ("inference.py", "cutoff_probability"),
+    ("inference.py", "resample"), ("resampling.py", "stratified_resample"), ("geometry.py", "project"),
+]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--particles", type=int, default=1000, help="N (default 1000)")
+    parser.add_argument("--replays", type=int, default=20, help="replays of the episode (default 20)")
+    parser.add_argument("--episode", metavar="PLANNER", default=None,
+                        help="profile 50 whole episodes of this planner instead")
+    args = parser.parse_args(argv)
+    if args.particles < 1 or args.replays < 1:
+        parser.error("--particles and --replays must be positive")
+    if args.episode is not None:
+        return _episodes(args.episode)
+
+    scene, cfg = Scene.load(), ScenarioConfig()
+    poses = np.array(run_episode(cfg, 1, "constant", scene, trace=True).trace["poses"])
+    pf = ParticleFilter.from_scene(scene, cfg, CDFConfig(n_particles=args.particles), np.random.default_rng(0))
+
+    def replay() -> None:
+        for _ in range(args.replays):
+            pf.reset(poses[0])
+            for k in range(1, len(poses)):
+                pf.predict(poses[k - 1])
+                pf.update(poses[k])
+
+    replay()  # warm-up
+    profiler = cProfile.Profile()
+    profiler.enable()
+    replay()
+    profiler.disable()
+    stats = pstats.Stats(profiler).stats  # {(file, line, name): (cc, ncalls, tottime, cumtime, callers)}
+    ticks = args.replays * (len(poses) - 1)
+    cum: dict[tuple[str, str], tuple[int, float]] = {}
+    for (path, _line, name), (_cc, ncalls, _tt, ct, _callers) in stats.items():
+        key = (path.rsplit("/", 1)[-1], name)
+        calls, total = cum.get(key, (0, 0.0))
+        cum[key] = (calls + ncalls, total + ct)
+    tick = cum[("inference.py", "predict")][1] + cum[("inference.py", "update")][1]
+    print(f"N = {args.particles}, {ticks} ticks; shares of predict + update (cumulative, nested rows "
+          "overlap their parents)\n")
+    print("| function | share of a tick | calls per tick |\n|---|---|---|")
+    for key in ROWS:
+        calls, total = cum.get(key, (0, 0.0))
+        print(f"| {key[1]} ({key[0]}) | {100 * total / tick:.0f} % | {calls / ticks:.1f} |")
+    return 0
+
+
+def _episodes(planner: str, seeds: range = range(2000, 2050)) -> int:
+    scene, cfg = Scene.load(), ScenarioConfig()
+    run_episode(cfg, 1999, planner, scene, label=False)  # warm-up
+    profiler = cProfile.Profile()
+    profiler.enable()
+    for seed in seeds:
+        run_episode(cfg, seed, planner, scene, label=False)
+    profiler.disable()
+    stats = pstats.Stats(profiler)
+    total = stats.total_tt
+    own = sorted(((tt, name, path.rsplit("/", 1)[-1]) for (path, _l, name), (_cc, _nc, tt, _ct, _c)
+                  in stats.stats.items()), reverse=True)
+    print(f"{len(seeds)} episodes of {planner}; shares of the time of their own (tottime)\n")
+    print("| function | share |\n|---|---|")
+    for tt, name, where in own[:12]:
+        print(f"| {name} ({where}) | {100 * tt / total:.0f} % |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
