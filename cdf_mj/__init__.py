@@ -14,7 +14,7 @@ seed::
 The names below are imported on first use, so ``import cdf_mj`` stays light (no MuJoCo
 import) for tools that only want ``cdf_mj.__version__``. If Gymnasium is installed,
 importing the package registers the environment ``cdf_mj/TIntersection-v0``
-(:mod:`cdf_mj.envs`), which imports Gymnasium (about 0.2 s).
+(:mod:`cdf_mj.envs.t_intersection`), which imports Gymnasium (about 0.2 s).
 """
 
 from __future__ import annotations
@@ -24,49 +24,49 @@ from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
 
+from cdf_mj.envs import ENV_ID  # light: neither Gymnasium nor MuJoCo
+
 # public name -> module that defines it
 _EXPORTS = {
     "ScenarioConfig": "cdf_mj.config",
-    "Scene": "cdf_mj.scene",
-    "SceneError": "cdf_mj.scene",
-    "run_episode": "cdf_mj.episode",
-    "EpisodeRecord": "cdf_mj.episode",
     "CDFConfig": "cdf_mj.config",
-    "CDFPlanner": "cdf_mj.planners",
-    "ParticleFilter": "cdf_mj.inference",
-    "run_experiment": "cdf_mj.experiment",
     "SceneNames": "cdf_mj.config",
-    "World": "cdf_mj.episode",
-    "add_car": "cdf_mj.scene",
-    "attach": "cdf_mj.monitor",
-    "CDFMonitor": "cdf_mj.monitor",
-    "TIntersectionEnv": "cdf_mj.envs",
-    "CVPlanner": "cdf_mj.baselines",
-    "IMMPlanner": "cdf_mj.baselines",
-    "run_sweep": "cdf_mj.sweep",
-    "render_episode": "cdf_mj.render",
-    "write_report": "cdf_mj.report",
+    "EpisodeRecord": "cdf_mj.records",
+    "Label": "cdf_mj.records",
+    "Scene": "cdf_mj.sim.scene",
+    "SceneError": "cdf_mj.sim.scene",
+    "add_car": "cdf_mj.sim.scene",
+    "ParticleFilter": "cdf_mj.inference.particle_filter",
+    "CDFPlanner": "cdf_mj.planners.base",
+    "CVPlanner": "cdf_mj.planners.baselines",
+    "IMMPlanner": "cdf_mj.planners.baselines",
+    "World": "cdf_mj.scenario.episode",
+    "run_episode": "cdf_mj.scenario.episode",
+    "CDFMonitor": "cdf_mj.scenario.monitor",
+    "attach": "cdf_mj.scenario.monitor",
+    "TIntersectionEnv": "cdf_mj.envs.t_intersection",
+    "run_experiment": "cdf_mj.experiments.experiment",
+    "run_sweep": "cdf_mj.experiments.sweep",
+    "render_episode": "cdf_mj.viz.render",
+    "write_report": "cdf_mj.viz.report",
 }
 
 __all__ = ["__version__", "ENV_ID", *_EXPORTS]
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time see __getattr__
-    from cdf_mj.baselines import CVPlanner, IMMPlanner
     from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames
-    from cdf_mj.envs import TIntersectionEnv
-    from cdf_mj.episode import EpisodeRecord, World, run_episode
-    from cdf_mj.experiment import run_experiment
-    from cdf_mj.inference import ParticleFilter
-    from cdf_mj.monitor import CDFMonitor, attach
-    from cdf_mj.planners import CDFPlanner
-    from cdf_mj.render import render_episode
-    from cdf_mj.report import write_report
-    from cdf_mj.scene import Scene, SceneError, add_car
-    from cdf_mj.sweep import run_sweep
-
-
-#: Gymnasium id of :class:`cdf_mj.envs.TIntersectionEnv`.
-ENV_ID = "cdf_mj/TIntersection-v0"
+    from cdf_mj.envs.t_intersection import TIntersectionEnv
+    from cdf_mj.experiments.experiment import run_experiment
+    from cdf_mj.experiments.sweep import run_sweep
+    from cdf_mj.inference.particle_filter import ParticleFilter
+    from cdf_mj.planners.base import CDFPlanner
+    from cdf_mj.planners.baselines import CVPlanner, IMMPlanner
+    from cdf_mj.records import EpisodeRecord, Label
+    from cdf_mj.scenario.episode import World, run_episode
+    from cdf_mj.scenario.monitor import CDFMonitor, attach
+    from cdf_mj.sim.scene import Scene, SceneError, add_car
+    from cdf_mj.viz.render import render_episode
+    from cdf_mj.viz.report import write_report
 
 
 def _register_env() -> None:
@@ -87,7 +87,7 @@ def _register_env() -> None:
     from gymnasium.envs.registration import register, registry
 
     if ENV_ID not in registry:
-        register(id=ENV_ID, entry_point="cdf_mj.envs:TIntersectionEnv")
+        register(id=ENV_ID, entry_point="cdf_mj.envs.t_intersection:TIntersectionEnv")
 
 
 _register_env()

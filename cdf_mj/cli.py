@@ -38,10 +38,10 @@ except (ImportError, AttributeError, RuntimeError) as _exc:
 
 from cdf_mj import __version__
 from cdf_mj.config import CDFConfig, ScenarioConfig
-from cdf_mj.episode import run_episode
-from cdf_mj.planners import PLANNERS
-from cdf_mj.runner import WorkerDiedError, json_default
-from cdf_mj.scene import DEFAULT_SCENE, Scene
+from cdf_mj.scenario.episode import run_episode
+from cdf_mj.planners.base import PLANNERS
+from cdf_mj.experiments.runner import WorkerDiedError, json_default
+from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
 
 __all__ = ["main", "build_parser", "add_scenario_arguments", "parse_overrides",
            "config_from_args", "scene_from_args", "CLIError"]
@@ -231,7 +231,7 @@ def _planner_list(text: str) -> list[str]:
 
 
 def _cmd_experiment(args: argparse.Namespace) -> int:
-    from cdf_mj.experiment import experiment_tables, run_experiment
+    from cdf_mj.experiments.experiment import experiment_tables, run_experiment
 
     config = config_from_args(args)
     cdf = cdf_from_args(args)
@@ -315,7 +315,7 @@ def _value_list(text: str) -> list[float]:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from cdf_mj.sweep import VizUnavailableError, run_sweep
+    from cdf_mj.experiments.sweep import VizUnavailableError, run_sweep
 
     config = config_from_args(args)
     cdf = cdf_from_args(args)
@@ -336,7 +336,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
 
 def _add_sweep(subparsers: argparse._SubParsersAction) -> None:
-    from cdf_mj.sweep import SWEEPS
+    from cdf_mj.experiments.sweep import SWEEPS
 
     p = subparsers.add_parser(
         "sweep", help="run the planners over a range of one setting; table (CSV, Markdown) and figure",
@@ -362,7 +362,7 @@ def _add_sweep(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _cmd_render(args: argparse.Namespace) -> int:
-    from cdf_mj.render import render_episode
+    from cdf_mj.viz.render import render_episode
 
     config = config_from_args(args)
     scene = scene_from_args(args, config)
@@ -410,7 +410,7 @@ def _add_render(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from cdf_mj.report import write_report
+    from cdf_mj.viz.report import write_report
 
     result = write_report(args.dir, out=args.out, seeds=args.seeds, planner=args.planner)
     skipped = f"; skipped {result.failed} failed episode(s)" if result.failed else ""
@@ -450,7 +450,7 @@ def _add_report(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
-    from cdf_mj.bench import (bench_core, bench_env, bench_filter, bench_planners, bench_reproduction,
+    from cdf_mj.experiments.bench import (bench_core, bench_env, bench_filter, bench_planners, bench_reproduction,
                               format_rows)
 
     sizes = tuple(args.particles)

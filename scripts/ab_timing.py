@@ -35,9 +35,9 @@ import json, statistics, time
 import numpy as np
 import cdf_mj
 from cdf_mj.config import CDFConfig, ScenarioConfig
-from cdf_mj.episode import run_episode
-from cdf_mj.inference import ParticleFilter
-from cdf_mj.scene import Scene
+from cdf_mj.scenario.episode import run_episode
+from cdf_mj.inference.particle_filter import ParticleFilter
+from cdf_mj.sim.scene import Scene
 
 scene, cfg = Scene.load(), ScenarioConfig()
 poses = np.array(run_episode(cfg, 1, "constant", scene, trace=True).trace["poses"])

@@ -22,7 +22,7 @@ import imageio.v2 as imageio
 import numpy as np
 
 import cdf_mj  # registers the environment
-from cdf_mj.scene import DEFAULT_SCENE
+from cdf_mj.sim.scene import DEFAULT_SCENE
 
 
 def cautious_policy(obs: np.ndarray, lane_y: float, brake_at: float = 0.5) -> np.ndarray:

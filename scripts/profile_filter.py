@@ -29,9 +29,9 @@ import sys
 import numpy as np
 
 from cdf_mj.config import CDFConfig, ScenarioConfig
-from cdf_mj.episode import run_episode
-from cdf_mj.inference import ParticleFilter
-from cdf_mj.scene import Scene
+from cdf_mj.scenario.episode import run_episode
+from cdf_mj.inference.particle_filter import ParticleFilter
+from cdf_mj.sim.scene import Scene
 
 # (module file, function) rows to report, in the order of a tick.
 ROWS = [

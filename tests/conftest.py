@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from cdf_mj.scene import Scene
+from cdf_mj.sim.scene import Scene
 
 
 @pytest.fixture(scope="session")

@@ -14,7 +14,7 @@ import math
 import numpy as np
 import pytest
 
-from cdf_mj.baselines import (
+from cdf_mj.planners.baselines import (
     CVConfig,
     CVPlanner,
     IMMConfig,
@@ -23,10 +23,10 @@ from cdf_mj.baselines import (
     route_heading,
 )
 from cdf_mj.config import ScenarioConfig
-from cdf_mj.episode import run_episode
-from cdf_mj.geometry import box_corners
-from cdf_mj.metrics import brier_over_time, brier_score, paired_table, planner_metrics, planner_table
-from cdf_mj.planners import PLANNERS, PlannerInput, make_planner
+from cdf_mj.scenario.episode import run_episode
+from cdf_mj.model.geometry import box_corners
+from cdf_mj.analysis.metrics import brier_over_time, brier_score, paired_table, planner_metrics, planner_table
+from cdf_mj.planners.base import PLANNERS, PlannerInput, make_planner
 
 
 def _situation(intent: str, offset: float) -> ScenarioConfig:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import re
 
 from cdf_mj.cli import main
-from cdf_mj.planners import PLANNERS
+from cdf_mj.planners.base import PLANNERS
 
 
 def test_bench_prints_filter_planner_and_scaling_rows(capsys):

@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from cdf_mj import cli
-from cdf_mj.episode import EpisodeRecord
+from cdf_mj.records import EpisodeRecord
 
 REPO = Path(__file__).resolve().parent.parent
 RECORD_KEYS = {f.name for f in dataclasses.fields(EpisodeRecord)}

@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 from cdf_mj.config import ScenarioConfig
-from cdf_mj.driver import (DriverModel, Intent, Mode, obstacle_control, road_clear,
+from cdf_mj.model.driver import (DriverModel, Intent, Mode, obstacle_control, road_clear,
                            update_belief)
-from cdf_mj.episode import Labels, run_episode
+from cdf_mj.scenario.episode import run_episode
+from cdf_mj.records import Labels
 
 
 def test_routes_are_followed_into_their_lanes(scene):

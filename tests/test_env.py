@@ -17,8 +17,9 @@ gym = pytest.importorskip("gymnasium")
 from gymnasium.utils.env_checker import check_env
 
 import cdf_mj
-from cdf_mj.driver import ego_control
-from cdf_mj.episode import Labels, run_episode
+from cdf_mj.model.driver import ego_control
+from cdf_mj.scenario.episode import run_episode
+from cdf_mj.records import Labels
 
 ROOT = Path(__file__).resolve().parent.parent
 ORIGINAL_MUJOCO_GL = os.environ.get("MUJOCO_GL")  # the user's; render.gl_backend may set it later
@@ -173,7 +174,7 @@ def test_make_vec_with_worker_processes():
 @pytest.fixture(scope="module")
 def gl() -> str:
     """The OpenGL backend's name; skips the test when no backend can be created."""
-    from cdf_mj.render import RenderError, gl_backend
+    from cdf_mj.viz.render import RenderError, gl_backend
 
     try:
         return gl_backend()[0]
@@ -236,4 +237,4 @@ def test_without_gymnasium_import_works_and_the_env_names_the_extra():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          timeout=60, check=False)
     assert out.returncode == 0, out.stderr[-2000:]
-    assert out.stdout.strip() == "cdf_mj.envs needs Gymnasium: pip install 'cdf-mj[gym]'"
+    assert out.stdout.strip() == "cdf_mj.envs.t_intersection needs Gymnasium: pip install 'cdf-mj[gym]'"

@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 from cdf_mj.config import ScenarioConfig
-from cdf_mj.episode import Labels, NonFiniteStateError, run_episode
-from cdf_mj.metrics import scenario_summary, wilson_interval
-from cdf_mj.planners import Planner, make_planner
+from cdf_mj.scenario.episode import NonFiniteStateError, run_episode
+from cdf_mj.records import Labels
+from cdf_mj.analysis.metrics import scenario_summary, wilson_interval
+from cdf_mj.planners.base import Planner, make_planner
 
 
 def test_same_seed_same_record(scene):
@@ -135,7 +136,7 @@ def test_scenario_summary_counts(scene):
 def test_a_run_that_never_brakes_is_the_counterfactual(scene):
     """The premise that lets a non-braking run stand in for the constant-speed run that
     labels its seed (run_episode and the experiment runner skip simulating it)."""
-    from cdf_mj.episode import counterfactual
+    from cdf_mj.scenario.episode import counterfactual
 
     cfg = ScenarioConfig()
     compared = braked = 0

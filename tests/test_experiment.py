@@ -8,8 +8,8 @@ import pytest
 
 from cdf_mj.cli import main
 from cdf_mj.config import CDFConfig
-from cdf_mj.episode import Labels
-from cdf_mj.experiment import experiment_tables, load_records, run_experiment
+from cdf_mj.records import Labels
+from cdf_mj.experiments.experiment import experiment_tables, load_records, run_experiment
 
 SEEDS = range(0, 12)
 SMALL = CDFConfig(n_particles=300)

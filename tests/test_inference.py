@@ -1,4 +1,4 @@
-"""The CDF particle filter (cdf_mj.inference) and the CDF planner on real MuJoCo episodes.
+"""The CDF particle filter (cdf_mj.inference.particle_filter) and the CDF planner on real MuJoCo episodes.
 
 No mocks: every measurement is a system pose that MuJoCo produced, either inside a CDF
 episode (``run_episode`` with a :class:`CDFPlanner`) or recorded from a constant-planner
@@ -19,10 +19,11 @@ import numpy as np
 import pytest
 
 from cdf_mj.config import CDFConfig, ScenarioConfig
-from cdf_mj.driver import Mode
-from cdf_mj.episode import Labels, run_episode
-from cdf_mj.inference import ParticleFilter
-from cdf_mj.planners import CDFPlanner
+from cdf_mj.model.driver import Mode
+from cdf_mj.scenario.episode import run_episode
+from cdf_mj.records import Labels
+from cdf_mj.inference.particle_filter import ParticleFilter
+from cdf_mj.planners.base import CDFPlanner
 
 N = 300
 SEEDS = range(50)

@@ -1,4 +1,4 @@
-"""Vectorised line of sight (cdf_mj.occlusion) against MuJoCo rays and shapely."""
+"""Vectorised line of sight (cdf_mj.model.occlusion) against MuJoCo rays and shapely."""
 
 from __future__ import annotations
 
@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 import shapely
 
-from cdf_mj import visibility
-from cdf_mj.geometry import box_corners
-from cdf_mj.occlusion import Occluders, ego_visible, segments_hit_rectangle
-from cdf_mj.scene import DEFAULT_SCENE, Scene
+from cdf_mj.sim import visibility
+from cdf_mj.model.geometry import box_corners
+from cdf_mj.model.occlusion import Occluders, ego_visible, segments_hit_rectangle
+from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
 
 EGO_WEST = np.array([-30.0, -1.85, 0.0, 13.4])
 DEEP = np.array([-1.85, 16.0, -np.pi / 2, 0.0])  # far back in the side road

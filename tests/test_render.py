@@ -1,4 +1,4 @@
-"""cdf_mj.render: offscreen videos of episodes with the CDF's belief drawn in.
+"""cdf_mj.viz.render: offscreen videos of episodes with the CDF's belief drawn in.
 
 Tests that draw need an OpenGL backend (EGL or OSMesa); they are skipped, with the
 reason, only when none can be created. Requests are checked before any simulation.
@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cdf_mj import render
+from cdf_mj.viz import render
 from cdf_mj.cli import main
 from cdf_mj.config import ScenarioConfig
-from cdf_mj.episode import run_episode
-from cdf_mj.render import (
+from cdf_mj.scenario.episode import run_episode
+from cdf_mj.viz.render import (
     RenderError,
     check_request,
     frame_times,

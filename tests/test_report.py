@@ -1,4 +1,4 @@
-"""cdf_mj.report: figures and a Markdown page from an experiment directory."""
+"""cdf_mj.viz.report: figures and a Markdown page from an experiment directory."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import pytest
 
 from cdf_mj.cli import main
 from cdf_mj.config import CDFConfig, ScenarioConfig
-from cdf_mj.experiment import run_experiment
-from cdf_mj.report import FIGURES, ReportError, load_experiment, write_report
+from cdf_mj.experiments.experiment import run_experiment
+from cdf_mj.viz.report import FIGURES, ReportError, load_experiment, write_report
 
 pytest.importorskip("matplotlib", reason="the viz extra (matplotlib) is not installed")
 
@@ -105,8 +105,8 @@ def test_unregistered_planner_is_reported_without_trajectories(experiment, tmp_p
 
 
 def test_avoidance_figure_counts_agree_with_the_metrics(experiment) -> None:
-    from cdf_mj.metrics import planner_metrics
-    from cdf_mj.report import _rates
+    from cdf_mj.analysis.metrics import planner_metrics
+    from cdf_mj.viz.report import _rates
 
     exp = load_experiment(experiment)
     metrics = planner_metrics(exp.records)

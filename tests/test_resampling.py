@@ -1,4 +1,4 @@
-"""Resampling (cdf_mj.resampling): identical to filterpy's given the same uniforms."""
+"""Resampling (cdf_mj.inference.resampling): identical to filterpy's given the same uniforms."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from filterpy.monte_carlo import resampling as fp_resampling
 from filterpy.monte_carlo import stratified_resample as fp_stratified
 from filterpy.monte_carlo import systematic_resample as fp_systematic
 
-from cdf_mj.resampling import (effective_sample_size, stratified_indexes_from_uniforms,
+from cdf_mj.inference.resampling import (effective_sample_size, stratified_indexes_from_uniforms,
                                stratified_resample, systematic_indexes_from_uniform,
                                systematic_resample)
 

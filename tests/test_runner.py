@@ -17,9 +17,9 @@ import pytest
 
 from cdf_mj.cli import main
 from cdf_mj.config import CDFConfig
-from cdf_mj.experiment import experiment_tables, load_records, run_experiment
-from cdf_mj.planners import PLANNERS, Planner, PlannerInput, ReactivePlanner
-from cdf_mj.runner import FAILED, OK, START_METHOD, RecordStore, WorkerDiedError, locked
+from cdf_mj.experiments.experiment import experiment_tables, load_records, run_experiment
+from cdf_mj.planners.base import PLANNERS, Planner, PlannerInput, ReactivePlanner
+from cdf_mj.experiments.runner import FAILED, OK, START_METHOD, RecordStore, WorkerDiedError, locked
 
 SMALL = CDFConfig(n_particles=200)
 SEEDS = range(30, 38)
@@ -303,9 +303,9 @@ def test_a_pool_started_in_a_thread_that_ends_keeps_its_workers():
     import threading
 
     from cdf_mj.config import ScenarioConfig
-    from cdf_mj.experiment import _factory
-    from cdf_mj.runner import SeedJob, run_seeds
-    from cdf_mj.scene import DEFAULT_SCENE
+    from cdf_mj.experiments.experiment import _factory
+    from cdf_mj.experiments.runner import SeedJob, run_seeds
+    from cdf_mj.sim.scene import DEFAULT_SCENE
 
     job = SeedJob(ScenarioConfig(), str(DEFAULT_SCENE), ("reactive",),
                   {"reactive": _factory("reactive", CDFConfig())})

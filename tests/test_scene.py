@@ -1,4 +1,4 @@
-"""Tests of the MJCF scenes and of :mod:`cdf_mj.scene`, on real MuJoCo (no mocks).
+"""Tests of the MJCF scenes and of :mod:`cdf_mj.sim.scene`, on real MuJoCo (no mocks).
 
 In the style of dm_control / MuJoCo Menagerie model tests: every full scene under
 ``models/xml`` compiles, steps under random controls without a MuJoCo warning, and has
@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from cdf_mj.config import SceneNames
-from cdf_mj.scene import DEFAULT_SCENE, MODELS_DIR, Scene, SceneError, SimulationDivergedError
+from cdf_mj.sim.scene import DEFAULT_SCENE, MODELS_DIR, Scene, SceneError, SimulationDivergedError
 
 NAMES = SceneNames()
 

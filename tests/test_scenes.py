@@ -13,10 +13,11 @@ import pytest
 
 from cdf_mj.cli import main
 from cdf_mj.config import ScenarioConfig, SceneNames
-from cdf_mj.driver import ego_control
-from cdf_mj.episode import Labels, World, run_episode
-from cdf_mj.monitor import CDFMonitor, attach
-from cdf_mj.scene import MODELS_DIR, Scene, SceneError, add_car
+from cdf_mj.model.driver import ego_control
+from cdf_mj.scenario.episode import World, run_episode
+from cdf_mj.records import Labels
+from cdf_mj.scenario.monitor import CDFMonitor, attach
+from cdf_mj.sim.scene import MODELS_DIR, Scene, SceneError, add_car
 
 FOURWAY = MODELS_DIR / "scene_fourway.xml"
 

@@ -9,7 +9,7 @@ import pytest
 
 from cdf_mj.cli import main
 from cdf_mj.config import CDFConfig, ScenarioConfig
-from cdf_mj.sweep import SWEEPS, run_sweep, tau_curve
+from cdf_mj.experiments.sweep import SWEEPS, run_sweep, tau_curve
 
 
 def test_tiny_beta_sweep_writes_table_and_figure(tmp_path):
@@ -84,7 +84,7 @@ def test_points_are_reused_when_the_value_list_changes(tmp_path):
 
 def test_a_sweep_directory_of_the_earlier_layout_is_reused(tmp_path):
     """Earlier versions ran every planner in the first point's directory: still reused."""
-    from cdf_mj.experiment import run_experiment
+    from cdf_mj.experiments.experiment import run_experiment
 
     run_experiment(tmp_path / "tau" / "0.9", range(2), ["cdf", "reactive"], cdf=SWEEPS["tau"].settings(
         0.9, ScenarioConfig(), CDFConfig())[1], progress=False, workers=1)

@@ -20,8 +20,8 @@ import numpy as np
 import pytest
 
 from cdf_mj.config import MAX_BRAKE
-from cdf_mj.driver import bicycle_step
-from cdf_mj.scene import Scene
+from cdf_mj.model.driver import bicycle_step
+from cdf_mj.sim.scene import Scene
 
 #: Agreement of MuJoCo (timestep 0.005 s, implicitfast) with the continuous bicycle
 #: equations over 4 s, checked every 0.1 s. Measured on the cases below: 1.6-5.0 cm in

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
-from cdf_mj.visibility import ego_visible, isovist
+from cdf_mj.sim.visibility import ego_visible, isovist
 
 EGO_WEST = np.array([-30.0, -1.85, 0.0, 13.4])  # on the main road, west of the junction
 

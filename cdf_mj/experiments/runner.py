@@ -102,7 +102,7 @@ class SeedWorker:
     """Runs seeds of one job with one scene loaded once (one per process or Ray actor)."""
 
     def __init__(self, job: SeedJob) -> None:
-        from cdf_mj.scene import Scene
+        from cdf_mj.sim.scene import Scene
 
         self.job = job
         self.scene = Scene.load(job.scene, names=job.config.names)
@@ -114,7 +114,7 @@ class SeedWorker:
         braked *is* that run (same random streams, same controls), so it is simulated
         only when every planner braked, and then once for all of them.
         """
-        from cdf_mj.episode import counterfactual, label_of, run_episode
+        from cdf_mj.scenario.episode import counterfactual, label_of, run_episode
 
         job = self.job
         records: list[dict] = []

@@ -2,7 +2,7 @@
 
 ``run_experiment`` runs every planner on every seed (common random numbers: the obstacle
 and the ego's start are the same for all planners) on a process pool (default: one
-worker per CPU; :mod:`cdf_mj.runner` also offers ``serial`` and ``ray``), and appends one
+worker per CPU; :mod:`cdf_mj.experiments.runner` also offers ``serial`` and ``ray``), and appends one
 JSON line per episode and planner to ``DIR/episodes.jsonl`` as soon as its seed
 finishes (flushed and fsync-ed); the settings go to ``DIR/settings.json``. The records
 are the same whatever the backend and the number of workers.
@@ -36,10 +36,11 @@ from pathlib import Path
 from tqdm import tqdm
 
 from cdf_mj.config import CDFConfig, ScenarioConfig
-from cdf_mj.episode import EpisodeRecord, Labels, run_episode
-from cdf_mj.metrics import Rate
-from cdf_mj.planners import PLANNERS, CDFPlanner, Planner, make_planner
-from cdf_mj.runner import (
+from cdf_mj.scenario.episode import run_episode
+from cdf_mj.records import EpisodeRecord, Labels
+from cdf_mj.analysis.metrics import Rate
+from cdf_mj.planners.base import PLANNERS, CDFPlanner, Planner, make_planner
+from cdf_mj.experiments.runner import (
     FAILED,
     START_METHOD,
     Backend,
@@ -51,7 +52,7 @@ from cdf_mj.runner import (
     locked,
     run_seeds,
 )
-from cdf_mj.scene import DEFAULT_SCENE, Scene
+from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
 
 __all__ = ["run_many", "iter_episodes", "run_experiment", "ExperimentResult", "experiment_tables",
            "load_records", "completed", "PAPER_CONFUSION", "PAPER_PLANNERS"]

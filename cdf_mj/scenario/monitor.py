@@ -36,8 +36,8 @@ import mujoco
 import numpy as np
 
 from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames
-from cdf_mj.inference import ParticleFilter, Posterior
-from cdf_mj.scene import Scene
+from cdf_mj.inference.particle_filter import ParticleFilter, Posterior
+from cdf_mj.sim.scene import Scene
 
 __all__ = ["CDFMonitor", "Decision", "attach"]
 

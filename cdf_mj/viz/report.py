@@ -19,7 +19,7 @@ them. The trajectories are re-simulated from the stored settings (``trace=True``
 posterior traces come from the stored records. Figures use matplotlib's Agg canvas
 directly, so no global backend is changed. ::
 
-    from cdf_mj.report import write_report
+    from cdf_mj.viz.report import write_report
     result = write_report("results/experiment")
     result.markdown, result.figures
 """
@@ -38,11 +38,12 @@ import mujoco
 import numpy as np
 
 from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames
-from cdf_mj.episode import Labels, run_episode
-from cdf_mj.experiment import PAPER_CONFUSION, PAPER_PLANNERS, experiment_tables
-from cdf_mj.metrics import Rate
-from cdf_mj.planners import CDFPlanner, Planner, make_planner
-from cdf_mj.scene import DEFAULT_SCENE, Scene
+from cdf_mj.scenario.episode import run_episode
+from cdf_mj.records import Labels
+from cdf_mj.experiments.experiment import PAPER_CONFUSION, PAPER_PLANNERS, experiment_tables
+from cdf_mj.analysis.metrics import Rate
+from cdf_mj.planners.base import CDFPlanner, Planner, make_planner
+from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
 
 __all__ = ["FIGURES", "Experiment", "ReportError", "ReportResult", "load_experiment", "write_report"]
 

@@ -88,7 +88,7 @@ class CDFPlanner(Planner):
         self.cdf = cdf or CDFConfig()
 
     def reset(self, scene, config: ScenarioConfig, rng: np.random.Generator) -> None:
-        from cdf_mj.inference import ParticleFilter  # the filter's import cost only when used
+        from cdf_mj.inference.particle_filter import ParticleFilter  # the filter's import cost only when used
 
         self.filter = ParticleFilter.from_scene(scene, config, self.cdf, rng)
         self.decision_time: float | None = None
@@ -154,7 +154,7 @@ def make_planner(name: str | Planner) -> Planner:
 # factories are partials of a module-level function, so worker processes can unpickle them.
 def _make_baseline(class_name: str) -> Planner:
     """A fresh baseline planner (``CVPlanner``, ``IMMPlanner``) with its default parameters."""
-    from cdf_mj import baselines
+    from cdf_mj.planners import baselines
 
     return getattr(baselines, class_name)()
 

@@ -17,10 +17,10 @@ Both see what every planner sees (:class:`cdf_mj.planners.PlannerInput`: the mea
 system pose), predict the ego holding its speed along its heading, and latch their
 decision, as the other planners do. Their parameters are the frozen dataclasses
 :class:`CVConfig` and :class:`IMMConfig`; the defaults were chosen on seeds 0-199 only
-(docs/ANALYSIS.md says how). Importing :mod:`cdf_mj.planners` registers both names, so
+(docs/ANALYSIS.md says how). Importing :mod:`cdf_mj.planners.base` registers both names, so
 ``cdf-mj experiment --planners cdf,reactive,cv,imm`` and worker processes know them::
 
-    from cdf_mj.baselines import IMMConfig, IMMPlanner
+    from cdf_mj.planners.baselines import IMMConfig, IMMPlanner
     record = run_episode(config, seed=7, planner=IMMPlanner(IMMConfig(threshold=0.8)))
 
 Frames and units: world frame (x east, y north), metres, seconds, radians; poses are
@@ -38,9 +38,9 @@ from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import IMMEstimator, KalmanFilter
 
 from cdf_mj.config import ScenarioConfig
-from cdf_mj.driver import Intent
-from cdf_mj.geometry import Polyline, wrap_angle
-from cdf_mj.planners import Planner, PlannerInput, predicted_label
+from cdf_mj.model.driver import Intent
+from cdf_mj.model.geometry import Polyline, wrap_angle
+from cdf_mj.planners.base import Planner, PlannerInput, predicted_label
 
 __all__ = [
     "CVConfig",

@@ -19,7 +19,7 @@ import mujoco
 import numpy as np
 import shapely
 
-from cdf_mj.scene import Scene
+from cdf_mj.sim.scene import Scene
 
 __all__ = ["Isovist", "isovist", "ego_visible", "sight_lines"]
 

@@ -6,7 +6,7 @@ N = 1000, so this module tests 2D sight segments against the buildings' footprin
 (oriented rectangles) with NumPy, for all particles, target points and buildings in one
 broadcast, particles on the innermost (contiguous) axis. ::
 
-    from cdf_mj.occlusion import Occluders, ego_visible
+    from cdf_mj.model.occlusion import Occluders, ego_visible
 
     occ = Occluders.from_scene(scene)                  # once per scene: the buildings
     seen = ego_visible(occ, scene, particle_poses, ego_pose)   # (N,) bool
@@ -51,7 +51,7 @@ from dataclasses import dataclass, field
 import mujoco
 import numpy as np
 
-from cdf_mj.scene import Scene
+from cdf_mj.sim.scene import Scene
 
 __all__ = ["Occluders", "ego_visible", "segments_hit_rectangle"]
 

@@ -5,7 +5,7 @@ obstacle driver's mode: the obstacle's pose, whether it has seen the ego and wha
 believes, its intent and its state-machine mode. The ego's pose is known to the ego and
 is shared by all particles (it is the measured one).
 
-One tick (``dt``), as in the simulation (:mod:`cdf_mj.episode`):
+One tick (``dt``), as in the simulation (:mod:`cdf_mj.scenario.episode`):
 
 ``predict(S_t)``
     every particle draws its own observation event (probability beta, if the ego is in
@@ -39,11 +39,11 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from cdf_mj.config import CDFConfig, ScenarioConfig
-from cdf_mj.driver import (DriverModel, Intent, Mode, bicycle_step, obstacle_control, road_clear,
+from cdf_mj.model.driver import (DriverModel, Intent, Mode, bicycle_step, obstacle_control, road_clear,
                            update_belief)
-from cdf_mj.geometry import wrap_angle
-from cdf_mj.occlusion import Occluders
-from cdf_mj.resampling import effective_sample_size, stratified_resample
+from cdf_mj.model.geometry import wrap_angle
+from cdf_mj.model.occlusion import Occluders
+from cdf_mj.inference.resampling import effective_sample_size, stratified_resample
 
 __all__ = ["ParticleFilter", "Posterior"]
 

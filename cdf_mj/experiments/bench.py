@@ -20,9 +20,9 @@ import mujoco
 import numpy as np
 
 from cdf_mj.config import ScenarioConfig
-from cdf_mj.episode import run_episode
-from cdf_mj.scene import DEFAULT_SCENE, Scene
-from cdf_mj.visibility import ego_visible, isovist
+from cdf_mj.scenario.episode import run_episode
+from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
+from cdf_mj.sim.visibility import ego_visible, isovist
 
 __all__ = ["median_time", "bench_core", "bench_filter", "bench_planners", "bench_env", "bench_reproduction",
            "format_rows"]
@@ -101,7 +101,7 @@ def bench_filter(n_values: tuple[int, ...] = (250, 1000, 4000), passes: int = 3,
     warm-up run.
     """
     from cdf_mj.config import CDFConfig
-    from cdf_mj.inference import ParticleFilter
+    from cdf_mj.inference.particle_filter import ParticleFilter
 
     world, cfg = _setup(scene, config)
     rec = run_episode(cfg, 1, "constant", world, trace=True)
@@ -147,7 +147,7 @@ def bench_planners(episodes: int = 20, scene: str | Path = DEFAULT_SCENE,
                    config: ScenarioConfig | None = None) -> list[tuple[str, float, str]]:
     """Median wall time of one episode (no counterfactual) for every registered planner,
     and how many times faster than real time it runs (median over seeds)."""
-    from cdf_mj.planners import PLANNERS, make_planner
+    from cdf_mj.planners.base import PLANNERS, make_planner
 
     world, cfg = _setup(scene, config)
     rows = []
@@ -177,7 +177,7 @@ def bench_env(seconds: float = 1.0, repeats: int = 3, scene: str | Path = DEFAUL
         import gymnasium  # noqa: F401
     except ImportError:
         return []
-    from cdf_mj.envs import TIntersectionEnv
+    from cdf_mj.envs.t_intersection import TIntersectionEnv
 
     world, cfg = _setup(scene, config)
     rows = []
@@ -213,7 +213,7 @@ def bench_reproduction(episodes: int = 1000, workers: tuple[int, ...] = (1, 2),
     """
     import tempfile
 
-    from cdf_mj.experiment import run_experiment
+    from cdf_mj.experiments.experiment import run_experiment
 
     rows: list[tuple[str, float, str]] = []
     base: tuple[int, float] | None = None

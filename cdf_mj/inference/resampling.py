@@ -24,7 +24,7 @@ it can when its running sum ends an ulp short of 1). The same algorithm as
 ``filterpy.monte_carlo.stratified_resample`` / ``systematic_resample`` (a Python loop
 over NumPy's global random state), vectorised and driven by a ``numpy.random.Generator``::
 
-    from cdf_mj.resampling import stratified_resample, effective_sample_size
+    from cdf_mj.inference.resampling import stratified_resample, effective_sample_size
 
     if effective_sample_size(w) < 0.5 * len(w):
         idx = stratified_resample(w, rng)      # rng: numpy.random.Generator

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cdf_mj.episode import Labels
+from cdf_mj.records import Labels
 
 __all__ = [
     "FILTER_QUANTITIES",

@@ -7,7 +7,7 @@ of the episode trace (positions and speed linearly, headings along the shorter a
 so no frame is dropped or repeated. The filter's state shown is that of the last tick
 at or before ``t``. ::
 
-    from cdf_mj.render import render_episode
+    from cdf_mj.viz.render import render_episode
     result = render_episode("episode.mp4", seed=7, planner="cdf", camera="top")
     result.n_frames, result.frames_per_second
 
@@ -52,11 +52,12 @@ import mujoco
 import numpy as np
 
 from cdf_mj.config import CDFConfig, ScenarioConfig
-from cdf_mj.episode import EpisodeRecord, episode_label, run_episode
-from cdf_mj.inference import ParticleFilter
-from cdf_mj.planners import CDFPlanner, Planner, make_planner
-from cdf_mj.scene import Scene
-from cdf_mj.visibility import isovist
+from cdf_mj.scenario.episode import episode_label, run_episode
+from cdf_mj.records import EpisodeRecord
+from cdf_mj.inference.particle_filter import ParticleFilter
+from cdf_mj.planners.base import CDFPlanner, Planner, make_planner
+from cdf_mj.sim.scene import Scene
+from cdf_mj.sim.visibility import isovist
 
 if TYPE_CHECKING:
     from typing_extensions import Self

@@ -24,18 +24,18 @@ try:
     import gymnasium as gym
     from gymnasium import spaces
 except ImportError:  # pragma: no cover - exercised only without the extra
-    raise ImportError("cdf_mj.envs needs Gymnasium: pip install 'cdf-mj[gym]'") from None
+    raise ImportError("cdf_mj.envs.t_intersection needs Gymnasium: pip install 'cdf-mj[gym]'") from None
 import mujoco
 import numpy as np
 
-from cdf_mj import ENV_ID
+from cdf_mj.envs import ENV_ID
 from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames
-from cdf_mj.driver import Intent
-from cdf_mj.episode import World, episode_label
-from cdf_mj.monitor import CDFMonitor
-from cdf_mj.scene import DEFAULT_SCENE, Scene
+from cdf_mj.model.driver import Intent
+from cdf_mj.scenario.episode import World, episode_label
+from cdf_mj.scenario.monitor import CDFMonitor
+from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
 
-__all__ = ["ENV_ID", "TIntersectionEnv"]
+__all__ = ["TIntersectionEnv"]
 
 
 class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
@@ -241,7 +241,7 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
             # The renderer of `cdf-mj render`: the OpenGL backend is chosen when the first
             # frame is asked for (MUJOCO_GL if set, else EGL, then OSMesa), so a headless
             # machine needs no MUJOCO_GL before importing mujoco; RenderError names the fix.
-            from cdf_mj.render import _Offscreen
+            from cdf_mj.viz.render import _Offscreen
 
             model = self.scene.model  # the model's own multisampling, as mujoco.Renderer has
             self._renderer = _Offscreen(model, self.width, self.height,

@@ -33,7 +33,7 @@ P(cutoff) >= tau is exactly where a run at that tau would brake, for every tau u
 largest. Collisions are not read this way: avoidance comes from the braking runs only,
 and the sweep reports how many derived brake times agree with those runs. ::
 
-    from cdf_mj.sweep import run_sweep
+    from cdf_mj.experiments.sweep import run_sweep
     result = run_sweep("beta", "results/sweeps", seeds=range(200), planners=("cdf", "reactive"))
     print(result.markdown)
 """
@@ -50,9 +50,9 @@ from pathlib import Path
 import numpy as np
 
 from cdf_mj.config import CDFConfig, ScenarioConfig
-from cdf_mj.episode import Labels
-from cdf_mj.metrics import Rate, planner_metrics
-from cdf_mj.scene import DEFAULT_SCENE
+from cdf_mj.records import Labels
+from cdf_mj.analysis.metrics import Rate, planner_metrics
+from cdf_mj.sim.scene import DEFAULT_SCENE
 
 __all__ = ["SWEEPS", "SweepResult", "SweepSpec", "VizUnavailableError", "run_sweep", "tau_curve"]
 
@@ -139,7 +139,7 @@ def _run_point(out: Path, seeds: Sequence[int], planners: Sequence[str], config:
     """One :func:`run_experiment` call, resumed where ``out`` holds the same settings (a
     finished point is reused, an interrupted one continues); returns its completed records
     and its wall time [s]."""
-    from cdf_mj.experiment import completed, run_experiment
+    from cdf_mj.experiments.experiment import completed, run_experiment
 
     result = run_experiment(out, seeds, list(planners), config, cdf, scene, progress,
                             workers=workers, resume=True)
@@ -460,7 +460,7 @@ def comparison_figures(records: Iterable[dict], out_dir: str | Path, p_left: flo
     obstacle entering the ego lane (Cutoff episodes), and the share of other episodes in
     which it has braked by each time (its false alarms).
     """
-    from cdf_mj.metrics import brier_over_time
+    from cdf_mj.analysis.metrics import brier_over_time
 
     plt = _pyplot()
     recs = [r for r in records if r.get("status") != "failed" and r.get("label") is not None]

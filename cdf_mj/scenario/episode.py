@@ -25,14 +25,12 @@ the episode (the ego holding its speed) is the same world with a different ego.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
-from typing import Any
-
+from dataclasses import dataclass
 import numpy as np
 import shapely
 
 from cdf_mj.config import ScenarioConfig
-from cdf_mj.driver import (
+from cdf_mj.model.driver import (
     DriverModel,
     Intent,
     Mode,
@@ -40,13 +38,12 @@ from cdf_mj.driver import (
     obstacle_control,
     update_belief,
 )
-from cdf_mj.planners import Planner, PlannerInput, make_planner
-from cdf_mj.scene import Scene, SimulationDivergedError
-from cdf_mj.visibility import ego_visible
+from cdf_mj.records import EpisodeRecord, Label
+from cdf_mj.planners.base import Planner, PlannerInput, make_planner
+from cdf_mj.sim.scene import Scene, SimulationDivergedError
+from cdf_mj.sim.visibility import ego_visible
 
 __all__ = [
-    "EpisodeRecord",
-    "Labels",
     "Measurement",
     "NonFiniteStateError",
     "Tick",
@@ -63,47 +60,6 @@ _HELD_BACK = frozenset((int(Mode.YIELDING), int(Mode.WAITING)))  # plain ints: a
 
 class NonFiniteStateError(FloatingPointError):
     """The simulation produced a NaN or infinite pose, or MuJoCo found its state unstable."""
-
-
-class Labels:
-    """Scenario labels (DESIGN.md, Ground truth)."""
-
-    CUTOFF = "Cutoff"
-    YIELD = "Yield"
-    RIGHT = "Right"
-
-
-@dataclass
-class EpisodeRecord:
-    """What happened in one episode. Times are seconds from the start, ``None`` if never.
-
-    ``label`` is the scenario label from the counterfactual run of the same seed with the
-    ego holding its speed: ``Right`` (intent right), ``Cutoff`` (intent left and that run
-    collides with the obstacle) or ``Yield`` (intent left, no such collision).
-    """
-
-    seed: int
-    planner: str
-    intent: str  # "left" | "right"
-    label: str | None  # Cutoff | Yield | Right (None if labelling was not asked for)
-    ego_start_offset: float  # [m] along the ego route from site ego_start
-    first_seen_time: float | None  # obstacle's first observation of the ego
-    yielded: bool  # the obstacle held back for the ego (waited at the stop line or braked)
-    entered_lane_time: float | None  # first tick with any part of the obstacle in the ego lane
-    collision: bool  # the ego touched the obstacle or a building
-    collision_with: str | None  # "obstacle" | "building"
-    collision_time: float | None
-    min_gap: float  # [m] smallest distance between the two hulls (0 at contact)
-    brake_time: float | None  # the planner's decision to brake
-    time_lost: float  # [s] the ego's progress deficit at the end, over its nominal speed
-    end_time: float  # [s]
-    counterfactual_collision: bool | None  # the constant-speed run hit the obstacle
-    planner_info: dict = field(default_factory=dict)
-    trace: dict | None = None  # per-tick arrays when asked for
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-serialisable dict."""
-        return asdict(self)
 
 
 @dataclass(slots=True)
@@ -151,7 +107,7 @@ def _substeps(scene: Scene, config: ScenarioConfig) -> int:
 class World:
     """The scenario world, ticked at ``config.dt``: the obstacle looks, believes and drives;
     the ego takes the controls it is given. The one implementation of the obstacle's side,
-    used by :func:`run_episode` and by the Gymnasium environment (:mod:`cdf_mj.envs`). ::
+    used by :func:`run_episode` and by the Gymnasium environment (:mod:`cdf_mj.envs.t_intersection`). ::
 
         world = World(scene, config)
         world.reset(seed=7)                        # draws intent and ego start; places cars
@@ -374,8 +330,8 @@ def _simulate(scene: Scene, config: ScenarioConfig, seed: int, planner: Planner,
 
 def _label(intent: int, counterfactual_collision: bool) -> str:
     if intent == Intent.RIGHT:
-        return Labels.RIGHT
-    return Labels.CUTOFF if counterfactual_collision else Labels.YIELD
+        return Label.RIGHT.value
+    return (Label.CUTOFF if counterfactual_collision else Label.YIELD).value
 
 
 def label_of(intent: str, counterfactual_collision: bool) -> str:

@@ -6,7 +6,7 @@ lanes and start poses from the model. Poses are ``[x, y, theta, v]``: rear-axle 
 [m] and heading [rad] in the world frame (x east, y north), speed [m/s] along the
 heading. ::
 
-    from cdf_mj.scene import Scene
+    from cdf_mj.sim.scene import Scene
     scene = Scene.load()                       # models/xml/scene.xml
     scene.reset(ego=scene.ego_start, obstacle=scene.obstacle_start)
     scene.set_controls("ego", accel=0.0, steer=0.0)
@@ -24,7 +24,8 @@ import mujoco
 import numpy as np
 
 from cdf_mj.config import SceneNames
-from cdf_mj.geometry import OrientedBox, Polyline, rotated_corners
+from cdf_mj.model.geometry import OrientedBox, Polyline, rotated_corners
+from cdf_mj.sim.assets import CAR_XML, DEFAULT_SCENE, MODELS_DIR
 
 __all__ = [
     "CAR_XML",
@@ -37,9 +38,6 @@ __all__ = [
     "add_car",
 ]
 
-MODELS_DIR = Path(__file__).resolve().parent.parent / "models" / "xml"
-DEFAULT_SCENE = MODELS_DIR / "scene.xml"
-CAR_XML = MODELS_DIR / "car.xml"  # one car, no world: placed by <attach> or add_car
 
 _OBJ = {
     "body": mujoco.mjtObj.mjOBJ_BODY,

@@ -29,7 +29,7 @@ from enum import IntEnum
 import numpy as np
 
 from cdf_mj.config import ScenarioConfig
-from cdf_mj.geometry import Polyline
+from cdf_mj.model.geometry import Polyline
 
 __all__ = ["Mode", "Intent", "DriverModel", "obstacle_control", "update_belief",
            "ego_control", "pure_pursuit", "bicycle_step"]
