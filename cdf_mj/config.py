@@ -160,7 +160,7 @@ class ScenarioConfig:
 
 @dataclass(frozen=True)
 class CDFConfig:
-    """Parameters of the CDF particle filter and planner (tuned on seeds 0-999 only).
+    """Parameters of the CDF particle filter and planner (chosen on seeds 0-199 only).
 
     ``likelihood_std`` gives a diagonal Sigma; ``likelihood_cov`` (4x4) overrides it.
     Units follow the pose [x m, y m, theta rad, v m/s].

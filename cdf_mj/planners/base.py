@@ -77,7 +77,7 @@ class ReactivePlanner(Planner):
 class CDFPlanner(Planner):
     """The Cognitive Driving Framework: brake when P(cutoff) >= tau.
 
-    Its prediction for the episode (DESIGN.md): ``Cutoff`` if it braked, else its most
+    Its prediction for the episode (README, "Planners"): ``Cutoff`` if it braked, else its most
     probable intent at the end (left -> ``Yield``, right -> ``Right``). ``summary()``
     holds the prediction, the decision time and the posterior history.
     """
