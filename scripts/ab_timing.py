@@ -29,19 +29,25 @@ import sys
 from pathlib import Path
 
 # Runs inside the child interpreter, importing cdf_mj from the checkout on PYTHONPATH.
-# Only APIs that every version since the filter benchmark has (run_episode, ParticleFilter).
+# Only APIs that every version since the layer subpackages has (run_episode,
+# ParticleFilter): a filter is built from the scene's layout, or from the scene itself
+# before Scene.layout() existed.
 _CHILD = r"""
 import json, statistics, time
 import numpy as np
 import cdf_mj
 from cdf_mj.config import CDFConfig, ScenarioConfig
-from cdf_mj.scenario.episode import run_episode
 from cdf_mj.inference.particle_filter import ParticleFilter
+from cdf_mj.scenario.episode import run_episode
 from cdf_mj.sim.scene import Scene
 
 scene, cfg = Scene.load(), ScenarioConfig()
 poses = np.array(run_episode(cfg, 1, "constant", scene, trace=True).trace["poses"])
-pf = ParticleFilter.from_scene(scene, cfg, CDFConfig(n_particles=1000), np.random.default_rng(0))
+args = (cfg, CDFConfig(n_particles=1000), np.random.default_rng(0))
+if hasattr(scene, "layout"):
+    pf = ParticleFilter.from_layout(scene.layout(), *args)
+else:
+    pf = ParticleFilter.from_scene(scene, *args)
 ticks = []
 for rep in range(6):
     pf.reset(poses[0])

@@ -13,9 +13,10 @@ import argparse
 import sys
 import time
 
+from cdf_mj.analysis.metrics import scenario_summary
+from cdf_mj.analysis.tables import format_scenario_summary
 from cdf_mj.cli import add_scenario_arguments, config_from_args
 from cdf_mj.experiments.experiment import run_many
-from cdf_mj.analysis.metrics import format_scenario_summary, scenario_summary
 
 
 def _seed_range(text: str) -> range:

@@ -29,10 +29,9 @@ def cautious_policy(obs: np.ndarray, lane_y: float, brake_at: float = 0.5) -> np
     """[acceleration m/s^2, steering rad] from the observation (pose + posterior)."""
     _, y, theta, v = obs[:4]
     p_cutoff = obs[10]
-    if p_cutoff >= brake_at:
-        accel = -4.877  # the car's maximum braking (the action is clipped to the range anyway)
-    else:
-        accel = 1.0 * (13.4 - v)
+    # Brake at the car's maximum rate (the action is clipped to the range anyway), else hold
+    # the lane's speed.
+    accel = -4.877 if p_cutoff >= brake_at else 1.0 * (13.4 - v)
     steer = -0.05 * (y - lane_y) - 0.8 * math.remainder(theta, 2 * math.pi)
     return np.array([accel, steer], dtype=np.float32)
 
@@ -52,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     env = gym.make(cdf_mj.ENV_ID, render_mode="rgb_array", scene=args.scene,
                    posterior_in_observation=True, camera=args.camera, width=args.width,
                    height=args.height)
-    lane_y = float(env.unwrapped.scene.ego_lane.center[1])
+    lane_y = float(env.unwrapped.scene.layout().ego_lane.center[1])
     obs, info = env.reset(seed=args.seed)
     frames = [env.render()]
     total, done = 0.0, False

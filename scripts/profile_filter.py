@@ -29,18 +29,19 @@ import sys
 import numpy as np
 
 from cdf_mj.config import CDFConfig, ScenarioConfig
-from cdf_mj.scenario.episode import run_episode
 from cdf_mj.inference.particle_filter import ParticleFilter
+from cdf_mj.scenario.episode import run_episode
 from cdf_mj.sim.scene import Scene
 
 # (module file, function) rows to report, in the order of a tick.
+PF = "particle_filter.py"
 ROWS = [
-    ("inference.py", "predict"), ("inference.py", "look"), ("occlusion.py", "visible"),
-    ("inference.py", "believe"), ("inference.py", "act"), ("driver.py", "obstacle_control"),
+    (PF, "predict"), (PF, "look"), ("occlusion.py", "visible"),
+    (PF, "believe"), (PF, "act"), ("driver.py", "obstacle_control"),
     ("driver.py", "_project_by_intent"), ("driver.py", "pure_pursuit"), ("geometry.py", "point_at"),
-    ("driver.py", "road_clear"), ("inference.py", "move"), ("inference.py", "update"),
-    ("inference.py", "weigh"), ("inference.py", "posterior"), ("inference.py", "cutoff_probability"),
-    ("inference.py", "resample"), ("resampling.py", "stratified_resample"), ("geometry.py", "project"),
+    ("driver.py", "road_clear"), (PF, "move"), (PF, "update"),
+    (PF, "weigh"), (PF, "posterior"), (PF, "cutoff_probability"),
+    (PF, "resample"), ("resampling.py", "stratified_resample"), ("geometry.py", "project"),
 ]
 
 
@@ -58,7 +59,8 @@ def main(argv: list[str] | None = None) -> int:
 
     scene, cfg = Scene.load(), ScenarioConfig()
     poses = np.array(run_episode(cfg, 1, "constant", scene, trace=True).trace["poses"])
-    pf = ParticleFilter.from_scene(scene, cfg, CDFConfig(n_particles=args.particles), np.random.default_rng(0))
+    pf = ParticleFilter.from_layout(scene.layout(), cfg, CDFConfig(n_particles=args.particles),
+                                    np.random.default_rng(0))
 
     def replay() -> None:
         for _ in range(args.replays):
@@ -79,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
         key = (path.rsplit("/", 1)[-1], name)
         calls, total = cum.get(key, (0, 0.0))
         cum[key] = (calls + ncalls, total + ct)
-    tick = cum[("inference.py", "predict")][1] + cum[("inference.py", "update")][1]
+    tick = cum[(PF, "predict")][1] + cum[(PF, "update")][1]
     print(f"N = {args.particles}, {ticks} ticks; shares of predict + update (cumulative, nested rows "
           "overlap their parents)\n")
     print("| function | share of a tick | calls per tick |\n|---|---|---|")

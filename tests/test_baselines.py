@@ -14,6 +14,11 @@ import math
 import numpy as np
 import pytest
 
+from cdf_mj.analysis.metrics import brier_over_time, brier_score, planner_metrics
+from cdf_mj.analysis.tables import paired_table, planner_table
+from cdf_mj.config import ScenarioConfig
+from cdf_mj.model.geometry import box_corners
+from cdf_mj.planners import PLANNERS, PlannerInput, make_planner
 from cdf_mj.planners.baselines import (
     CVConfig,
     CVPlanner,
@@ -22,11 +27,7 @@ from cdf_mj.planners.baselines import (
     boxes_overlap,
     route_heading,
 )
-from cdf_mj.config import ScenarioConfig
 from cdf_mj.scenario.episode import run_episode
-from cdf_mj.model.geometry import box_corners
-from cdf_mj.analysis.metrics import brier_over_time, brier_score, paired_table, planner_metrics, planner_table
-from cdf_mj.planners.base import PLANNERS, PlannerInput, make_planner
 
 
 def _situation(intent: str, offset: float) -> ScenarioConfig:
@@ -61,7 +62,7 @@ def test_cv_does_not_brake_for_a_car_leaving_in_the_far_lane(scene):
     """A right-turner past its turn, westbound in the far lane, passing the eastbound ego."""
     cfg = ScenarioConfig()
     p = CVPlanner()
-    p.reset(scene, cfg, np.random.default_rng(0))
+    p.reset(scene.layout(), cfg, np.random.default_rng(0))
     for k in range(30):
         t = 0.1 * k
         poses = np.array([[-40.0 + 13.4 * t, -1.85, 0.0, 13.4], [-8.0 - 6.0 * t, 1.85, math.pi, 6.0]])
@@ -73,8 +74,8 @@ def test_imm_mode_probabilities_sum_to_one_and_find_the_intent(scene):
         cfg = _situation(intent, offset)
         trace = run_episode(cfg, seed=3, planner="constant", scene=scene, label=False, trace=True).trace
         p = IMMPlanner()
-        p.reset(scene, cfg, np.random.default_rng(0))
-        for t, poses, in zip(trace["t"], trace["poses"]):
+        p.reset(scene.layout(), cfg, np.random.default_rng(0))
+        for t, poses, in zip(trace["t"], trace["poses"], strict=True):
             p.brake(PlannerInput(t=t, poses=np.array(poses), obstacle_in_lane=False))
             mu = p.mode_probabilities
             assert mu.shape == (2,)
@@ -112,7 +113,8 @@ def test_boxes_overlap_and_route_heading(scene):
                     np.array([1.0, 0.5]))
     assert boxes_overlap(a, b).tolist() == [True, False, False]
     # The left route starts southbound (-pi/2) and ends eastbound (0).
-    th = route_heading(scene.route_left, np.array([0.0, scene.route_left.length]))
+    left = scene.layout().route_left
+    th = route_heading(left, np.array([0.0, left.length]))
     assert th[0] == pytest.approx(-math.pi / 2, abs=1e-6) and th[1] == pytest.approx(0.0, abs=1e-6)
 
 
@@ -127,7 +129,7 @@ def _rec(planner, intent, label, first_seen, p_left, p_seen, brake=None, collisi
 def test_brier_scores_against_intent_and_first_seen():
     assert brier_score([1.0, 0.0], [1, 0]) == 0.0
     assert brier_score([0.5, 0.5], [1, 0]) == 0.25
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="probabilities"):
         brier_score([1.5], [1])
     recs = [_rec("cdf", "left", "Cutoff", 0.1, [0.75, 1.0, 1.0], [0.0, 0.0, 1.0]),
             _rec("cdf", "right", "Right", None, [0.75, 0.5, 0.0], [0.5, 0.0, 0.0]),

@@ -6,10 +6,9 @@ import numpy as np
 import pytest
 
 from cdf_mj.config import ScenarioConfig
-from cdf_mj.model.driver import (DriverModel, Intent, Mode, obstacle_control, road_clear,
-                           update_belief)
+from cdf_mj.model.driver import DriverModel, Intent, Mode, obstacle_control, road_clear, update_belief
+from cdf_mj.records import Label
 from cdf_mj.scenario.episode import run_episode
-from cdf_mj.records import Labels
 
 
 def test_routes_are_followed_into_their_lanes(scene):
@@ -36,7 +35,7 @@ def test_obstacle_yields_when_it_sees_the_ego_in_time(scene):
     rec = run_episode(cfg, seed=3, planner="constant", scene=scene, trace=True)
     assert rec.first_seen_time == 0.0
     assert rec.yielded
-    assert rec.label == Labels.YIELD and not rec.collision
+    assert rec.label == Label.YIELD and not rec.collision
     modes = rec.trace["mode"]
     assert Mode.COMMITTED not in modes[:20]  # still waiting while the ego approaches
 
@@ -47,12 +46,12 @@ def test_obstacle_cuts_off_when_it_never_sees_the_ego(scene):
         rec = run_episode(cfg, seed=seed, planner="constant", scene=scene)
         assert rec.first_seen_time is None and not rec.yielded
         assert rec.entered_lane_time is not None
-        assert rec.label == Labels.CUTOFF and rec.collision_with == "obstacle"
+        assert rec.label == Label.CUTOFF and rec.collision_with == "obstacle"
 
 
 def test_vectorised_controller_equals_one_at_a_time(scene):
     """The same function drives one obstacle and N particles: rows are independent."""
-    model = DriverModel.from_scene(scene, ScenarioConfig())
+    model = DriverModel.from_layout(scene.layout(), ScenarioConfig())
     rng = np.random.default_rng(0)
     n = 64
     pose = np.column_stack([rng.uniform(-4, 2, n), rng.uniform(-2, 8.5, n),
@@ -72,8 +71,8 @@ def test_vectorised_controller_equals_one_at_a_time(scene):
 
 
 def test_mode_transitions(scene):
-    model = DriverModel.from_scene(scene, ScenarioConfig())
-    start = scene.obstacle_start[None]
+    model = DriverModel.from_layout(scene.layout(), ScenarioConfig())
+    start = scene.layout().obstacle_start[None]
     near_ego = np.array([[-30.0, -1.85, 0.0, 13.4]])  # ~2.4 s from the conflict point
     left, right = np.array([Intent.LEFT]), np.array([Intent.RIGHT])
     waiting = np.array([Mode.WAITING])
@@ -95,12 +94,12 @@ def test_mode_transitions(scene):
 
 
 def test_belief_update_takes_observation_or_dead_reckons():
-    dt, l = 0.1, 2.7
+    dt, wheelbase = 0.1, 2.7
     belief = np.array([[0.0, 0.0, 0.0, 10.0], [5.0, 1.0, np.pi / 2, 2.0], [0.0, 0.0, 0.0, 0.0]])
     has = np.array([True, True, False])
     observed = np.array([False, True, False])
     obs = np.array([[9.0, 9.0, 9.0, 9.0]] * 3)
-    new, new_has = update_belief(belief, has, observed, obs, dt, l)
+    new, new_has = update_belief(belief, has, observed, obs, dt, wheelbase)
     np.testing.assert_allclose(new[0], [1.0, 0.0, 0.0, 10.0])  # carried forward v * dt
     np.testing.assert_allclose(new[1], obs[1])  # replaced
     np.testing.assert_allclose(new[2], belief[2])  # still nothing

@@ -14,12 +14,13 @@ import numpy as np
 import pytest
 
 gym = pytest.importorskip("gymnasium")
-from gymnasium.utils.env_checker import check_env
+from gymnasium.utils.env_checker import check_env  # noqa: E402  (after the skip without Gymnasium)
 
-import cdf_mj
-from cdf_mj.model.driver import ego_control
-from cdf_mj.scenario.episode import run_episode
-from cdf_mj.records import Labels
+import cdf_mj  # noqa: E402
+from cdf_mj.extras import install_hint  # noqa: E402
+from cdf_mj.model.driver import ego_control  # noqa: E402
+from cdf_mj.records import Label  # noqa: E402
+from cdf_mj.scenario.episode import run_episode  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 ORIGINAL_MUJOCO_GL = os.environ.get("MUJOCO_GL")  # the user's; render.gl_backend may set it later
@@ -48,7 +49,7 @@ def test_check_env_physical_actions_only_the_normalisation_hint():
 
 def test_spaces_come_from_the_model():
     env = gym.make(cdf_mj.ENV_ID, label=False).unwrapped
-    ego = env.scene.ego
+    ego = env.scene.layout().ego
     np.testing.assert_allclose(env.action_space.low, [ego.accel_range[0], ego.steer_range[0]], rtol=1e-6)
     np.testing.assert_allclose(env.action_space.high, [ego.accel_range[1], ego.steer_range[1]], rtol=1e-6)
     assert env.observation_space.shape == (8,)
@@ -76,8 +77,8 @@ def test_reset_seed_is_reproducible_and_is_run_episodes_world(scene):
     assert info_a == info_b
     rec = run_episode(seed=4, planner="constant", scene=scene)
     assert info_a["label"] == rec.label and info_a["intent"] == rec.intent
-    np.testing.assert_allclose(a[0][:2], [env.unwrapped.scene.ego_start[0] + rec.ego_start_offset,
-                                          env.unwrapped.scene.ego_start[1]])
+    np.testing.assert_allclose(a[0][:2], [env.unwrapped.scene.layout().ego_start[0] + rec.ego_start_offset,
+                                          env.unwrapped.scene.layout().ego_start[1]])
 
 
 @pytest.mark.parametrize("planner", ["constant", "cdf"])
@@ -85,7 +86,7 @@ def test_env_with_the_planners_policy_replays_run_episode(scene, planner):
     """One implementation of the world: driving the env as the planner would gives
     run_episode's record (seed 1 is a cut-off)."""
     rec = run_episode(seed=1, planner=planner, scene=scene)
-    assert rec.label == Labels.CUTOFF
+    assert rec.label == Label.CUTOFF
     env = gym.make(cdf_mj.ENV_ID, scene=scene).unwrapped
     obs, info = env.reset(seed=1)
     brake_time, done, ret = None, False, 0.0
@@ -93,7 +94,7 @@ def test_env_with_the_planners_policy_replays_run_episode(scene, planner):
         brake = planner == "cdf" and info["brake"]
         if brake and brake_time is None:
             brake_time = info["t"]
-        action = ego_control(env.world.driver, scene.ego, obs[:4], brake)
+        action = ego_control(env.world.driver, env.world.layout.ego, obs[:4], brake)
         obs, reward, terminated, truncated, info = env.step(action)
         ret += reward
         done = terminated or truncated
@@ -122,7 +123,7 @@ def test_out_of_range_actions_are_clipped_and_bad_ones_refused(scene):
     step = env.world.step
     env.world.step = lambda controls: applied.append(controls.copy()) or step(controls)
     env.step(np.array([-100.0, 0.0]))  # clipped to the model's own braking limit, not its float32 copy
-    assert applied[0][0] == scene.ego.accel_range[0] == -4.877
+    assert applied[0][0] == scene.layout().ego.accel_range[0] == -4.877
 
 
 def test_a_scene_object_keeps_its_names_and_frames_follow_dt(scene):
@@ -135,7 +136,7 @@ def test_a_scene_object_keeps_its_names_and_frames_follow_dt(scene):
 def test_right_turner_episode_ends_when_the_ego_is_past(scene):
     env = gym.make(cdf_mj.ENV_ID, scene=scene, run_filter=False).unwrapped
     _obs, info = env.reset(seed=0)
-    assert info["label"] == Labels.RIGHT and info["posterior"] is None
+    assert info["label"] == Label.RIGHT and info["posterior"] is None
     ret, done, steps = 0.0, False, 0
     while not done:
         _, r, terminated, truncated, info = env.step(np.zeros(2))
@@ -237,4 +238,4 @@ def test_without_gymnasium_import_works_and_the_env_names_the_extra():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          timeout=60, check=False)
     assert out.returncode == 0, out.stderr[-2000:]
-    assert out.stdout.strip() == "cdf_mj.envs.t_intersection needs Gymnasium: pip install 'cdf-mj[gym]'"
+    assert out.stdout.strip() == f"the environment cdf_mj/TIntersection-v0 needs gymnasium: {install_hint('gym')}"

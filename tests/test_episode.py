@@ -8,11 +8,12 @@ import math
 import numpy as np
 import pytest
 
-from cdf_mj.config import ScenarioConfig
-from cdf_mj.scenario.episode import NonFiniteStateError, run_episode
-from cdf_mj.records import Labels
 from cdf_mj.analysis.metrics import scenario_summary, wilson_interval
-from cdf_mj.planners.base import Planner, make_planner
+from cdf_mj.config import ScenarioConfig
+from cdf_mj.planners import Planner, make_planner
+from cdf_mj.records import Label
+from cdf_mj.scenario.episode import run_episode
+from cdf_mj.scenario.world import NonFiniteStateError
 
 
 def test_same_seed_same_record(scene):
@@ -27,14 +28,14 @@ def test_record_is_json_serialisable_and_consistent(scene):
     rec = run_episode(seed=5, planner="reactive", scene=scene).to_dict()
     back = json.loads(json.dumps(rec))
     assert back["seed"] == 5 and back["planner"] == "reactive"
-    assert back["label"] in (Labels.CUTOFF, Labels.YIELD, Labels.RIGHT)
+    assert back["label"] in (Label.CUTOFF, Label.YIELD, Label.RIGHT)
     assert back["min_gap"] >= 0.0 and back["end_time"] > 0.0
 
 
 def _first_cutoff(scene, planner):
     for seed in range(40):
         rec = run_episode(seed=seed, planner=planner, scene=scene)
-        if rec.label == Labels.CUTOFF:
+        if rec.label == Label.CUTOFF:
             return rec
     raise AssertionError("no Cutoff episode in seeds 0-39")
 
@@ -67,11 +68,12 @@ def test_braking_reduces_progress(scene):
 
 
 class _Corrupting(Planner):
-    """Stands for a diverging user model: writes NaN into the ego's state at t = 1 s."""
+    """Stands for a diverging user model: writes NaN into the ego's state at t = 1 s. It
+    holds the scene itself: planners get only the static layout."""
 
     name = "corrupting"
 
-    def reset(self, scene, config, rng):
+    def __init__(self, scene):
         self.scene = scene
 
     def brake(self, obs):
@@ -82,10 +84,10 @@ class _Corrupting(Planner):
 
 def test_nan_pose_raises_a_clear_error(scene):
     with pytest.raises(NonFiniteStateError, match="non-finite system pose"):
-        run_episode(seed=0, planner=_Corrupting(), scene=scene, label=False)
+        run_episode(seed=0, planner=_Corrupting(scene), scene=scene, label=False)
 
 
-@pytest.mark.parametrize("field, value, fragment", [
+@pytest.mark.parametrize(("field", "value", "fragment"), [
     ("beta", 1.5, "in [0, 1]"),
     ("beta", float("nan"), "in [0, 1]"),
     ("ego_speed", -1.0, "> 0"),
@@ -119,18 +121,18 @@ def test_wilson_interval_is_the_score_interval():
         for p in (lo, hi):  # the end points solve |k/n - p| = z sqrt(p (1 - p) / n)
             if 0.0 < p < 1.0:
                 assert abs(k / n - p) == pytest.approx(z * math.sqrt(p * (1 - p) / n), rel=1e-9)
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="need 0 <= k <= n"):
         wilson_interval(5, 3)
 
 
 def test_scenario_summary_counts(scene):
     recs = [run_episode(seed=s, planner="reactive", scene=scene) for s in range(12)]
     summary = scenario_summary(recs)
-    assert sum(summary[lab].k for lab in (Labels.CUTOFF, Labels.YIELD, Labels.RIGHT)) == 12
-    cut = [r for r in recs if r.label == Labels.CUTOFF]
+    assert sum(summary[lab].k for lab in (Label.CUTOFF, Label.YIELD, Label.RIGHT)) == 12
+    cut = [r for r in recs if r.label == Label.CUTOFF]
     assert summary["avoided"].n == len(cut)
     assert summary["avoided"].k == sum(r.collision_with != "obstacle" for r in cut)
-    assert np.isclose(summary[Labels.RIGHT].value, np.mean([r.intent == "right" for r in recs]))
+    assert np.isclose(summary[Label.RIGHT].value, np.mean([r.intent == "right" for r in recs]))
 
 
 def test_a_run_that_never_brakes_is_the_counterfactual(scene):

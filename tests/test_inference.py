@@ -19,11 +19,11 @@ import numpy as np
 import pytest
 
 from cdf_mj.config import CDFConfig, ScenarioConfig
-from cdf_mj.model.driver import Mode
-from cdf_mj.scenario.episode import run_episode
-from cdf_mj.records import Labels
 from cdf_mj.inference.particle_filter import ParticleFilter
-from cdf_mj.planners.base import CDFPlanner
+from cdf_mj.model.driver import Mode
+from cdf_mj.planners import CDFPlanner
+from cdf_mj.records import Label
+from cdf_mj.scenario.episode import run_episode
 
 N = 300
 SEEDS = range(50)
@@ -51,12 +51,12 @@ def constant_traces(scene):
     for seed in (0, 1, 3):
         rec = run_episode(ScenarioConfig(), seed, "constant", scene, label=True, trace=True)
         out[seed] = (np.array(rec.trace["poses"]), rec.intent, rec.label)
-    assert [out[s][2] for s in (0, 1, 3)] == [Labels.RIGHT, Labels.CUTOFF, Labels.YIELD]
+    assert [out[s][2] for s in (0, 1, 3)] == [Label.RIGHT, Label.CUTOFF, Label.YIELD]
     return out
 
 
 def _filter(scene, cdf: CDFConfig | None = None, seed: int = 0) -> ParticleFilter:
-    return ParticleFilter.from_scene(scene, ScenarioConfig(), cdf or _cdf(), np.random.default_rng(seed))
+    return ParticleFilter.from_layout(scene.layout(), ScenarioConfig(), cdf or _cdf(), np.random.default_rng(seed))
 
 
 def _p_true(rec) -> np.ndarray:
@@ -81,7 +81,7 @@ def test_filter_finds_the_true_intent(cdf_records):
     for t in (2.0, 1.0):
         hits = [bool(_p_true(r)[_tick(r, t)] > 0.9) for r in cdf_records]
         rate = sum(hits) / len(hits)
-        missed = [r.seed for r, ok in zip(cdf_records, hits) if not ok]
+        missed = [r.seed for r, ok in zip(cdf_records, hits, strict=True) if not ok]
         assert rate >= 0.9, f"P(true intent) > 0.9 at t={t} s in only {rate:.0%} of seeds; missed {missed}"
 
 
@@ -160,7 +160,7 @@ def test_same_seed_same_posterior_history(scene):
 
 
 # --------------------------------------------------------------------------- bad input
-@pytest.mark.parametrize("column, value", [(0, np.nan), (3, np.inf), (2, -np.inf)])
+@pytest.mark.parametrize(("column", "value"), [(0, np.nan), (3, np.inf), (2, -np.inf)])
 def test_nonfinite_measurement_is_skipped_and_counted(scene, constant_traces, column, value):
     poses = constant_traces[1][0]
     pf = _filter(scene, _cdf(resample_ess_fraction=0.0))  # never resamples: uneven weights
@@ -229,7 +229,7 @@ def test_vanishing_likelihoods_reinitialise_at_the_measurement(scene, constant_t
     assert post.p_left > 0.9
 
 
-@pytest.mark.parametrize("field, changes", [
+@pytest.mark.parametrize(("field", "changes"), [
     ("n_particles", {"n_particles": 0}),
     ("tau", {"tau": 0.0}),
     ("tau", {"tau": 1.5}),
@@ -250,8 +250,8 @@ def test_cdf_planner_brakes_before_a_cutoff_and_not_for_a_right_turner(cdf_recor
     enters the ego lane and predicts "Cutoff"; every Right episode: it never brakes and
     predicts "Right". Measured with N = 300: 20/20 and 18/18 (80/80 and 57/57 on seeds
     0-199, 99/99 and 43/43 on 1000-1199); it decides at 0.9-1.0 s, entries at 1.9-2.0 s."""
-    cutoffs = [r for r in cdf_records if r.label == Labels.CUTOFF]
-    rights = [r for r in cdf_records if r.label == Labels.RIGHT]
+    cutoffs = [r for r in cdf_records if r.label == Label.CUTOFF]
+    rights = [r for r in cdf_records if r.label == Label.RIGHT]
     assert len(cutoffs) >= 5 and len(rights) >= 5
     for r in cutoffs:
         info = r.planner_info
@@ -270,7 +270,8 @@ def test_cdf_planner_brakes_before_a_cutoff_and_not_for_a_right_turner(cdf_recor
 
 
 def test_weights_are_read_only_and_follow_new_log_weights(scene):
-    pf = ParticleFilter.from_scene(scene, ScenarioConfig(), CDFConfig(n_particles=4), np.random.default_rng(0))
+    pf = ParticleFilter.from_layout(scene.layout(), ScenarioConfig(), CDFConfig(n_particles=4),
+                                    np.random.default_rng(0))
     pf.reset(np.array([[-40.0, -1.85, 0.0, 13.4], [-1.85, 8.35, -np.pi / 2, 0.0]]))
     w = pf.weights
     assert pf.weights is w and not w.flags.writeable  # computed once, shared, not editable

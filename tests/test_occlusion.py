@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 import shapely
 
-from cdf_mj.sim import visibility
 from cdf_mj.model.geometry import box_corners
-from cdf_mj.model.occlusion import Occluders, ego_visible, segments_hit_rectangle
-from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
+from cdf_mj.model.occlusion import Occluders, ego_visible, segments_hit_rectangle, sight_targets
+from cdf_mj.sim import visibility
+from cdf_mj.sim.scene import DEFAULT_SCENE, Scene, SceneError
 
 EGO_WEST = np.array([-30.0, -1.85, 0.0, 13.4])
 DEEP = np.array([-1.85, 16.0, -np.pi / 2, 0.0])  # far back in the side road
@@ -21,9 +21,13 @@ DEEP = np.array([-1.85, 16.0, -np.pi / 2, 0.0])  # far back in the side road
 
 @pytest.fixture(scope="module")
 def occ(scene) -> Occluders:
-    scene.reset(ego=scene.ego_start, obstacle=scene.obstacle_start)
-    scene.sync()
-    return Occluders.from_scene(scene)
+    return scene.layout().occluders
+
+
+def _seen(scene, obstacle_poses, ego_pose) -> np.ndarray:
+    """:func:`ego_visible` with the scene layout's buildings and cars."""
+    layout = scene.layout()
+    return ego_visible(layout.occluders, layout.ego, layout.obstacle, obstacle_poses, ego_pose)
 
 
 def _random_cases(rng, n):
@@ -36,7 +40,7 @@ def _random_cases(rng, n):
 
 def _mujoco_answers(scene, obstacle, ego):
     out = np.empty(len(obstacle), dtype=bool)
-    for i, (o, e) in enumerate(zip(obstacle, ego)):
+    for i, (o, e) in enumerate(zip(obstacle, ego, strict=True)):
         scene.reset(ego=e, obstacle=o)
         scene.sync()
         out[i] = visibility.ego_visible(scene)
@@ -50,7 +54,7 @@ def test_reads_the_buildings(scene, occ):
     np.testing.assert_allclose(occ.half[i], [16.75, 11.25])
     assert occ.heading[i] == pytest.approx(0.0, abs=1e-12)
     assert (occ.bottom[i], occ.top[i]) == pytest.approx((0.0, 12.0))
-    assert np.all(occ.top > scene.obstacle.eye_offset[2])  # all occlude at eye height
+    assert np.all(occ.top > scene.layout().obstacle.eye_offset[2])  # all occlude at eye height
 
 
 def test_agrees_with_mujoco_rays(scene, occ):
@@ -60,8 +64,8 @@ def test_agrees_with_mujoco_rays(scene, occ):
     rng = np.random.default_rng(12345)
     obstacle, ego = _random_cases(rng, 300)
     expected = _mujoco_answers(scene, obstacle, ego)
-    batch = ego_visible(occ, scene, obstacle, ego)  # (N, 4) ego poses: per-particle targets
-    single = np.array([ego_visible(occ, scene, o, e)[0] for o, e in zip(obstacle, ego)])
+    batch = _seen(scene, obstacle, ego)  # (N, 4) ego poses: per-particle targets
+    single = np.array([_seen(scene, o, e)[0] for o, e in zip(obstacle, ego, strict=True)])
     assert batch.shape == (300,) and batch.dtype == bool
     assert 0.1 < expected.mean() < 0.9  # both outcomes well represented
     assert np.mean(batch == expected) >= 0.99
@@ -69,32 +73,33 @@ def test_agrees_with_mujoco_rays(scene, occ):
 
 
 def test_occluded_and_clear_cases(scene, occ):
-    assert not ego_visible(occ, scene, DEEP, EGO_WEST)[0]
-    assert ego_visible(occ, scene, scene.obstacle_start, EGO_WEST)[0]
+    assert not _seen(scene, DEEP, EGO_WEST)[0]
+    assert _seen(scene, scene.layout().obstacle_start, EGO_WEST)[0]
     # Same answers as MuJoCo.
-    assert list(_mujoco_answers(scene, np.stack([DEEP, scene.obstacle_start]),
+    assert list(_mujoco_answers(scene, np.stack([DEEP, scene.layout().obstacle_start]),
                                 np.stack([EGO_WEST, EGO_WEST]))) == [False, True]
 
 
 def test_shapes_and_broadcasting(scene, occ):
     rng = np.random.default_rng(1)
     obstacle, _ = _random_cases(rng, 1000)
-    shared = ego_visible(occ, scene, obstacle, EGO_WEST)
+    shared = _seen(scene, obstacle, EGO_WEST)
     assert shared.shape == (1000,) and shared.dtype == bool
     assert shared.any() and not shared.all()
     # Shared targets (K, 2) == the same targets per eye (N, K, 2); (K, 3) accepted.
-    eyes = scene.obstacle.eye(obstacle)
-    corners = scene.ego.footprint(EGO_WEST)
-    targets = np.vstack([corners, corners.mean(axis=0)])
+    eyes = scene.layout().obstacle.eye(obstacle)
+    targets = sight_targets(scene.layout().ego, EGO_WEST)
+    corners = scene.layout().ego.footprint(EGO_WEST)
+    np.testing.assert_array_equal(targets, np.vstack([corners, corners.mean(axis=0)]))
     assert np.array_equal(occ.visible(eyes, targets), shared)
     assert np.array_equal(occ.visible(eyes, np.broadcast_to(targets, (1000, 5, 2))), shared)
     assert np.array_equal(occ.visible(eyes, np.column_stack([targets, np.ones(5)])), shared)
     # (N, 2) eyes: all boxes count; the same here, as every building is taller than the eye.
     assert np.array_equal(occ.visible(eyes[:, :2], targets), shared)
     # N = 1, one target point, and a single pose.
-    one = ego_visible(occ, scene, obstacle[:1], EGO_WEST)
+    one = _seen(scene, obstacle[:1], EGO_WEST)
     assert one.shape == (1,) and one[0] == shared[0]
-    assert ego_visible(occ, scene, obstacle[0], EGO_WEST).shape == (1,)
+    assert _seen(scene, obstacle[0], EGO_WEST).shape == (1,)
     assert occ.visible(eyes[:1], targets[:1]).shape == (1,)
     # Degenerate sizes.
     assert occ.visible(eyes[:0], targets).shape == (0,)
@@ -164,14 +169,14 @@ def _spec_scene(edit) -> Scene:
 
 def test_rotated_building_in_a_body_agrees_with_mujoco():
     """A box rotated 45 degrees inside a moved body, in the side road north of the
-    junction: from_scene places it from geom_xpos/xmat and the answers match rays."""
+    junction: the layout places it from geom_xpos/xmat and the answers match rays."""
     def add(spec):
         body = spec.worldbody.add_body(name="block", pos=[0.0, 40.0, 0.0],
                                        quat=[np.cos(np.pi / 8), 0.0, 0.0, np.sin(np.pi / 8)])
         body.add_geom(name="building_rot", type=mujoco.mjtGeom.mjGEOM_BOX, size=[3.0, 1.0, 5.0],
                       pos=[1.0, 0.0, 5.0], group=1)
     scene = _spec_scene(add)
-    occ = Occluders.from_scene(scene)
+    occ = scene.layout().occluders
     i = occ.names.index("building_rot")
     np.testing.assert_allclose(occ.center[i], [np.sqrt(0.5), 40.0 + np.sqrt(0.5)], atol=1e-9)
     assert occ.heading[i] == pytest.approx(np.pi / 4)
@@ -183,20 +188,21 @@ def test_rotated_building_in_a_body_agrees_with_mujoco():
     ego = np.column_stack([rng.uniform(-6, 3, n), rng.uniform(31, 35, n),
                            rng.uniform(-0.3, 0.3, n), np.zeros(n)])
     expected = _mujoco_answers(scene, obstacle, ego)
-    got = ego_visible(occ, scene, obstacle, ego)
+    got = _seen(scene, obstacle, ego)
     assert 0.1 < expected.mean() < 0.9
     assert np.mean(got == expected) >= 0.99
 
 
-@pytest.mark.parametrize("edit, match", [
+@pytest.mark.parametrize(("edit", "match"), [
     (lambda s: setattr(s.geom("building_nw"), "type", mujoco.mjtGeom.mjGEOM_CYLINDER),
      "boxes: 'building_nw' is a cylinder"),
     (lambda s: setattr(s.geom("building_ne"), "quat", [np.cos(0.1), np.sin(0.1), 0.0, 0.0]),
      "upright.*building_ne"),
 ])
 def test_rejects_buildings_that_are_not_upright_boxes(edit, match):
-    with pytest.raises(ValueError, match=match):
-        Occluders.from_scene(_spec_scene(edit))
+    """Such a shape has no rectangular footprint: the scene refuses it when it is built."""
+    with pytest.raises(SceneError, match=match):
+        _spec_scene(edit)
 
 
 def test_fast_enough_for_the_filter(scene, occ):
@@ -204,9 +210,8 @@ def test_fast_enough_for_the_filter(scene, occ):
     (visible() measured ~55 us on the 2-core dev machine)."""
     rng = np.random.default_rng(0)
     obstacle, _ = _random_cases(rng, 1000)
-    eyes = scene.obstacle.eye(obstacle)
-    corners = scene.ego.footprint(EGO_WEST)
-    targets = np.vstack([corners, corners.mean(axis=0)])
+    eyes = scene.layout().obstacle.eye(obstacle)
+    targets = sight_targets(scene.layout().ego, EGO_WEST)
     times = []
     for _ in range(30):
         t0 = time.perf_counter()

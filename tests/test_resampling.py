@@ -11,9 +11,13 @@ from filterpy.monte_carlo import resampling as fp_resampling
 from filterpy.monte_carlo import stratified_resample as fp_stratified
 from filterpy.monte_carlo import systematic_resample as fp_systematic
 
-from cdf_mj.inference.resampling import (effective_sample_size, stratified_indexes_from_uniforms,
-                               stratified_resample, systematic_indexes_from_uniform,
-                               systematic_resample)
+from cdf_mj.inference.resampling import (
+    effective_sample_size,
+    stratified_indexes_from_uniforms,
+    stratified_resample,
+    systematic_indexes_from_uniform,
+    systematic_resample,
+)
 
 
 def _weight_sets(n: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
@@ -35,23 +39,23 @@ def test_stratified_matches_filterpy(n):
     """filterpy draws ``(random(N) + range(N)) / N`` from NumPy's global state: re-seed,
     draw the same uniforms and the indexes agree exactly; so do the systematic ones."""
     rng = np.random.default_rng(n)
-    state = np.random.get_state()
+    state = np.random.get_state()  # noqa: NPY002
     try:
         for name, w in _weight_sets(n, rng).items():
             for seed in range(5):
-                np.random.seed(seed)
+                np.random.seed(seed)  # noqa: NPY002
                 expected = fp_stratified(w)
-                np.random.seed(seed)
-                ours = stratified_indexes_from_uniforms(w, np.random.random(n))
+                np.random.seed(seed)  # noqa: NPY002
+                ours = stratified_indexes_from_uniforms(w, np.random.random(n))  # noqa: NPY002
                 assert np.array_equal(ours, expected), (name, seed)
                 assert np.all(w[ours] > 0)  # zero-weight particles are never kept
-                np.random.seed(seed)
+                np.random.seed(seed)  # noqa: NPY002
                 expected = fp_systematic(w)
-                np.random.seed(seed)
-                assert np.array_equal(systematic_indexes_from_uniform(w, np.random.random()),
+                np.random.seed(seed)  # noqa: NPY002
+                assert np.array_equal(systematic_indexes_from_uniform(w, np.random.random()),  # noqa: NPY002
                                       expected), (name, seed)
     finally:
-        np.random.set_state(state)
+        np.random.set_state(state)  # noqa: NPY002
 
 
 def test_ties_on_slice_boundaries_skip_zero_weights(monkeypatch):
@@ -140,7 +144,7 @@ def test_effective_sample_size():
     assert effective_sample_size(np.array([0.5, 0.5, 0.0, 0.0])) == pytest.approx(2.0)
 
 
-@pytest.mark.parametrize("weights, match", [
+@pytest.mark.parametrize(("weights", "match"), [
     (np.ones((2, 2)), "1-D"),
     (np.array([]), "non-empty"),
     (np.array([0.5, np.nan]), "finite"),

@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 
 from cdf_mj.config import SceneNames
-from cdf_mj.sim.scene import DEFAULT_SCENE, MODELS_DIR, Scene, SceneError, SimulationDivergedError
+from cdf_mj.sim.assets import MODELS_DIR
+from cdf_mj.sim.scene import DEFAULT_SCENE, Scene, SceneError, SimulationDivergedError
 
 NAMES = SceneNames()
 
@@ -45,6 +46,12 @@ SCENES = _full_scenes()
 # tests reset it before use and never change its model; those that do load their own.
 
 
+def _at_start(scene: Scene) -> None:
+    """Reset with both cars on their start sites, at rest."""
+    layout = scene.layout()
+    scene.reset(ego=layout.ego_start, obstacle=layout.obstacle_start)
+
+
 def _warnings(data: mujoco.MjData) -> dict[str, int]:
     n = int(mujoco.mjtWarning.mjNWARNING)
     return {mujoco.mjtWarning(i).name: int(data.warning[i].number)
@@ -61,14 +68,15 @@ def test_default_scene_is_discovered():
 def test_scene_steps_under_random_controls_without_warnings(path: Path, start_speed: float):
     scene = Scene.load(path)
     m, d = scene.model, scene.data
-    ego = scene.ego_start.copy()
+    layout = scene.layout()
+    ego = layout.ego_start.copy()
     ego[3] = start_speed
-    scene.reset(ego=ego, obstacle=scene.obstacle_start)
+    scene.reset(ego=ego, obstacle=layout.obstacle_start)
     lo, hi = m.actuator_ctrlrange[:, 0].copy(), m.actuator_ctrlrange[:, 1].copy()
     limited = m.actuator_ctrllimited.astype(bool)
     lo[~limited] = hi[~limited] = 0.0  # unlimited inputs (tyre dampers, gain 0): leave at 0
     rng = np.random.default_rng(12345)
-    nstep = int(round(2.0 / m.opt.timestep))
+    nstep = round(2.0 / m.opt.timestep)
     for _ in range(nstep):
         d.ctrl[:] = rng.uniform(lo, hi)
         mujoco.mj_step(m, d)
@@ -136,7 +144,7 @@ def test_route_bodies_have_at_least_two_waypoints(scene: Scene, route: str):
     m = scene.model
     body = m.body(getattr(NAMES, route)).id
     assert np.count_nonzero(m.site_bodyid == body) >= 2
-    assert len(getattr(scene, route).points) >= 2
+    assert len(getattr(scene.layout(), route).points) >= 2
 
 
 def _end_heading(points: np.ndarray) -> float:
@@ -145,8 +153,9 @@ def _end_heading(points: np.ndarray) -> float:
 
 
 def test_routes_are_read_in_order(scene: Scene):
-    start = scene.obstacle_start[:2]
-    left, right, ego = scene.route_left.points, scene.route_right.points, scene.route_ego.points
+    layout = scene.layout()
+    start = layout.obstacle_start[:2]
+    left, right, ego = layout.route_left.points, layout.route_right.points, layout.route_ego.points
     # Both obstacle routes start at the obstacle's start pose, heading south.
     for pts in (left, right):
         np.testing.assert_allclose(pts[0], start, atol=0.05)
@@ -155,28 +164,29 @@ def test_routes_are_read_in_order(scene: Scene):
     assert left[-1, 1] == pytest.approx(-1.85, abs=0.05)
     assert left[-1, 0] > 20.0
     assert _end_heading(left) == pytest.approx(0.0, abs=0.05)
-    assert scene.ego_lane.contains(left[-1])
+    assert layout.ego_lane.contains(left[-1])
     # Right turn ends going west in the westbound lane.
     assert right[-1, 1] == pytest.approx(1.85, abs=0.05)
     assert right[-1, 0] < -20.0
     assert abs(math.remainder(_end_heading(right) - math.pi, 2 * math.pi)) < 0.05
-    assert not scene.ego_lane.contains(right[-1])
+    assert not layout.ego_lane.contains(right[-1])
     # The ego's route runs east along its lane.
     assert ego[0, 0] < ego[-1, 0]
     np.testing.assert_allclose(ego[:, 1], -1.85, atol=0.05)
     # Arc length increases monotonically along the left route from the start to the conflict.
-    s_start = scene.route_left.project(start)[0]
-    s_conflict = scene.route_left.project(scene.conflict)[0]
+    s_start = layout.route_left.project(start)[0]
+    s_conflict = layout.route_left.project(layout.conflict)[0]
     assert s_start == pytest.approx(0.0, abs=1e-6) and s_conflict > s_start
 
 
 def test_start_poses(scene: Scene):
-    ex, ey, eth, ev = scene.ego_start
+    layout = scene.layout()
+    ex, ey, eth, ev = layout.ego_start
     assert ey == pytest.approx(-1.85, abs=0.05) and ex < 0
     assert eth == pytest.approx(0.0, abs=1e-6) and ev == 0.0
-    ox, oy, oth, ov = scene.obstacle_start
+    oth, ov = layout.obstacle_start[2:]
     assert oth == pytest.approx(-math.pi / 2, abs=1e-6) and ov == 0.0
-    assert not scene.ego_lane.contains(scene.obstacle_start[:2])
+    assert not layout.ego_lane.contains(layout.obstacle_start[:2])
 
 
 # ------------------------------------------------------------------ broken scenes
@@ -266,7 +276,7 @@ def test_scene_error_is_a_value_error():
 # ------------------------------------------------------------------ contacts
 def _drive_until_contact(scene: Scene, which: str, seconds: float) -> str | None:
     scene.set_controls(which, accel=0.0, steer=0.0)
-    nstep = int(round(seconds / scene.model.opt.timestep))
+    nstep = round(seconds / scene.model.opt.timestep)
     return scene.step(nstep)
 
 
@@ -284,7 +294,7 @@ def test_ego_into_stationary_obstacle_reports_obstacle():
 def test_ego_into_building_reports_building():
     scene = Scene.load()
     # Ego heading south, from the main road into building_sw (face at y = -7.5).
-    scene.reset(ego=np.array([-20.0, 2.0, -math.pi / 2, 10.0]), obstacle=scene.obstacle_start)
+    scene.reset(ego=np.array([-20.0, 2.0, -math.pi / 2, 10.0]), obstacle=scene.layout().obstacle_start)
     assert _drive_until_contact(scene, "ego", 3.0) == "building"
     assert _warnings(scene.data) == {}
 
@@ -300,7 +310,7 @@ def test_obstacle_into_building_is_not_an_ego_contact():
 
 def test_diverged_simulation_is_an_error():
     scene = Scene.load()
-    scene.reset(ego=scene.ego_start, obstacle=scene.obstacle_start)
+    _at_start(scene)
     scene.data.qvel[scene.ego.qvel[2]] = 1e12  # beyond MuJoCo's limit: it warns and resets
     with pytest.raises(SimulationDivergedError) as info:
         scene.step(5)
@@ -308,8 +318,8 @@ def test_diverged_simulation_is_an_error():
 
 
 def test_free_road_gives_no_contact(scene: Scene):
-    scene.reset(ego=scene.ego_start, obstacle=scene.obstacle_start)
-    assert scene.step(int(round(1.0 / scene.model.opt.timestep))) is None
+    _at_start(scene)
+    assert scene.step(round(1.0 / scene.model.opt.timestep)) is None
     assert scene.data.ncon == 0
 
 
@@ -322,7 +332,7 @@ def test_free_road_gives_no_contact(scene: Scene):
 ])
 @pytest.mark.parametrize("which", ["ego", "obstacle"])
 def test_set_pose_round_trip(scene: Scene, which: str, pose: list[float]):
-    scene.reset(ego=scene.ego_start, obstacle=scene.obstacle_start)
+    _at_start(scene)
     car = scene.car(which)
     scene.set_pose(car, np.array(pose))
     got = scene.pose(car)
@@ -349,7 +359,7 @@ def test_reset_places_both_cars_and_poses_shape(scene: Scene):
 
 
 def test_pose_is_consistent_after_stepping(scene: Scene):
-    scene.reset(ego=np.array([-30.0, -1.85, 0.0, 10.0]), obstacle=scene.obstacle_start)
+    scene.reset(ego=np.array([-30.0, -1.85, 0.0, 10.0]), obstacle=scene.layout().obstacle_start)
     scene.step(20)
     x, y, th, v = scene.pose(scene.ego)
     assert x == pytest.approx(-29.0, abs=1e-3) and y == pytest.approx(-1.85, abs=1e-6)
@@ -363,9 +373,9 @@ def test_pose_is_consistent_after_stepping(scene: Scene):
     [math.inf, 0.0, 0.0, 0.0],
 ])
 def test_set_pose_rejects_non_finite(scene: Scene, bad: list[float]):
-    scene.reset(ego=scene.ego_start, obstacle=scene.obstacle_start)
+    _at_start(scene)
     before = scene.data.qpos.copy()
-    with pytest.raises(ValueError):
+    with pytest.raises(ValueError, match="pose of ego is not finite"):
         scene.set_pose(scene.ego, np.array(bad))
     np.testing.assert_array_equal(scene.data.qpos, before)  # nothing written
 
@@ -377,7 +387,7 @@ def test_unknown_car_name(scene: Scene):
 
 # ------------------------------------------------------------------ lanes
 def test_ego_lane_box(scene: Scene):
-    lane = scene.ego_lane
+    lane = scene.layout().ego_lane
     inside = np.array([[0.0, -0.01], [0.0, -1.85], [0.0, -3.69], [-100.0, -1.0], [100.0, -3.0]])
     outside = np.array([[0.0, 0.01], [0.0, 1.85], [0.0, 3.0], [0.0, -3.8], [0.0, 10.0]])
     assert lane.contains(inside).all()
@@ -386,15 +396,16 @@ def test_ego_lane_box(scene: Scene):
 
 
 def test_stop_line_is_north_of_the_main_road(scene: Scene):
-    assert scene.stop_line.contains(np.array([-1.85, 4.85]))
-    assert not scene.stop_line.contains(np.array([1.85, 4.85]))  # not in the northbound lane
+    layout = scene.layout()
+    assert layout.stop_line.contains(np.array([-1.85, 4.85]))
+    assert not layout.stop_line.contains(np.array([1.85, 4.85]))  # not in the northbound lane
     # The obstacle starts north of the stop line; its commit point lies ahead of it on its way.
-    assert scene.obstacle_start[1] > scene.stop_line.center[1]
-    assert scene.commit[1] < scene.obstacle_start[1]
+    assert layout.obstacle_start[1] > layout.stop_line.center[1]
+    assert layout.commit[1] < layout.obstacle_start[1]
 
 
 def test_car_dimensions(scene: Scene):
-    for car in scene.cars.values():
+    for car in (c.geometry for c in scene.cars.values()):
         assert car.wheelbase == pytest.approx(2.7, abs=1e-9)
         np.testing.assert_allclose(car.hull_half, [2.3, 0.9])
         corners = car.footprint(np.array([0.0, 0.0, 0.0, 0.0]))

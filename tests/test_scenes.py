@@ -14,10 +14,12 @@ import pytest
 from cdf_mj.cli import main
 from cdf_mj.config import ScenarioConfig, SceneNames
 from cdf_mj.model.driver import ego_control
+from cdf_mj.records import Label
 from cdf_mj.scenario.episode import World, run_episode
-from cdf_mj.records import Labels
 from cdf_mj.scenario.monitor import CDFMonitor, attach
-from cdf_mj.sim.scene import MODELS_DIR, Scene, SceneError, add_car
+from cdf_mj.sim.assets import MODELS_DIR
+from cdf_mj.sim.scene import Scene, SceneError
+from cdf_mj.sim.spec import add_car
 
 FOURWAY = MODELS_DIR / "scene_fourway.xml"
 
@@ -29,8 +31,8 @@ def fourway() -> Scene:
 
 # ------------------------------------------------------------------ the four-way junction
 def test_fourway_differs_in_geometry(fourway: Scene, scene: Scene):
-    assert fourway.ego_lane.half[1] == pytest.approx(1.6)  # 3.2 m lanes, not 3.7 m
-    assert scene.ego_lane.half[1] == pytest.approx(1.85)
+    assert fourway.layout().ego_lane.half[1] == pytest.approx(1.6)  # 3.2 m lanes, not 3.7 m
+    assert scene.layout().ego_lane.half[1] == pytest.approx(1.85)
     assert len(fourway.buildings) == 5 and len(scene.buildings) == 4
     names = [fourway.model.geom(int(g)).name for g in fourway.buildings]
     assert "building_kiosk" in names
@@ -47,7 +49,7 @@ def test_cdf_brakes_for_a_cutoff_on_the_fourway(fourway: Scene):
         if int(world.intent) != 0:  # right-turners cannot cut off
             continue
         rec = run_episode(cfg, seed=seed, planner="cdf", scene=fourway)
-        if rec.label != Labels.CUTOFF:
+        if rec.label != Label.CUTOFF:
             continue
         cutoffs += 1
         assert rec.planner_info["prediction"] == "Cutoff"
@@ -71,7 +73,7 @@ def test_cli_runs_on_the_fourway(argv, tmp_path, capsys):
     out = capsys.readouterr().out
     if argv[0] == "episode":
         rec = json.loads(out)
-        assert rec["label"] in (Labels.CUTOFF, Labels.YIELD, Labels.RIGHT)
+        assert rec["label"] in (Label.CUTOFF, Label.YIELD, Label.RIGHT)
         assert rec["ego_start_offset"] == run_episode(seed=3, scene=Scene.load(FOURWAY)).ego_start_offset
 
 
@@ -143,7 +145,7 @@ def test_scene_from_scratch_gets_two_cars_and_the_filter():
         world.reset(seed)
         if int(world.intent) == 0 and world.first_seen is None:
             label = run_episode(cfg, seed=seed, planner="constant", scene=world.scene).label
-            if label == Labels.CUTOFF:
+            if label == Label.CUTOFF:
                 break
     else:
         pytest.fail("no cut-off in seeds 0-39 on the scratch scene")
@@ -153,7 +155,7 @@ def test_scene_from_scratch_gets_two_cars_and_the_filter():
     while not world.done:
         d = monitor.step()
         decisions.append(d)
-        world.step(ego_control(world.driver, world.scene.ego, d.poses[0], d.brake))
+        world.step(ego_control(world.driver, world.layout.ego, d.poses[0], d.brake))
     assert all(0.0 <= d.posterior.p_cutoff <= 1.0 for d in decisions)
     assert monitor.brake_time is not None, "the monitor never asked to brake in a cut-off"
     assert world.entered_lane is None or monitor.brake_time < world.entered_lane
@@ -168,7 +170,7 @@ def test_monitor_refuses_an_irregular_call_rate():
     monitor = CDFMonitor(Scene.from_model(model, data, MY_NAMES), rng=1)
     monitor.step()
     mujoco.mj_step(model, data, nstep=5)  # 0.025 s, not dt = 0.1 s
-    with pytest.raises(ValueError, match="every dt=0.1 s"):
+    with pytest.raises(ValueError, match=r"every dt=0\.1 s"):
         monitor.step()
 
 
@@ -256,7 +258,7 @@ def test_data_of_another_model_is_refused(scene: Scene):
         Scene.from_model(scene.model, mujoco.MjData(other))
 
 
-@pytest.mark.parametrize("kwargs, fragment", [
+@pytest.mark.parametrize(("kwargs", "fragment"), [
     ({"ego_prefix": ""}, "ego_prefix must be non-empty"),
     ({"ego_prefix": "car_", "obstacle_prefix": "car_"}, "different prefixes"),
 ])

@@ -7,7 +7,7 @@ Paper, section 2 (rear-axle reference point, wheelbase ``l``), in continuous tim
 
 The reference below integrates these equations on its own (RK4 at 1 ms, no cdf_mj code)
 and the MuJoCo car, driven with the same constant controls from :meth:`Scene.reset`,
-must stay within the tolerances stated here. ``cdf_mj.driver.bicycle_step`` (the
+must stay within the tolerances stated here. ``cdf_mj.model.driver.bicycle_step`` (the
 paper's Euler step, used by the drivers and the particle filter) is checked by hand.
 """
 
@@ -69,7 +69,7 @@ def reference(pose0, accel: float, steer: float, duration: float, wheelbase: flo
         v = speed(t)
         return np.array([v * math.cos(z[2]), v * math.sin(z[2]), v * k_turn])
 
-    n = int(round(duration / REF_DT))
+    n = round(duration / REF_DT)
     out = np.empty((n + 1, 4))
     z = np.array([x0, y0, th0])
     out[0] = (*z, speed(0.0))
@@ -119,12 +119,12 @@ def run_mujoco(scene: Scene, which: str, pose0, accel: float, steer: float,
     car = scene.car(which)
     scene.data.qpos[car.steer_qpos] = steer
     if preset_yaw_rate:
-        scene.data.qvel[car.qvel[2]] = poses[which][3] * math.tan(steer) / car.wheelbase
+        scene.data.qvel[car.qvel[2]] = poses[which][3] * math.tan(steer) / car.geometry.wheelbase
     scene.set_controls(which, accel=accel, steer=steer)
     mujoco.mj_forward(scene.model, scene.data)
-    per_tick = int(round(TICK / scene.model.opt.timestep))
+    per_tick = round(TICK / scene.model.opt.timestep)
     out = [scene.pose(car)]
-    for _ in range(int(round(duration / TICK))):
+    for _ in range(round(duration / TICK)):
         assert scene.step(per_tick) is None, "the car hit something: the test's route is not free"
         out.append(scene.pose(car))
     assert all(w.number == 0 for w in scene.data.warning[: int(mujoco.mjtWarning.mjNWARNING)])
@@ -156,8 +156,8 @@ def test_mujoco_follows_bicycle_equations(scene: Scene, case: str, preset_yaw_ra
     pose0 = [*START_XY, 0.0, v0]
     sim = run_mujoco(scene, "ego", pose0, accel, steer, duration, preset_yaw_rate)
     vmax = float(scene.model.actuator_actrange[scene.ego.accel, 1])
-    t, ref = reference(pose0, accel, steer, duration, scene.ego.wheelbase, vmax)
-    stride = int(round(TICK / REF_DT))
+    _t, ref = reference(pose0, accel, steer, duration, scene.ego.geometry.wheelbase, vmax)
+    stride = round(TICK / REF_DT)
     ref = ref[::stride]
     assert len(ref) == len(sim)
     pos, heading, speed = errors(sim, ref)
@@ -175,8 +175,8 @@ def test_obstacle_car_follows_the_same_model(scene: Scene):
     v0, accel, steer, duration = CASES["turn"]
     pose0 = [*START_XY, 0.0, v0]
     sim = run_mujoco(scene, "obstacle", pose0, accel, steer, duration)
-    _, ref = reference(pose0, accel, steer, duration, scene.obstacle.wheelbase)
-    pos, heading, speed = errors(sim, ref[:: int(round(TICK / REF_DT))])
+    _, ref = reference(pose0, accel, steer, duration, scene.obstacle.geometry.wheelbase)
+    pos, heading, speed = errors(sim, ref[:: round(TICK / REF_DT)])
     assert pos < POS_TOL and heading < HEADING_TOL and speed < SPEED_TOL
 
 
@@ -188,7 +188,7 @@ def test_error_shrinks_with_the_timestep(case: str):
     v0, accel, steer, duration = CASES[case]
     pose0 = [*START_XY, 0.0, v0]
     _, ref = reference(pose0, accel, steer, duration)
-    ref = ref[:: int(round(TICK / REF_DT))]
+    ref = ref[:: round(TICK / REF_DT)]
     errs = []
     for dt in (0.005, 0.0025):
         scene = Scene.load()
@@ -200,14 +200,14 @@ def test_error_shrinks_with_the_timestep(case: str):
 # ------------------------------------------------------------------ model constants
 def test_wheelbase_from_model(scene: Scene):
     for car in scene.cars.values():
-        assert car.wheelbase == pytest.approx(WHEELBASE, abs=1e-3)
+        assert car.geometry.wheelbase == pytest.approx(WHEELBASE, abs=1e-3)
 
 
 def test_max_brake_is_16_ft_per_s2(scene: Scene):
-    assert MAX_BRAKE == pytest.approx(16 * FT, abs=1e-12)
+    assert pytest.approx(16 * FT, abs=1e-12) == MAX_BRAKE
     for car in scene.cars.values():
-        assert car.max_brake == pytest.approx(16 * FT, abs=1e-3)
-        assert car.accel_range[0] < 0 < car.accel_range[1]
+        assert car.geometry.max_brake == pytest.approx(16 * FT, abs=1e-3)
+        assert car.geometry.accel_range[0] < 0 < car.geometry.accel_range[1]
 
 
 def test_speed_state_cannot_go_negative(scene: Scene):
@@ -220,15 +220,15 @@ def test_speed_state_cannot_go_negative(scene: Scene):
 def test_bicycle_step_one_step_by_hand():
     x = np.array([1.0, 2.0, 0.3, 5.0])
     u = np.array([2.0, 0.1])
-    dt, l = 0.1, 2.7
+    dt, wheelbase = 0.1, 2.7
     # Paper: x += v dt cos th; y += v dt sin th; th += v dt / l tan(delta); v += a dt.
     expected = np.array([1.0 + 0.5 * math.cos(0.3),
                          2.0 + 0.5 * math.sin(0.3),
                          0.3 + 0.5 / 2.7 * math.tan(0.1),
                          5.2])
-    np.testing.assert_allclose(bicycle_step(x, u, dt, l), expected, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(bicycle_step(x, u, dt, wheelbase), expected, rtol=0, atol=1e-12)
     # Numbers written out: cos 0.3 = 0.955336, sin 0.3 = 0.295520, tan 0.1 = 0.100335.
-    np.testing.assert_allclose(bicycle_step(x, u, dt, l), [1.477668, 2.147760, 0.318581, 5.2],
+    np.testing.assert_allclose(bicycle_step(x, u, dt, wheelbase), [1.477668, 2.147760, 0.318581, 5.2],
                                atol=1e-6)
 
 
@@ -274,7 +274,7 @@ def test_bicycle_step_converges_to_the_continuous_equations():
     errs = []
     for dt in (0.004, 0.002):
         s = pose0.copy()
-        for _ in range(int(round(duration / dt))):
+        for _ in range(round(duration / dt)):
             s = bicycle_step(s, np.array([accel, steer]), dt, WHEELBASE)
         errs.append(float(np.hypot(*(s[:2] - ref[-1, :2]))))
     assert errs[1] < 0.05

@@ -1,7 +1,7 @@
 """Gymnasium environment ``cdf_mj/TIntersection-v0``: you drive the ego through the junction.
 
-Registered when ``cdf_mj`` is imported (if Gymnasium is installed, ``pip install
-'cdf-mj[gym]'``), also in the worker processes of ``gymnasium.make_vec``::
+Registered when ``cdf_mj`` is imported (if Gymnasium is installed: the ``gym`` extra),
+also in the worker processes of ``gymnasium.make_vec``::
 
     import gymnasium as gym
     import cdf_mj  # noqa: F401  (registers the environment)
@@ -11,28 +11,32 @@ Registered when ``cdf_mj`` is imported (if Gymnasium is installed, ``pip install
     obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
     frame = env.render()                     # (480, 640, 3) uint8 from camera "top"
 
-The obstacle is the scenario's (:class:`cdf_mj.episode.World`, the same code as
+The obstacle is the scenario's (:class:`cdf_mj.scenario.world.World`, the same code as
 :func:`cdf_mj.run_episode`); the agent replaces the ego's planner and controller.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames
+from cdf_mj.extras import require
 
 try:
     import gymnasium as gym
     from gymnasium import spaces
-except ImportError:  # pragma: no cover - exercised only without the extra
-    raise ImportError("cdf_mj.envs.t_intersection needs Gymnasium: pip install 'cdf-mj[gym]'") from None
-import mujoco
-import numpy as np
-
-from cdf_mj.envs import ENV_ID
-from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames
+except ImportError:  # the one-line error that names the extra (require raises it)
+    require("gymnasium", "gym", "the environment cdf_mj/TIntersection-v0")
+    raise
 from cdf_mj.model.driver import Intent
-from cdf_mj.scenario.episode import World, episode_label
+from cdf_mj.scenario.episode import episode_label
 from cdf_mj.scenario.monitor import CDFMonitor
+from cdf_mj.scenario.world import World
+from cdf_mj.sim.gl import Offscreen
 from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
 
 __all__ = ["TIntersectionEnv"]
@@ -132,7 +136,8 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
             acceleration / full left steer), as most RL libraries prefer.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["rgb_array"], "render_fps": 10}
+    # An instance attribute of gym.Env: each environment sets its own render_fps (1 / dt).
+    metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 10}  # noqa: RUF012
 
     def __init__(self, render_mode: str | None = None, scene: str | Path | Scene = DEFAULT_SCENE,
                  config: ScenarioConfig | None = None, cdf: CDFConfig | None = None,
@@ -167,9 +172,9 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
                              f"the scene's offscreen buffer {m.vis.global_.offwidth} x "
                              f"{m.vis.global_.offheight}")
         self.camera, self.width, self.height = camera, int(width), int(height)
-        self._renderer = None  # cdf_mj.render._Offscreen, made on the first render()
+        self._renderer: Offscreen | None = None  # made on the first render()
 
-        ego = self.scene.ego
+        ego = self.world.layout.ego
         self._ctrl_low = np.array([ego.accel_range[0], ego.steer_range[0]])
         self._ctrl_high = np.array([ego.accel_range[1], ego.steer_range[1]])
         self.normalized_actions = normalized_actions
@@ -178,7 +183,8 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         else:
             self.action_space = spaces.Box(self._ctrl_low.astype(np.float32),
                                            self._ctrl_high.astype(np.float32), dtype=np.float32)
-        self.observation_space = self._observation_box()
+        self._obs_box = self._observation_box()
+        self.observation_space = self._obs_box
         self._monitor: CDFMonitor | None = None
         self._label: str | None = None
         self._episode_seed: int | None = None
@@ -241,11 +247,9 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
             # The renderer of `cdf-mj render`: the OpenGL backend is chosen when the first
             # frame is asked for (MUJOCO_GL if set, else EGL, then OSMesa), so a headless
             # machine needs no MUJOCO_GL before importing mujoco; RenderError names the fix.
-            from cdf_mj.viz.render import _Offscreen
-
             model = self.scene.model  # the model's own multisampling, as mujoco.Renderer has
-            self._renderer = _Offscreen(model, self.width, self.height,
-                                        samples=int(model.vis.quality.offsamples))
+            self._renderer = Offscreen(model, self.width, self.height,
+                                       samples=int(model.vis.quality.offsamples))
             self._renderer.use_camera(mujoco.mj_name2id(self.scene.model, mujoco.mjtObj.mjOBJ_CAMERA,
                                                         self.camera))
         self.scene.sync()
@@ -263,9 +267,9 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         """Finite bounds: no car can leave the box around the scene's routes and start
         sites that its top speed (the speed actuator's ``actrange``) covers in
         ``duration``, plus 10 m; speeds within [-1, top speed + 1] m/s."""
-        sc, m = self.scene, self.scene.model
-        pts = np.vstack([sc.route_ego.points, sc.route_left.points, sc.route_right.points,
-                         sc.ego_start[None, :2], sc.obstacle_start[None, :2]])
+        sc, m, layout = self.scene, self.scene.model, self.world.layout
+        pts = np.vstack([layout.route_ego.points, layout.route_left.points, layout.route_right.points,
+                         layout.ego_start[None, :2], layout.obstacle_start[None, :2]])
         vmax = max(float(m.actuator_actrange[car.accel][1]) if m.actuator_actlimited[car.accel]
                    else 50.0 for car in (sc.ego, sc.obstacle))
         reach = vmax * self.config.duration + 10.0
@@ -278,15 +282,19 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         return spaces.Box(low=low, high=high, dtype=np.float64)
 
     def _progress(self, ego_pose: np.ndarray) -> float:
-        return float(self.scene.route_ego.project(ego_pose[:2])[0])
+        return float(self.world.layout.route_ego.project(ego_pose[:2])[0])
 
     def _observation(self, poses: np.ndarray) -> np.ndarray:
         obs = poses.reshape(8)
         if self.posterior_in_observation:
-            p = self._monitor.decision.posterior
+            decision = self._monitor.decision if self._monitor is not None else None
+            if decision is None:
+                raise RuntimeError("the CDF monitor has not run: call reset() first")
+            p = decision.posterior
             obs = np.r_[obs, p.p_left, p.p_seen, p.p_cutoff]
         # Clipping is a guard (a contact can kick a speed past its bound for one step).
-        return np.clip(obs, self.observation_space.low, self.observation_space.high)
+        clipped: np.ndarray = np.clip(obs, self._obs_box.low, self._obs_box.high)
+        return clipped
 
     def _info(self, in_lane: bool, gap: float | None, collision: str | None = None) -> dict[str, Any]:
         w = self.world

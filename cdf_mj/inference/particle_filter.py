@@ -10,7 +10,7 @@ One tick (``dt``), as in the simulation (:mod:`cdf_mj.scenario.episode`):
 ``predict(S_t)``
     every particle draws its own observation event (probability beta, if the ego is in
     its line of sight from its own eye), updates its own belief (``g``), runs the *same*
-    driver state machine as the simulated obstacle (:func:`cdf_mj.driver.obstacle_control`)
+    driver state machine as the simulated obstacle (:func:`cdf_mj.model.driver.obstacle_control`)
     with process noise, and moves by the paper's kinematic bicycle ``f``.
 ``update(S_{t+1})``
     weights ``w ∝ N(x1 | measured x1, Sigma)`` kept as log-weights, normalised after
@@ -25,7 +25,7 @@ the "predictive" rule, or fully with the paper's rule (``CDFConfig.cutoff_rule``
 counted while the ego itself is exposed (:meth:`ParticleFilter.ego_exposed`: not past
 the conflict point and within the critical gap of it), else 0. ::
 
-    pf = ParticleFilter.from_scene(scene, ScenarioConfig(), CDFConfig(), rng)
+    pf = ParticleFilter.from_layout(scene.layout(), ScenarioConfig(), CDFConfig(), rng)
     pf.reset(S0)
     for S in measurements:
         pf.predict(S_prev); post = pf.update(S)
@@ -39,11 +39,12 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from cdf_mj.config import CDFConfig, ScenarioConfig
-from cdf_mj.model.driver import (DriverModel, Intent, Mode, bicycle_step, obstacle_control, road_clear,
-                           update_belief)
-from cdf_mj.model.geometry import wrap_angle
-from cdf_mj.model.occlusion import Occluders
 from cdf_mj.inference.resampling import effective_sample_size, stratified_resample
+from cdf_mj.model.driver import DriverModel, Intent, Mode, bicycle_step, obstacle_control, road_clear, update_belief
+from cdf_mj.model.geometry import wrap_angle
+from cdf_mj.model.layout import Layout
+from cdf_mj.model.occlusion import Occluders, sight_targets
+from cdf_mj.model.vehicle import CarGeometry
 
 __all__ = ["ParticleFilter", "Posterior"]
 
@@ -72,7 +73,7 @@ class Posterior:
     p_cutoff: float  # P(left-turner pulling out on a clear belief)
     ess: float  # effective sample size before resampling
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, float]:
         """JSON-serialisable view."""
         return asdict(self)
 
@@ -82,16 +83,17 @@ class ParticleFilter:
 
     Args:
         model: the drivers' geometry and behaviour (the same as the simulation's).
-        obstacle: the obstacle's :class:`cdf_mj.scene.Car` (eye, wheelbase).
-        ego: the ego's :class:`cdf_mj.scene.Car` (footprint for line of sight).
+        obstacle: the obstacle's dimensions (eye, wheelbase, actuator ranges).
+        ego: the ego's dimensions (footprint for line of sight).
         occluders: building boxes for vectorised line of sight.
         scenario: scenario parameters (beta, noise levels, prior P(left)).
         cdf: filter parameters (N, Sigma, thresholds).
         rng: the Generator of all the filter's randomness.
     """
 
-    def __init__(self, model: DriverModel, obstacle, ego, occluders: Occluders,
-                 scenario: ScenarioConfig, cdf: CDFConfig, rng: np.random.Generator) -> None:
+    def __init__(self, model: DriverModel, obstacle: CarGeometry, ego: CarGeometry,
+                 occluders: Occluders, scenario: ScenarioConfig, cdf: CDFConfig,
+                 rng: np.random.Generator) -> None:
         self.model, self.obstacle, self.ego, self.occluders = model, obstacle, ego, occluders
         self.scenario, self.cdf, self.rng = scenario, cdf, rng
         self.n = cdf.n_particles
@@ -103,18 +105,25 @@ class ParticleFilter:
         self.reinits = 0  # times every likelihood vanished
         self._ego: np.ndarray | None = None
         self._ego_targets: np.ndarray | None = None
+        # The particles (N rows after reset): obstacle pose (N, 4), driver mode (N,), belief
+        # (N, 4), whether the driver has seen the ego (N,), intent (N,).
+        self.pose = np.zeros((0, 4))
+        self.mode = np.zeros(0, dtype=int)
+        self.belief = np.zeros((0, 4))
+        self.has_belief = np.zeros(0, dtype=bool)
+        self.intent = np.zeros(0, dtype=int)
         # Log-weights (N,). Assign a new array to change them, never edit one in place:
         # `weights` is computed once per array.
         self.logw = np.zeros(0)
-        self._w: np.ndarray | None = None  # weights of the log-weight array _w_of
+        self._w = np.zeros(0)  # weights of the log-weight array _w_of
         self._w_of: np.ndarray | None = None
 
     @classmethod
-    def from_scene(cls, scene, scenario: ScenarioConfig, cdf: CDFConfig,
-                   rng: np.random.Generator) -> "ParticleFilter":
-        """A filter for a :class:`cdf_mj.scene.Scene` (geometry read by name)."""
-        return cls(DriverModel.from_scene(scene, scenario), scene.obstacle, scene.ego,
-                   Occluders.from_scene(scene), scenario, cdf, rng)
+    def from_layout(cls, layout: Layout, scenario: ScenarioConfig, cdf: CDFConfig,
+                    rng: np.random.Generator) -> ParticleFilter:
+        """A filter for a junction (``Scene.layout()``): its routes, buildings and cars."""
+        return cls(DriverModel.from_layout(layout, scenario), layout.obstacle, layout.ego,
+                   layout.occluders, scenario, cdf, rng)
 
     # ------------------------------------------------------------------ state
     def reset(self, system_pose: np.ndarray) -> Posterior:
@@ -157,7 +166,7 @@ class ParticleFilter:
     def cutoff_probability(self) -> np.ndarray:
         """Per particle, the probability that it cuts the ego off (N,), see ``cutoff_rule``."""
         left = self.intent == _LEFT
-        p = (left & (self.mode == _COMMITTED)).astype(float)
+        p: np.ndarray = (left & (self.mode == _COMMITTED)).astype(float)
         going = left & (self.mode == _GOING)
         if self.cdf.cutoff_rule == "paper":
             p[going] = 1.0
@@ -174,18 +183,24 @@ class ParticleFilter:
             p[idx] = (1.0 - beta) ** ticks
         return p
 
+    def _ego_pose(self) -> np.ndarray:
+        """The ego's pose (4,) the filter last took; RuntimeError before :meth:`reset`."""
+        if self._ego is None:
+            raise RuntimeError("the particle filter has no measurement yet: call reset(S0) first")
+        return self._ego
+
     def _targets(self) -> np.ndarray:
         """The ego's sight-line targets ``(5, 2)``: its hull corners and centre (cached per pose)."""
-        if self._ego_targets is None:
-            corners = self.ego.footprint(self._ego)
-            self._ego_targets = np.vstack([corners, corners.mean(axis=0)])
-        return self._ego_targets
+        targets = self._ego_targets
+        if targets is None:
+            targets = self._ego_targets = sight_targets(self.ego, self._ego_pose())
+        return targets
 
     def ego_exposed(self) -> bool:
         """Whether the (known) ego could still be cut off: it has not passed the conflict
         point and would reach it within the critical gap. The driver's own "clear" rule,
         applied to the true ego pose instead of a belief."""
-        clear = road_clear(self.model, self._ego[None], np.array([True]), np.array([Intent.LEFT]))
+        clear = road_clear(self.model, self._ego_pose()[None], np.array([True]), np.array([Intent.LEFT]))
         return not bool(clear[0])
 
     # ------------------------------------------------------------------ one tick
@@ -216,7 +231,7 @@ class ParticleFilter:
         idx = np.flatnonzero(observed)
         if idx.size:
             observed[idx] = self.occluders.visible(self.obstacle.eye(self.pose[idx]), self._targets())
-        return observed, self._ego + rng.standard_normal((n, 4)) * self._obs_std
+        return observed, self._ego_pose() + rng.standard_normal((n, 4)) * self._obs_std
 
     def believe(self, observed: np.ndarray, observation: np.ndarray) -> None:
         """Each particle's belief update ``g``."""

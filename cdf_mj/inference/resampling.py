@@ -35,8 +35,13 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["stratified_resample", "stratified_indexes_from_uniforms", "systematic_resample",
-           "systematic_indexes_from_uniform", "effective_sample_size"]
+__all__ = [
+    "effective_sample_size",
+    "stratified_indexes_from_uniforms",
+    "stratified_resample",
+    "systematic_indexes_from_uniform",
+    "systematic_resample",
+]
 
 
 def _check_weights(weights: np.ndarray) -> np.ndarray:

@@ -1,7 +1,9 @@
-"""The models behind the scenario, in NumPy only (no MuJoCo): geometry, the drivers and
-the kinematic bicycle, line of sight against building boxes.
+"""The models behind the scenario, in NumPy only (no MuJoCo): geometry, the cars'
+dimensions (:mod:`~cdf_mj.model.vehicle`), the junction's static layout
+(:mod:`~cdf_mj.model.layout`), the drivers and the kinematic bicycle, line of sight
+against building boxes.
 
-This is the lowest layer of the package: the simulator (:mod:`cdf_mj.sim`), the particle
-filter (:mod:`cdf_mj.inference`) and the planners (:mod:`cdf_mj.planners`) build on it,
-and it imports none of them.
+This is the lowest layer above the configuration: the simulator (:mod:`cdf_mj.sim`), the
+particle filter (:mod:`cdf_mj.inference`) and the planners (:mod:`cdf_mj.planners`) build
+on it, and it imports none of them.
 """

@@ -23,6 +23,7 @@ does not cross the ego's lane and is always clear.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -30,9 +31,20 @@ import numpy as np
 
 from cdf_mj.config import ScenarioConfig
 from cdf_mj.model.geometry import Polyline
+from cdf_mj.model.layout import Layout
+from cdf_mj.model.vehicle import CarGeometry
 
-__all__ = ["Mode", "Intent", "DriverModel", "obstacle_control", "update_belief",
-           "ego_control", "pure_pursuit", "bicycle_step"]
+__all__ = [
+    "DriverModel",
+    "Intent",
+    "Mode",
+    "bicycle_step",
+    "ego_control",
+    "obstacle_control",
+    "pure_pursuit",
+    "road_clear",
+    "update_belief",
+]
 
 
 class Mode(IntEnum):
@@ -53,28 +65,29 @@ class Intent(IntEnum):
 
 @dataclass(frozen=True)
 class DriverModel:
-    """Everything the drivers need, from the scene (geometry) and the config (behaviour)."""
+    """Everything the drivers need: the layout's routes and points, the obstacle car's
+    limits as plain floats (for the per-tick code), and the config's behaviour."""
 
     routes: tuple[Polyline, Polyline]  # obstacle route per Intent
     route_ego: Polyline
     s_commit: np.ndarray  # (2,) arc length of the commit point on each obstacle route [m]
     conflict: np.ndarray  # (2,) conflict point [m]
-    wheelbase: float  # [m]
-    max_steer: float  # [rad]
+    wheelbase: float  # [m] of the obstacle
+    max_steer: float  # [rad] of the obstacle
     max_brake: float  # [m/s^2], positive
     max_accel: float  # [m/s^2]
     config: ScenarioConfig
 
     @classmethod
-    def from_scene(cls, scene, config: ScenarioConfig) -> "DriverModel":
-        """Build from a :class:`cdf_mj.scene.Scene` (obstacle geometry) and a config."""
-        routes = (scene.route_left, scene.route_right)
-        s_commit = np.array([r.project(scene.commit)[0] for r in routes])
-        car = scene.obstacle
-        return cls(routes=routes, route_ego=scene.route_ego, s_commit=s_commit,
-                   conflict=scene.conflict, wheelbase=car.wheelbase,
-                   max_steer=min(-car.steer_range[0], car.steer_range[1]),
-                   max_brake=car.max_brake, max_accel=car.accel_range[1], config=config)
+    def from_layout(cls, layout: Layout, config: ScenarioConfig) -> DriverModel:
+        """The drivers of a junction: routes, conflict and commit points of ``layout``,
+        the obstacle's limits from ``layout.obstacle``, behaviour from ``config``."""
+        routes = layout.obstacle_routes
+        s_commit = np.array([r.project(layout.commit)[0] for r in routes])
+        car = layout.obstacle
+        return cls(routes=routes, route_ego=layout.route_ego, s_commit=s_commit,
+                   conflict=layout.conflict, wheelbase=car.wheelbase, max_steer=car.max_steer,
+                   max_brake=car.max_brake, max_accel=car.max_accel, config=config)
 
 
 def bicycle_step(x: np.ndarray, u: np.ndarray, dt: float, wheelbase: float) -> np.ndarray:
@@ -87,7 +100,7 @@ def bicycle_step(x: np.ndarray, u: np.ndarray, dt: float, wheelbase: float) -> n
     x = np.asarray(x, dtype=float)
     px, py, th, v = x[..., 0], x[..., 1], x[..., 2], x[..., 3]
     step = v * dt
-    out = np.empty(np.broadcast_shapes(x.shape, u.shape[:-1] + (4,)))
+    out = np.empty(np.broadcast_shapes(x.shape, (*u.shape[:-1], 4)))
     out[..., 0] = px + step * np.cos(th)
     out[..., 1] = py + step * np.sin(th)
     out[..., 2] = th + step / wheelbase * np.tan(u[..., 1])
@@ -104,8 +117,8 @@ def pure_pursuit(route: Polyline, pose: np.ndarray, s: np.ndarray, lookahead: np
     dy = target[..., 1] - pose[..., 1]
     alpha = np.arctan2(dy, dx) - pose[..., 2]
     dist = np.maximum(np.hypot(dx, dy), 1e-6)
-    steer = np.arctan(2.0 * wheelbase * np.sin(alpha) / dist)
-    return np.clip(steer, -max_steer, max_steer)
+    steer: np.ndarray = np.clip(np.arctan(2.0 * wheelbase * np.sin(alpha) / dist), -max_steer, max_steer)
+    return steer
 
 
 # Plain ints for the hot paths (IntEnum attribute access costs a Python call each time).
@@ -113,7 +126,7 @@ _WAITING, _GOING, _YIELDING, _COMMITTED = (int(m) for m in Mode)
 _LEFT, _RIGHT = int(Intent.LEFT), int(Intent.RIGHT)
 
 
-def _by_intent(intent: np.ndarray, n_routes: int):
+def _by_intent(intent: np.ndarray, n_routes: int) -> Iterator[tuple[int, slice | np.ndarray]]:
     """``(k, rows)`` per route with samples: ``rows`` is ``slice(None)`` when every sample
     has intent ``k`` (no gather needed: one car, or particles of one intent), else a mask."""
     for k in range(n_routes):
@@ -142,7 +155,8 @@ def road_clear(model: DriverModel, belief: np.ndarray, has_belief: np.ndarray,
     ahead = dx * np.cos(belief[..., 2]) + dy * np.sin(belief[..., 2])  # [m] to the conflict
     passed = ahead < -cfg.passed_margin
     tta = ahead / np.maximum(belief[..., 3], 0.1)  # [s] believed time to arrive
-    return (~has_belief) | passed | (tta > cfg.critical_gap) | (intent == _RIGHT)
+    clear: np.ndarray = (~has_belief) | passed | (tta > cfg.critical_gap) | (intent == _RIGHT)
+    return clear
 
 
 def obstacle_control(model: DriverModel, pose: np.ndarray, mode: np.ndarray, belief: np.ndarray,
@@ -199,25 +213,26 @@ def update_belief(belief: np.ndarray, has_belief: np.ndarray, observed: np.ndarr
     carry = has_belief & ~observed  # only these are dead-reckoned; the rest are replaced or kept
     if carry.any():
         rows = belief[carry]
-        new[carry] = bicycle_step(rows, np.zeros(rows.shape[:-1] + (2,)), dt, wheelbase)
+        new[carry] = bicycle_step(rows, np.zeros((*rows.shape[:-1], 2)), dt, wheelbase)
     new[observed] = observation[observed]
     return new, has_belief | observed
 
 
-def ego_control(model: DriverModel, car, pose: np.ndarray, brake: np.ndarray | bool) -> np.ndarray:
+def ego_control(model: DriverModel, car: CarGeometry, pose: np.ndarray,
+                brake: np.ndarray | bool) -> np.ndarray:
     """The ego's nominal controller ``h(x2, x1, I2)``: follow its route at the nominal
     speed, or brake at the car's maximum rate where ``brake``.
 
-    ``car`` is the ego's :class:`cdf_mj.scene.Car` (wheelbase, actuator limits);
-    ``pose`` ``(..., 4)``; returns ``(..., 2)`` = [acceleration m/s^2, steering rad].
+    ``car`` is the ego's geometry (``Layout.ego``: wheelbase, actuator limits); ``pose``
+    ``(..., 4)`` ``[x m, y m, theta rad, v m/s]``, world frame; returns ``(..., 2)`` =
+    [acceleration m/s^2, steering rad].
     """
     cfg = model.config
     pose = np.asarray(pose, dtype=float)
-    max_steer = min(-car.steer_range[0], car.steer_range[1])
     s, _ = model.route_ego.project(pose[..., :2])
     steer = pure_pursuit(model.route_ego, pose, s, cfg.lookahead + cfg.lookahead_gain * pose[..., 3],
-                         car.wheelbase, max_steer)
+                         car.wheelbase, car.max_steer)
     accel = np.clip(cfg.ego_speed_gain * (cfg.ego_speed - pose[..., 3]), -car.max_brake,
-                    car.accel_range[1])
+                    car.max_accel)
     accel = np.where(brake, -car.max_brake, accel)
     return np.stack([accel, steer], axis=-1)

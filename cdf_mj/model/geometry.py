@@ -9,11 +9,11 @@ from __future__ import annotations
 
 import bisect
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["Polyline", "OrientedBox", "wrap_angle", "box_corners", "rotated_corners"]
+__all__ = ["OrientedBox", "Polyline", "box_corners", "rotated_corners", "wrap_angle"]
 
 
 def wrap_angle(a: np.ndarray | float) -> np.ndarray:
@@ -23,9 +23,30 @@ def wrap_angle(a: np.ndarray | float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Polyline:
-    """A path through ordered waypoints, parametrised by arc length ``s`` [m]."""
+    """A path through ordered waypoints, parametrised by arc length ``s`` [m].
+
+    ValueError for fewer than 2 points, points that are not finite, or two consecutive
+    waypoints at the same place.
+    """
 
     points: np.ndarray  # (P, 2) waypoints [m]
+    # Derived (P - 1 segments): lengths [m], arc length at each waypoint (P,) [m]; for the
+    # hot paths, contiguous segment starts and unit directions, and the per-segment slope
+    # d(point)/ds that numpy.interp would use between waypoints; the same numbers as
+    # Python floats, for one point at a time (a car, not particles): plain float arithmetic
+    # in the same order gives the same values without NumPy's per-call overhead.
+    _len: np.ndarray = field(init=False, repr=False, compare=False)
+    _s0: np.ndarray = field(init=False, repr=False, compare=False)
+    _x0: np.ndarray = field(init=False, repr=False, compare=False)
+    _y0: np.ndarray = field(init=False, repr=False, compare=False)
+    _ux: np.ndarray = field(init=False, repr=False, compare=False)
+    _uy: np.ndarray = field(init=False, repr=False, compare=False)
+    _slope: np.ndarray = field(init=False, repr=False, compare=False)
+    _py: tuple[tuple[float, float, float, float, float, float], ...] = field(init=False, repr=False,
+                                                                             compare=False)
+    _py_slope: list[tuple[float, float]] = field(init=False, repr=False, compare=False)
+    _py_points: list[tuple[float, float]] = field(init=False, repr=False, compare=False)
+    _py_s0: list[float] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         pts = np.asarray(self.points, dtype=float)
@@ -37,27 +58,21 @@ class Polyline:
         lengths = np.hypot(seg[:, 0], seg[:, 1])
         if np.any(lengths <= 1e-9):
             raise ValueError("a polyline has two consecutive waypoints at the same place")
-        object.__setattr__(self, "points", pts)
-        object.__setattr__(self, "_seg", seg)
-        object.__setattr__(self, "_len", lengths)
-        object.__setattr__(self, "_unit", seg / lengths[:, None])
         s0 = np.concatenate([[0.0], np.cumsum(lengths)])
-        object.__setattr__(self, "_s0", s0)
-        # Hot-path copies (contiguous): segment starts, unit directions, and the per-segment
-        # slope d(point)/ds that numpy.interp would use between waypoints.
-        object.__setattr__(self, "_x0", pts[:-1, 0].copy())
-        object.__setattr__(self, "_y0", pts[:-1, 1].copy())
-        object.__setattr__(self, "_ux", (seg[:, 0] / lengths).copy())
-        object.__setattr__(self, "_uy", (seg[:, 1] / lengths).copy())
-        object.__setattr__(self, "_slope", seg / np.diff(s0)[:, None])
-        # The same numbers as Python floats, for one point at a time (a car, not particles):
-        # plain float arithmetic in the same order gives the same values without NumPy's
-        # per-call overhead.
-        object.__setattr__(self, "_py", tuple(zip(self._x0.tolist(), self._y0.tolist(), self._ux.tolist(),
-                                                  self._uy.tolist(), lengths.tolist(), s0[:-1].tolist())))
-        object.__setattr__(self, "_py_slope", [tuple(row) for row in self._slope.tolist()])
-        object.__setattr__(self, "_py_points", [tuple(row) for row in pts.tolist()])
-        object.__setattr__(self, "_py_s0", s0.tolist())
+        x0, y0 = pts[:-1, 0].copy(), pts[:-1, 1].copy()
+        ux, uy = (seg[:, 0] / lengths).copy(), (seg[:, 1] / lengths).copy()
+        slope = seg / np.diff(s0)[:, None]
+        derived = {
+            "points": pts, "_len": lengths, "_s0": s0, "_x0": x0, "_y0": y0, "_ux": ux, "_uy": uy,
+            "_slope": slope,
+            "_py": tuple(zip(x0.tolist(), y0.tolist(), ux.tolist(), uy.tolist(), lengths.tolist(),
+                             s0[:-1].tolist(), strict=True)),
+            "_py_slope": [tuple(row) for row in slope.tolist()],
+            "_py_points": [tuple(row) for row in pts.tolist()],
+            "_py_s0": s0.tolist(),
+        }
+        for name, value in derived.items():
+            object.__setattr__(self, name, value)
 
     @property
     def length(self) -> float:
@@ -104,7 +119,7 @@ class Polyline:
                 best, s_best, lat_best = d2, s0 + t, ux * py - uy * px
         return s_best, lat_best
 
-    def point_at(self, s: np.ndarray) -> np.ndarray:
+    def point_at(self, s: np.ndarray | float) -> np.ndarray:
         """Point(s) at arc length ``s`` [m], shape ``(..., 2)``; clamped to the ends.
 
         Linear interpolation between waypoints, computed as ``numpy.interp`` does (same
@@ -113,14 +128,15 @@ class Polyline:
         s = np.asarray(s, dtype=float)
         shape = s.shape
         if s.size == 1 and math.isfinite(s.flat[0]):
-            return np.array(self._point_one(float(s.flat[0]))).reshape(shape + (2,))
+            return np.array(self._point_one(float(s.flat[0]))).reshape((*shape, 2))
         s = s.reshape(-1)
         s0 = self._s0
         k = np.searchsorted(s0, s, side="right") - 1
         np.clip(k, 0, len(s0) - 2, out=k)
         out = self._slope[k] * np.maximum(s - s0[k], 0.0)[:, None] + self.points[k]
         out[s >= s0[-1]] = self.points[-1]
-        return out.reshape(shape + (2,))
+        result: np.ndarray = out.reshape((*shape, 2))
+        return result
 
     def _point_one(self, s: float) -> tuple[float, float]:
         """:meth:`point_at` of one finite arc length, the same operations on Python floats."""
@@ -147,7 +163,8 @@ class OrientedBox:
         c, s = np.cos(self.heading), np.sin(self.heading)
         lx = c * d[..., 0] + s * d[..., 1]
         ly = -s * d[..., 0] + c * d[..., 1]
-        return (np.abs(lx) <= self.half[0]) & (np.abs(ly) <= self.half[1])
+        inside: np.ndarray = (np.abs(lx) <= self.half[0]) & (np.abs(ly) <= self.half[1])
+        return inside
 
     def corners(self) -> np.ndarray:
         """The four corners ``(4, 2)``, counter-clockwise."""
@@ -172,7 +189,7 @@ def rotated_corners(cx: np.ndarray, cy: np.ndarray, cos: np.ndarray, sin: np.nda
     local = _UNIT_CORNERS * np.asarray(half, dtype=float)  # (4, 2)
     lx, ly = local[:, 0], local[:, 1]
     c, s = np.asarray(cos)[..., None], np.asarray(sin)[..., None]
-    out = np.empty(np.broadcast_shapes(np.shape(cx), np.shape(cos)) + (4, 2))
+    out = np.empty((*np.broadcast_shapes(np.shape(cx), np.shape(cos)), 4, 2))
     out[..., 0] = np.asarray(cx)[..., None] + c * lx - s * ly
     out[..., 1] = np.asarray(cy)[..., None] + s * lx + c * ly
     return out

@@ -6,19 +6,20 @@ N = 1000, so this module tests 2D sight segments against the buildings' footprin
 (oriented rectangles) with NumPy, for all particles, target points and buildings in one
 broadcast, particles on the innermost (contiguous) axis. ::
 
-    from cdf_mj.model.occlusion import Occluders, ego_visible
+    from cdf_mj.model.occlusion import ego_visible
 
-    occ = Occluders.from_scene(scene)                  # once per scene: the buildings
-    seen = ego_visible(occ, scene, particle_poses, ego_pose)   # (N,) bool
-    seen = occ.visible(eyes, targets)                  # general form, see below
+    layout = scene.layout()                    # occluders and car geometries, read once
+    seen = ego_visible(layout.occluders, layout.ego, layout.obstacle, particle_poses, ego_pose)
+    seen = layout.occluders.visible(eyes, targets)     # general form, see below
 
-The model, and how it differs from :func:`cdf_mj.visibility.ego_visible` (MuJoCo rays):
+The model, and how it differs from :func:`cdf_mj.sim.visibility.ego_visible` (MuJoCo rays):
 
-* Only buildings occlude: every geom of ``scene.buildings`` (``building*``), each a
-  MuJoCo box standing upright (rotated about z only). Cars do not occlude here. In the
-  scenario the looking car is the obstacle and the target is the ego, and the MuJoCo
-  version ignores the looking car's body and counts a ray that stops on the ego as
-  "seen", so with two cars the answers agree; a third car would occlude only there.
+* Only buildings occlude: every geom whose name starts with ``building`` (read by
+  :meth:`cdf_mj.sim.scene.Scene.layout`), each a box standing upright (rotated about z
+  only). Cars do not occlude here. In the scenario the looking car is the obstacle and
+  the target is the ego, and the MuJoCo version ignores the looking car's body and
+  counts a ray that stops on the ego as "seen", so with two cars the answers agree; a
+  third car would occlude only there.
 * Sight lines are segments in the ground plane: a box occludes iff its footprint meets
   the segment from the eye to the target point. This is exact in 3D when the box spans
   every height on the sight line, i.e. from the ground to above the eye, as the
@@ -28,7 +29,7 @@ The model, and how it differs from :func:`cdf_mj.visibility.ego_visible` (MuJoCo
   would clip a line sloping down to a lower target is therefore ignored (not in this
   scene). With eyes given as ``(N, 2)`` (no height) every box occludes.
 * A target counts as seen if ANY of its points is (for the ego: four hull corners and
-  the hull centre, as in the MuJoCo version).
+  the hull centre, :func:`sight_targets`, as in the MuJoCo version).
 * Touching counts as blocked (a sight line grazing a corner is occluded); MuJoCo may
   decide such measure-zero cases either way.
 
@@ -40,7 +41,7 @@ all targets lie beyond on one side are dropped before the ``(boxes, K, N)`` stag
 
 Cost (2-core dev machine, N = 1000 eyes, the scene's 4 buildings, 5 ego points):
 ``visible`` ~55 us when the culling leaves one building (the usual case), ~85 us with
-none culled; :func:`ego_visible` adds ~50 us for ``Car.eye`` and ``Car.footprint``.
+none culled; :func:`ego_visible` adds ~50 us for ``CarGeometry.eye`` and ``footprint``.
 """
 
 from __future__ import annotations
@@ -48,12 +49,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-import mujoco
 import numpy as np
 
-from cdf_mj.sim.scene import Scene
+from cdf_mj.model.vehicle import CarGeometry
 
-__all__ = ["Occluders", "ego_visible", "segments_hit_rectangle"]
+__all__ = ["Occluders", "ego_visible", "segments_hit_rectangle", "sight_targets"]
 
 
 def segments_hit_rectangle(p0: np.ndarray, p1: np.ndarray, center: np.ndarray,
@@ -70,12 +70,8 @@ def segments_hit_rectangle(p0: np.ndarray, p1: np.ndarray, center: np.ndarray,
     beyond = (((ax > hx) & (bx > hx)) | ((ax < -hx) & (bx < -hx))
               | ((ay > hy) & (by > hy)) | ((ay < -hy) & (by < -hy)))
     line = np.abs(ax * by - ay * bx) > hx * np.abs(by - ay) + hy * np.abs(bx - ax)
-    return ~(beyond | line)
-
-
-def _geom_type_name(code: int) -> str:
-    """``mjGEOM_CYLINDER`` -> ``cylinder``."""
-    return mujoco.mjtGeom(int(code)).name.removeprefix("mjGEOM_").lower()
+    hit: np.ndarray = ~(beyond | line)
+    return hit
 
 
 # Rotates (x, y) rows by -90 degrees: T @ _PERP turns rows (tx, ty) into (ty, -tx).
@@ -86,8 +82,10 @@ _PERP = np.array([[0.0, -1.0], [1.0, 0.0]])
 class Occluders:
     """Upright boxes that block sight lines: footprints (oriented rectangles) and heights.
 
-    All arrays have one row per box, world frame [m], [rad]. Build with
-    :meth:`from_scene`, or directly from arrays (e.g. in tests).
+    All arrays have one row per box, world frame [m], [rad]. A scene's buildings are
+    ``Scene.layout().occluders`` (:meth:`cdf_mj.sim.scene.Scene.layout`); any other set
+    is built from arrays (e.g. in tests). ValueError if the arrays disagree in length or
+    are not finite (half sizes >= 0).
     """
 
     names: tuple[str, ...]
@@ -130,34 +128,6 @@ class Occluders:
             value.flags.writeable = False
             object.__setattr__(self, name, value)
         object.__setattr__(self, "names", tuple(self.names))
-
-    @classmethod
-    def from_scene(cls, scene: Scene) -> "Occluders":
-        """The buildings of a scene (``scene.buildings``), read from the compiled model
-        after :meth:`Scene.sync` (so boxes inside moved bodies are placed correctly).
-
-        Raises ValueError if a building geom is not a box, or is tilted (its z axis not
-        vertical): such a shape has no rectangular footprint.
-        """
-        m, d = scene.model, scene.data
-        scene.sync()
-        ids = np.asarray(scene.buildings, dtype=int)
-        names = tuple(m.geom(int(i)).name for i in ids)
-        problems = [f"'{n}' is a {_geom_type_name(m.geom_type[i])}"
-                    for n, i in zip(names, ids) if m.geom_type[i] != mujoco.mjtGeom.mjGEOM_BOX]
-        if problems:
-            raise ValueError(f"building geoms must be boxes: {', '.join(problems)} "
-                             f"in {scene.source}")
-        xmat = d.geom_xmat[ids].reshape(-1, 3, 3)
-        tilted = [n for n, r in zip(names, xmat) if abs(abs(r[2, 2]) - 1.0) > 1e-9]
-        if tilted:
-            raise ValueError(f"building boxes must be upright (rotated about z only): "
-                             f"{', '.join(tilted)} in {scene.source}")
-        size = m.geom_size[ids]
-        z = d.geom_xpos[ids, 2]
-        return cls(names=names, center=d.geom_xpos[ids, :2].copy(),
-                   heading=np.arctan2(xmat[:, 1, 0], xmat[:, 0, 0]),
-                   half=size[:, :2].copy(), bottom=z - size[:, 2], top=z + size[:, 2])
 
     def __len__(self) -> int:
         return len(self.names)
@@ -253,25 +223,33 @@ class Occluders:
             sep |= inactive[keep][:, None, :]
         # A point is seen if its segment is separated from every box; an eye sees the
         # target if any of its points is seen.
-        return np.logical_and.reduce(sep, axis=0).any(axis=0)
+        seen: np.ndarray = np.logical_and.reduce(sep, axis=0).any(axis=0)
+        return seen
 
 
-def ego_visible(occluders: Occluders, scene: Scene, obstacle_poses: np.ndarray,
-                ego_pose: np.ndarray) -> np.ndarray:
-    """Whether the obstacle driver at each pose sees any part of the ego: its four hull
-    corners and centre (as :func:`cdf_mj.visibility.ego_visible`), buildings occluding.
+def sight_targets(ego: CarGeometry, ego_pose: np.ndarray) -> np.ndarray:
+    """The points of the ego a driver may see, ``(..., 5, 2)`` [m, world frame]: the four
+    corners of its collision box and the box's centre, for pose(s) ``(..., 4)``."""
+    corners = ego.footprint(ego_pose)
+    return np.concatenate([corners, corners.mean(axis=-2, keepdims=True)], axis=-2)
+
+
+def ego_visible(occluders: Occluders, ego: CarGeometry, obstacle: CarGeometry,
+                obstacle_poses: np.ndarray, ego_pose: np.ndarray) -> np.ndarray:
+    """Whether the obstacle driver at each pose sees any part of the ego
+    (:func:`sight_targets`), the ``occluders`` blocking.
 
     Args:
-        occluders: from :meth:`Occluders.from_scene`.
-        scene: for the cars' dimensions (eye offset, hull).
+        occluders: the buildings (``Layout.occluders``).
+        ego: the ego's dimensions (hull), ``Layout.ego``.
+        obstacle: the obstacle's dimensions (eye), ``Layout.obstacle``.
         obstacle_poses: ``(N, 4)`` ``[x, y, theta, v]`` (a single ``(4,)`` pose gives N = 1).
         ego_pose: ``(4,)`` shared by all, or ``(N, 4)`` one per obstacle pose.
 
     Returns:
-        ``(N,)`` bool. Unlike the MuJoCo version, neither car occludes (see module notes).
+        ``(N,)`` bool. Unlike :func:`cdf_mj.sim.visibility.ego_visible`, neither car
+        occludes (see the module notes).
     """
     poses = np.atleast_2d(np.asarray(obstacle_poses, dtype=float))
-    ego_pose = np.asarray(ego_pose, dtype=float)
-    corners = scene.ego.footprint(ego_pose)  # (4, 2) or (N, 4, 2)
-    targets = np.concatenate([corners, corners.mean(axis=-2, keepdims=True)], axis=-2)
-    return occluders.visible(scene.obstacle.eye(poses), targets)
+    targets = sight_targets(ego, np.asarray(ego_pose, dtype=float))
+    return occluders.visible(obstacle.eye(poses), targets)

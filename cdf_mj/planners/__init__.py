@@ -1,11 +1,41 @@
-"""Ego planners and their registry: ``make_planner("cdf")``, ``register(name, factory)``.
+"""Ego planners and their registry: ``make_planner("cdf")``, ``register(name, target)``.
 
-Planners decide from measurements and the scene's static geometry; they never see the
-live simulation.
+Planners decide from measurements and the junction's static layout; they never see the
+live simulation. The baselines (``CVPlanner``, ``IMMPlanner`` and their configs) are
+imported on first access, as they import filterpy (about 1 s).
 """
 
-from cdf_mj.planners.base import (PLANNERS, CDFPlanner, ConstantPlanner, Planner, PlannerInput,
-                                  ReactivePlanner, make_planner, predicted_label, register)
+from __future__ import annotations
 
-__all__ = ["PLANNERS", "CDFPlanner", "ConstantPlanner", "Planner", "PlannerInput", "ReactivePlanner",
+from typing import TYPE_CHECKING, Any
+
+from cdf_mj.planners.base import (
+    PLANNERS,
+    DecidingPlanner,
+    LazyPlanner,
+    Planner,
+    PlannerInput,
+    make_planner,
+    predicted_label,
+    register,
+)
+from cdf_mj.planners.cdf import CDFPlanner
+from cdf_mj.planners.simple import ConstantPlanner, ReactivePlanner
+
+if TYPE_CHECKING:
+    from cdf_mj.planners.baselines import CVConfig, CVPlanner, IMMConfig, IMMPlanner
+
+__all__ = ["PLANNERS", "CDFPlanner", "CVConfig", "CVPlanner", "ConstantPlanner", "DecidingPlanner",
+           "IMMConfig", "IMMPlanner", "LazyPlanner", "Planner", "PlannerInput", "ReactivePlanner",
            "make_planner", "predicted_label", "register"]
+
+_BASELINES = frozenset(("CVConfig", "CVPlanner", "IMMConfig", "IMMPlanner"))
+
+
+def __getattr__(name: str) -> Any:
+    """The baselines' names on first access (PEP 562)."""
+    if name in _BASELINES:
+        from cdf_mj.planners import baselines
+
+        return getattr(baselines, name)
+    raise AttributeError(f"module 'cdf_mj.planners' has no attribute {name!r}")

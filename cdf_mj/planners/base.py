@@ -1,33 +1,42 @@
-"""Ego planners: each decides, at the planner rate (10 Hz), whether the ego brakes.
+"""What every ego planner is: :class:`Planner`, its input, the base of deciding planners,
+and the registry of planners by name.
 
-A planner sees what the ego's sensors give: the measured system pose and the scene.
-Braking, once decided, is held to the end of the episode at the maximum rate
-(16 ft/s^2 = 4.877 m/s^2), as in the paper.
+A planner decides, at the planner rate (10 Hz), whether the ego brakes. It sees what the
+ego's sensors give (:class:`PlannerInput`: the measured system pose) and, at
+:meth:`Planner.reset`, the junction's static :class:`~cdf_mj.model.layout.Layout`; it never
+sees the live simulation. Braking, once decided, is held to the end of the episode at the
+maximum rate (16 ft/s^2 = 4.877 m/s^2), as in the paper. ``brake`` is called at every
+tick, also after the ego has started braking, so that a filter keeps filtering to the end.
 
-==========  =================================================================
-constant    never brakes: the ego holds its speed (the counterfactual run)
-reactive    brakes as soon as any part of the obstacle is inside the ego lane
-cdf         brakes when the particle filter's P(cutoff) reaches tau
-==========  =================================================================
+Planners are made by name (:func:`make_planner`); :func:`register` adds one, by a
+``"module:Class"`` string (imported on first use) or by any zero-argument callable::
 
-``brake`` is called at every tick, also after the ego has started braking, so that a
-filter keeps filtering to the end of the episode.
+    register("mine", "my_package.planners:MyPlanner")
+    planner = make_planner("mine")
 
-New planners subclass :class:`Planner` and register with :func:`register`.
+==========  =================================================  ==============================
+constant    never brakes (the counterfactual run)              :mod:`cdf_mj.planners.simple`
+reactive    brakes once the obstacle is inside the ego lane    :mod:`cdf_mj.planners.simple`
+cdf         brakes when the filter's P(cutoff) reaches tau     :mod:`cdf_mj.planners.cdf`
+cv          constant-velocity conflict prediction              :mod:`cdf_mj.planners.baselines`
+imm         intent-only IMM conflict prediction                :mod:`cdf_mj.planners.baselines`
+==========  =================================================  ==============================
 """
 
 from __future__ import annotations
 
-import functools
-from dataclasses import dataclass
+import importlib
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar
 
 import numpy as np
 
-from cdf_mj.config import CDFConfig, ScenarioConfig
+from cdf_mj.config import ScenarioConfig
+from cdf_mj.model.layout import Layout
 
-__all__ = ["Planner", "PlannerInput", "ConstantPlanner", "ReactivePlanner", "CDFPlanner",
-           "make_planner", "register", "predicted_label", "PLANNERS"]
+__all__ = ["PLANNERS", "DecidingPlanner", "LazyPlanner", "Planner", "PlannerInput",
+           "make_planner", "predicted_label", "register"]
 
 
 @dataclass(frozen=True)
@@ -44,78 +53,58 @@ class Planner:
 
     name: str = "base"
 
-    def reset(self, scene, config: ScenarioConfig, rng: np.random.Generator) -> None:
-        """Called at the start of every episode with the episode's planner Generator."""
+    def reset(self, layout: Layout, config: ScenarioConfig, rng: np.random.Generator) -> None:
+        """Called at the start of every episode with the junction's static layout, the
+        scenario's parameters and the episode's planner Generator."""
 
     def brake(self, obs: PlannerInput) -> bool:
         """Whether the planner wants to brake now (the episode latches the first yes)."""
         raise NotImplementedError
 
-    def summary(self) -> dict:
+    def summary(self) -> dict[str, Any]:
         """JSON-serialisable details for the episode record (posterior history, ...)."""
         return {}
 
 
-class ConstantPlanner(Planner):
-    """Never brakes."""
+class DecidingPlanner(Planner):
+    """A planner that decides once to brake and holds that decision (cdf, cv, imm).
 
-    name = "constant"
-
-    def brake(self, obs: PlannerInput) -> bool:
-        return False
-
-
-class ReactivePlanner(Planner):
-    """Brakes once any part of the obstacle enters the ego lane (checked at 10 Hz)."""
-
-    name = "reactive"
-
-    def brake(self, obs: PlannerInput) -> bool:
-        return obs.obstacle_in_lane
-
-
-class CDFPlanner(Planner):
-    """The Cognitive Driving Framework: brake when P(cutoff) >= tau.
-
-    Its prediction for the episode (README, "Planners"): ``Cutoff`` if it braked, else its most
-    probable intent at the end (left -> ``Yield``, right -> ``Right``). ``summary()``
-    holds the prediction, the decision time and the posterior history.
+    Subclasses implement :meth:`decide`, called at every tick (so a filter keeps running
+    after the decision), and may :meth:`record` per-tick values under the names in
+    ``history_keys``. The first tick whose :meth:`decide` says yes is ``decision_time``
+    [s]; :meth:`brake` is true from then on.
     """
 
-    name = "cdf"
+    #: Per-tick values kept in ``history`` besides the time ``t``.
+    history_keys: ClassVar[tuple[str, ...]] = ()
 
-    def __init__(self, cdf: CDFConfig | None = None) -> None:
-        self.cdf = cdf or CDFConfig()
-
-    def reset(self, scene, config: ScenarioConfig, rng: np.random.Generator) -> None:
-        from cdf_mj.inference.particle_filter import ParticleFilter  # the filter's import cost only when used
-
-        self.filter = ParticleFilter.from_scene(scene, config, self.cdf, rng)
+    def reset(self, layout: Layout, config: ScenarioConfig, rng: np.random.Generator) -> None:
+        """Forget the last episode: no decision, an empty history."""
         self.decision_time: float | None = None
-        self.history: dict[str, list] = {k: [] for k in ("t", "p_left", "p_seen", "p_cutoff", "ess")}
-        self._started = False
+        self.history: dict[str, list[float]] = {key: [] for key in ("t", *self.history_keys)}
+
+    def decide(self, obs: PlannerInput) -> bool:
+        """Whether this tick's measurement calls for braking (the planner's own rule)."""
+        raise NotImplementedError
 
     def brake(self, obs: PlannerInput) -> bool:
-        pf = self.filter
-        if not self._started:
-            post = pf.reset(obs.poses)
-            self._started = True
-        else:
-            post = pf.update(obs.poses)
-        pf.predict(obs.poses)
-        h = self.history
-        h["t"].append(obs.t)
-        for key in ("p_left", "p_seen", "p_cutoff", "ess"):
-            h[key].append(round(getattr(post, key), 5))
-        if post.p_cutoff >= self.cdf.tau and self.decision_time is None:
+        """:meth:`decide`, latched: true from the first tick it said yes."""
+        if self.decide(obs) and self.decision_time is None:
             self.decision_time = obs.t
         return self.decision_time is not None
 
-    def summary(self) -> dict:
-        return {"prediction": predicted_label(self.decision_time, self.history["p_left"]),
-                "decision_time": self.decision_time,
-                "skipped_updates": self.filter.skipped_updates, "reinits": self.filter.reinits,
-                "history": self.history}
+    def record(self, t: float, **values: float) -> None:
+        """Append one tick to ``history``: time ``t`` [s] and each of ``history_keys``,
+        rounded to 5 decimals."""
+        self.history["t"].append(t)
+        for key in self.history_keys:
+            self.history[key].append(round(float(values[key]), 5))
+
+    def summary(self) -> dict[str, Any]:
+        """The prediction (:func:`predicted_label` from the recorded ``p_left``), the decision
+        time and the history."""
+        return {"prediction": predicted_label(self.decision_time, self.history.get("p_left", [])),
+                "decision_time": self.decision_time, "history": self.history}
 
 
 def predicted_label(decision_time: float | None, p_left: Sequence[float]) -> str:
@@ -126,38 +115,74 @@ def predicted_label(decision_time: float | None, p_left: Sequence[float]) -> str
     return "Yield" if p_left and p_left[-1] >= 0.5 else "Right"
 
 
+# ----------------------------------------------------------------- registry
+@dataclass(frozen=True)
+class LazyPlanner:
+    """A planner class named ``"module:Class"``, imported when a planner is first made.
+
+    Picklable (worker processes get the string) and free of import cycles: registering
+    a planner imports nothing. Calling it returns a new planner with default parameters.
+    """
+
+    target: str  # "package.module:ClassName"
+
+    def __post_init__(self) -> None:
+        module, _, cls = self.target.partition(":")
+        if not (module and cls and all(p.isidentifier() for p in (*module.split("."), cls))):
+            raise ValueError(f"planner target {self.target!r} must be 'package.module:ClassName'")
+
+    def __call__(self) -> Planner:
+        module, _, cls = self.target.partition(":")
+        try:
+            factory = getattr(importlib.import_module(module), cls)
+        except (ImportError, AttributeError) as exc:
+            raise ImportError(f"planner target {self.target!r} cannot be imported: {exc}") from exc
+        planner = factory()
+        if not isinstance(planner, Planner):
+            raise TypeError(f"planner target {self.target!r} made a {type(planner).__name__}, "
+                            "not a cdf_mj.planners.Planner")
+        return planner
+
+
+#: Planner factories by name: zero-argument callables returning a fresh :class:`Planner`
+#: (a :class:`LazyPlanner` for those registered by ``"module:Class"``).
 PLANNERS: dict[str, Callable[[], Planner]] = {}
 
 
-def register(name: str, factory: Callable[[], Planner]) -> None:
-    """Make a planner available by name (to ``run_episode`` and the CLI)."""
-    PLANNERS[name] = factory
+def register(name: str, target: str | Callable[[], Planner]) -> None:
+    """Make a planner available by ``name`` (to ``run_episode``, experiments and the CLI).
 
-
-register("constant", ConstantPlanner)
-register("reactive", ReactivePlanner)
-register("cdf", CDFPlanner)
+    ``target`` is ``"package.module:ClassName"`` (imported on first use; worker processes
+    import it by name, so it works with any start method) or a zero-argument callable
+    returning a fresh planner (a class, a ``functools.partial``; it must be picklable to
+    run in worker processes). ValueError for an empty name or a malformed target string,
+    TypeError for a target that is neither.
+    """
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"a planner name must be a non-empty string, got {name!r}")
+    if isinstance(target, str):
+        PLANNERS[name] = LazyPlanner(target)
+    elif callable(target):
+        PLANNERS[name] = target
+    else:
+        raise TypeError(f"planner {name!r}: target must be 'module:Class' or a callable, "
+                        f"got {type(target).__name__}")
 
 
 def make_planner(name: str | Planner) -> Planner:
-    """A fresh planner from its name; planner objects pass through."""
+    """A fresh planner from its registered name; planner objects pass through.
+    ValueError naming the registered planners for an unknown name."""
     if isinstance(name, Planner):
         return name
     try:
-        return PLANNERS[name]()
+        factory = PLANNERS[name]
     except KeyError:
         raise ValueError(f"unknown planner {name!r}: choose one of {', '.join(sorted(PLANNERS))}") from None
+    return factory()
 
 
-# Baselines (cdf_mj/baselines.py): registered here so that every process that imports the
-# registry knows them; the module (and filterpy, ~1 s to import) loads on first use. The
-# factories are partials of a module-level function, so worker processes can unpickle them.
-def _make_baseline(class_name: str) -> Planner:
-    """A fresh baseline planner (``CVPlanner``, ``IMMPlanner``) with its default parameters."""
-    from cdf_mj.planners import baselines
-
-    return getattr(baselines, class_name)()
-
-
-register("cv", functools.partial(_make_baseline, "CVPlanner"))
-register("imm", functools.partial(_make_baseline, "IMMPlanner"))
+register("constant", "cdf_mj.planners.simple:ConstantPlanner")
+register("reactive", "cdf_mj.planners.simple:ReactivePlanner")
+register("cdf", "cdf_mj.planners.cdf:CDFPlanner")
+register("cv", "cdf_mj.planners.baselines:CVPlanner")
+register("imm", "cdf_mj.planners.baselines:IMMPlanner")

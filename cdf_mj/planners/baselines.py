@@ -15,10 +15,11 @@ imm         intent-only estimator: filterpy's ``IMMEstimator`` over one Kalman f
 
 Both see what every planner sees (:class:`cdf_mj.planners.PlannerInput`: the measured
 system pose), predict the ego holding its speed along its heading, and latch their
-decision, as the other planners do. Their parameters are the frozen dataclasses
-:class:`CVConfig` and :class:`IMMConfig`; the defaults were chosen on seeds 0-199 only
-(docs/ANALYSIS.md says how). Importing :mod:`cdf_mj.planners.base` registers both names, so
-``cdf-mj experiment --planners cdf,reactive,cv,imm`` and worker processes know them::
+decision (:class:`cdf_mj.planners.base.DecidingPlanner`). Their parameters are the frozen
+dataclasses :class:`CVConfig` and :class:`IMMConfig`; the defaults were chosen on seeds
+0-199 only (docs/ANALYSIS.md says how). :mod:`cdf_mj.planners.base` registers both names
+(this module, and filterpy, load on first use), so ``cdf-mj experiment --planners
+cdf,reactive,cv,imm`` and worker processes know them::
 
     from cdf_mj.planners.baselines import IMMConfig, IMMPlanner
     record = run_episode(config, seed=7, planner=IMMPlanner(IMMConfig(threshold=0.8)))
@@ -32,6 +33,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from filterpy.common import Q_discrete_white_noise
@@ -40,7 +42,9 @@ from filterpy.kalman import IMMEstimator, KalmanFilter
 from cdf_mj.config import ScenarioConfig
 from cdf_mj.model.driver import Intent
 from cdf_mj.model.geometry import Polyline, wrap_angle
-from cdf_mj.planners.base import Planner, PlannerInput, predicted_label
+from cdf_mj.model.layout import Layout
+from cdf_mj.model.vehicle import CarGeometry
+from cdf_mj.planners.base import DecidingPlanner, PlannerInput
 
 __all__ = [
     "CVConfig",
@@ -51,6 +55,7 @@ __all__ = [
     "boxes_overlap",
     "first_conflict",
     "route_heading",
+    "straight_path",
 ]
 
 
@@ -81,7 +86,7 @@ class CVConfig:
         _require(_finite_number(self.margin) and 0 <= self.margin <= 5, "margin", self.margin,
                  "in [0, 5] [m]")
 
-    def replace(self, **changes: object) -> CVConfig:
+    def replace(self, **changes: Any) -> CVConfig:
         """A copy with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
 
@@ -132,7 +137,7 @@ class IMMConfig:
         _require(self.max_speed is None or (_finite_number(self.max_speed) and self.max_speed > 0),
                  "max_speed", self.max_speed, "None or a finite number > 0 [m/s]")
 
-    def replace(self, **changes: object) -> IMMConfig:
+    def replace(self, **changes: Any) -> IMMConfig:
         """A copy with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
 
@@ -140,23 +145,25 @@ class IMMConfig:
 # ----------------------------------------------------------------- conflict prediction
 def boxes_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Whether rectangles ``a[k]`` and ``b[k]`` overlap (boundary included), for corner
-    arrays ``(K, 4, 2)`` [m] as :func:`cdf_mj.geometry.box_corners` gives; separating axes."""
+    arrays ``(K, 4, 2)`` [m] as :func:`cdf_mj.model.geometry.box_corners` gives; separating axes."""
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
     edges = np.concatenate([a[:, 1:3] - a[:, 0:2], b[:, 1:3] - b[:, 0:2]], axis=1)  # (K, 4, 2)
     axes = np.stack([-edges[..., 1], edges[..., 0]], axis=-1)
     pa = np.einsum("kcj,kaj->kac", a, axes)  # (K, axes, corners)
     pb = np.einsum("kcj,kaj->kac", b, axes)
-    return np.all((pa.max(-1) >= pb.min(-1)) & (pb.max(-1) >= pa.min(-1)), axis=-1)
+    overlap: np.ndarray = np.all((pa.max(-1) >= pb.min(-1)) & (pb.max(-1) >= pa.min(-1)), axis=-1)
+    return overlap
 
 
-def first_conflict(ego_car, obstacle_car, ego_path: np.ndarray, obstacle_path: np.ndarray,
-                   margin: float, dt: float) -> float | None:
+def first_conflict(ego_car: CarGeometry, obstacle_car: CarGeometry, ego_path: np.ndarray,
+                   obstacle_path: np.ndarray, margin: float, dt: float) -> float | None:
     """Time [s] from now of the first predicted overlap of the two collision boxes, the
     obstacle's widened by ``margin`` [m] on each side, or ``None`` within the paths.
 
-    ``ego_path``/``obstacle_path`` are ``(K, 4)`` predicted poses at ``0, dt, ..., (K-1) dt``;
-    the cars are :class:`cdf_mj.scene.Car` (footprints).
+    ``ego_path``/``obstacle_path`` are ``(K, 4)`` predicted poses ``[x, y, theta, v]``
+    (world frame) at ``0, dt, ..., (K-1) dt`` [s]; the cars' footprints come from their
+    geometries (``Layout.ego``, ``Layout.obstacle``).
     """
     wide = dataclasses.replace(obstacle_car, hull_half=obstacle_car.hull_half + margin)
     hit = boxes_overlap(ego_car.footprint(ego_path), wide.footprint(obstacle_path))
@@ -183,49 +190,57 @@ def route_heading(route: Polyline, s: np.ndarray | float, window: float = 0.5) -
     w = min(window, 0.5 * route.length)
     lo = route.point_at(np.clip(s - w, 0.0, route.length - 2 * w))
     hi = route.point_at(np.clip(s + w, 2 * w, route.length))
-    return np.arctan2(hi[..., 1] - lo[..., 1], hi[..., 0] - lo[..., 0])
+    heading: np.ndarray = np.arctan2(hi[..., 1] - lo[..., 1], hi[..., 0] - lo[..., 0])
+    return heading
 
 
 def _times(horizon: float, dt: float) -> np.ndarray:
+    """Look-ahead times ``0, dt, ...`` [s] up to ``horizon`` [s] (inclusive within rounding)."""
     return np.arange(math.floor(horizon / dt + 1e-9) + 1) * dt
 
 
 # ----------------------------------------------------------------- constant velocity
-class CVPlanner(Planner):
+class CVPlanner(DecidingPlanner):
     """Constant-velocity predictor (velocity obstacle): brake when the straight-line
     extrapolations of the obstacle and of the ego at their measured speeds put their
     boxes in contact within ``horizon``. ``summary()`` holds the decision time and the
-    predicted time to conflict at that moment."""
+    predicted time to conflict at that moment.
+
+    Args:
+        params: horizon and margin (default :class:`CVConfig`).
+    """
 
     name = "cv"
 
     def __init__(self, params: CVConfig | None = None) -> None:
         self.params = params or CVConfig()
 
-    def reset(self, scene, config: ScenarioConfig, rng: np.random.Generator) -> None:
-        self._ego, self._obstacle, self._dt = scene.ego, scene.obstacle, config.dt
+    def reset(self, layout: Layout, config: ScenarioConfig, rng: np.random.Generator) -> None:
+        """Take the cars' footprints from ``layout`` and the tick ``dt`` from ``config``."""
+        super().reset(layout, config, rng)
+        self._ego, self._obstacle, self._dt = layout.ego, layout.obstacle, config.dt
         self._times = _times(self.params.horizon, config.dt)
-        self.decision_time: float | None = None
         self.conflict_in: float | None = None
 
     def time_to_conflict(self, poses: np.ndarray) -> float | None:
-        """Predicted time [s] to the first conflict under constant velocities, or None."""
+        """Predicted time [s] to the first conflict under constant velocities from the
+        system pose ``(2, 4)`` (ego, obstacle), or None within the horizon."""
         return first_conflict(self._ego, self._obstacle, straight_path(poses[0], self._times),
                               straight_path(poses[1], self._times), self.params.margin, self._dt)
 
-    def brake(self, obs: PlannerInput) -> bool:
+    def decide(self, obs: PlannerInput) -> bool:
+        """A predicted conflict within the horizon (predicted only until the decision)."""
         if self.decision_time is None:
-            ttc = self.time_to_conflict(obs.poses)
-            if ttc is not None:
-                self.decision_time, self.conflict_in = obs.t, ttc
-        return self.decision_time is not None
+            self.conflict_in = self.time_to_conflict(obs.poses)
+        return self.conflict_in is not None
 
-    def summary(self) -> dict:
+    def summary(self) -> dict[str, Any]:
+        """Decision time [s] and the time to conflict [s] predicted then."""
         return {"decision_time": self.decision_time, "predicted_conflict_in": self.conflict_in}
 
 
 # ----------------------------------------------------------------- intent-only IMM
-class RouteKalmanFilter(KalmanFilter):
+class RouteKalmanFilter(KalmanFilter):  # type: ignore[misc]  # filterpy has no type information
     """Kalman filter of the obstacle's progress along one route.
 
     State ``x = [s m, v m/s, a m/s^2]``: arc length along the route from the stop line,
@@ -260,8 +275,10 @@ class RouteKalmanFilter(KalmanFilter):
         H[3, 1] = 1.0
         return hx, H
 
-    def update(self, z, R=None, H=None) -> None:
-        """Extended Kalman update with the measured pose ``z`` (4,) (see the class)."""
+    def update(self, z: np.ndarray, R: np.ndarray | None = None, H: np.ndarray | None = None) -> None:
+        """Extended Kalman update with the measured pose ``z`` (4,) (see the class); ``R``
+        replaces the measurement noise for this update; ``H`` is ignored: the Jacobian is
+        that of the route at the predicted state."""
         z = np.ravel(np.asarray(z, dtype=float))
         hx, Hj = self.measurement(self.x)
         resid = z - hx
@@ -270,7 +287,7 @@ class RouteKalmanFilter(KalmanFilter):
         super().update(resid + Hj @ np.ravel(self.x), R=R)
 
 
-class IMMPlanner(Planner):
+class IMMPlanner(DecidingPlanner):
     """Intent-only planner: an IMM over per-intent route filters; brake when
     P(conflict) >= ``threshold``.
 
@@ -281,23 +298,28 @@ class IMMPlanner(Planner):
     it braked, else its most probable intent at the end (left -> ``Yield``, right ->
     ``Right``), as for ``cdf``. ``summary()`` holds the prediction, the decision time and
     the per-tick history of P(left) and P(conflict).
+
+    Args:
+        params: filter models, horizon and threshold (default :class:`IMMConfig`).
     """
 
     name = "imm"
+    history_keys = ("p_left", "p_conflict")
 
     def __init__(self, params: IMMConfig | None = None) -> None:
         self.params = params or IMMConfig()
 
-    def reset(self, scene, config: ScenarioConfig, rng: np.random.Generator) -> None:
+    def reset(self, layout: Layout, config: ScenarioConfig, rng: np.random.Generator) -> None:
+        """Take the routes and footprints from ``layout``, ``dt``, the prior P(left) and the
+        obstacle's turn speed from ``config``; the IMM starts at the first measurement."""
+        super().reset(layout, config, rng)
         p = self.params
-        self._ego, self._obstacle, self._dt = scene.ego, scene.obstacle, config.dt
-        self._routes = {Intent.LEFT: scene.route_left, Intent.RIGHT: scene.route_right}
+        self._ego, self._obstacle, self._dt = layout.ego, layout.obstacle, config.dt
+        self._routes = dict(zip((Intent.LEFT, Intent.RIGHT), layout.obstacle_routes, strict=True))
         self._times = _times(p.horizon, config.dt)
         self._max_speed = p.max_speed if p.max_speed is not None else config.obstacle_turn_speed
         self._p_left = config.p_left
         self.imm: IMMEstimator | None = None
-        self.decision_time: float | None = None
-        self.history: dict[str, list] = {"t": [], "p_left": [], "p_conflict": []}
 
     def _start(self, obstacle_pose: np.ndarray) -> IMMEstimator:
         p = self.params
@@ -312,17 +334,24 @@ class IMMPlanner(Planner):
         e = p.switch_prob
         return IMMEstimator(filters, np.array([prior, 1 - prior]), np.array([[1 - e, e], [e, 1 - e]]))
 
+    def _imm(self) -> IMMEstimator:
+        """The running IMM; RuntimeError before the first measurement."""
+        if self.imm is None:
+            raise RuntimeError("the IMM starts at the first measurement: call brake() first")
+        return self.imm
+
     @property
     def mode_probabilities(self) -> np.ndarray:
         """Current P(left), P(right) of the IMM (sums to 1)."""
         if self.imm is None:
             return np.array([self._p_left, 1 - self._p_left])
-        return np.asarray(self.imm.mu, dtype=float).copy()
+        mu: np.ndarray = np.array(self.imm.mu, dtype=float)
+        return mu
 
     def predicted_path(self, intent: Intent) -> np.ndarray:
         """Poses ``(K, 4)`` of the obstacle over the horizon if it has this intent: its filter's
         state extrapolated along the route at constant acceleration, speed in [0, max_speed]."""
-        kf = self.imm.filters[int(intent)]
+        kf = self._imm().filters[int(intent)]
         s, v, a = (float(q) for q in np.ravel(kf.x))
         speed = np.clip(v + a * self._times, 0.0, self._max_speed)
         arc = s + np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * self._dt)])
@@ -337,13 +366,15 @@ class IMMPlanner(Planner):
         """P(conflict within the horizon) = sum over intents of P(intent) x conflict(intent)."""
         ego_path = straight_path(ego_pose, self._times)
         total = 0.0
-        for intent, mu in zip((Intent.LEFT, Intent.RIGHT), self.imm.mu):
+        for intent, mu in zip((Intent.LEFT, Intent.RIGHT), self._imm().mu, strict=True):
             hit = first_conflict(self._ego, self._obstacle, ego_path, self.predicted_path(intent),
                                  self.params.margin, self._dt)
             total += float(mu) if hit is not None else 0.0
         return min(max(total, 0.0), 1.0)
 
-    def brake(self, obs: PlannerInput) -> bool:
+    def decide(self, obs: PlannerInput) -> bool:
+        """One IMM step on the measured obstacle pose (the start at the first tick), then
+        P(conflict) >= ``threshold``."""
         z = obs.poses[1]
         if self.imm is None:
             self.imm = self._start(z)
@@ -351,14 +382,5 @@ class IMMPlanner(Planner):
             self.imm.predict()
             self.imm.update(z)
         p_conflict = self.conflict_probability(obs.poses[0])
-        h = self.history
-        h["t"].append(obs.t)
-        h["p_left"].append(round(float(self.imm.mu[Intent.LEFT]), 5))
-        h["p_conflict"].append(round(p_conflict, 5))
-        if self.decision_time is None and p_conflict >= self.params.threshold:
-            self.decision_time = obs.t
-        return self.decision_time is not None
-
-    def summary(self) -> dict:
-        return {"prediction": predicted_label(self.decision_time, self.history["p_left"]),
-                "decision_time": self.decision_time, "history": self.history}
+        self.record(obs.t, p_left=self.imm.mu[Intent.LEFT], p_conflict=p_conflict)
+        return p_conflict >= self.params.threshold

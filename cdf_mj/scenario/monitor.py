@@ -57,7 +57,7 @@ class CDFMonitor:
     """The CDF particle filter watching a scene whose physics someone else steps.
 
     Args:
-        scene: the scene to watch (:meth:`cdf_mj.scene.Scene.from_model` for your own
+        scene: the scene to watch (:meth:`cdf_mj.sim.scene.Scene.from_model` for your own
             model and data); use :func:`attach` to build it from a model.
         scenario: the obstacle model the filter assumes (beta, noise, driver behaviour,
             ``dt``, prior P(left)); default :class:`ScenarioConfig`.
@@ -76,7 +76,7 @@ class CDFMonitor:
         self.scenario = scenario or ScenarioConfig()
         self.cdf = cdf or CDFConfig()
         self.rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
-        self.filter = ParticleFilter.from_scene(scene, self.scenario, self.cdf, self.rng)
+        self.filter = ParticleFilter.from_layout(scene.layout(), self.scenario, self.cdf, self.rng)
         self.reset()
 
     def reset(self) -> None:

@@ -2,10 +2,10 @@
 
 Rays are cast with ``mj_multiRay`` from the driver's eye against the occluders of the
 scene: geoms in group 1 (buildings) and group 3 (car collision boxes); the looking
-car's own body is excluded. Call :meth:`cdf_mj.scene.Scene.sync` after stepping so that
-geom positions match ``qpos``. ::
+car's own body is excluded. Call :meth:`cdf_mj.sim.scene.Scene.sync` after stepping so
+that geom positions match ``qpos``. ::
 
-    iso = isovist(scene, scene.obstacle.eye(scene.pose(scene.obstacle)))
+    iso = isovist(scene, scene.obstacle.geometry.eye(scene.pose(scene.obstacle)))
     iso.polygon            # shapely Polygon, world frame [m]
     ego_visible(scene)     # bool
 """
@@ -19,9 +19,10 @@ import mujoco
 import numpy as np
 import shapely
 
+from cdf_mj.model.occlusion import sight_targets
 from cdf_mj.sim.scene import Scene
 
-__all__ = ["Isovist", "isovist", "ego_visible", "sight_lines"]
+__all__ = ["Isovist", "ego_visible", "isovist", "sight_lines"]
 
 
 @dataclass(frozen=True)
@@ -99,10 +100,12 @@ def sight_lines(scene: Scene, eye: np.ndarray, targets: np.ndarray, target_body:
 def ego_visible(scene: Scene, obstacle_pose: np.ndarray | None = None,
                 ego_pose: np.ndarray | None = None) -> bool:
     """Whether the obstacle driver has a line of sight to any part of the ego: its four
-    hull corners and centre, at half the hull height. Poses default to the current state."""
+    hull corners and centre (:func:`cdf_mj.model.occlusion.sight_targets`), at half the
+    hull height. Poses ``[x, y, theta, v]`` (world frame) default to the current state."""
     obstacle_pose = scene.pose(scene.obstacle) if obstacle_pose is None else obstacle_pose
     ego_pose = scene.pose(scene.ego) if ego_pose is None else ego_pose
-    corners = scene.ego.footprint(ego_pose)  # (4, 2)
-    pts = np.vstack([corners, corners.mean(axis=0)])
-    targets = np.column_stack([pts, np.full(len(pts), 0.5 * scene.ego.hull_height)])
-    return bool(sight_lines(scene, scene.obstacle.eye(obstacle_pose), targets, scene.ego.body).any())
+    ego = scene.ego.geometry
+    pts = sight_targets(ego, ego_pose)  # (5, 2)
+    targets = np.column_stack([pts, np.full(len(pts), 0.5 * ego.hull_height)])
+    return bool(sight_lines(scene, scene.obstacle.geometry.eye(obstacle_pose), targets,
+                            scene.ego.body).any())

@@ -1,0 +1,147 @@
+"""A car's dimensions and actuator limits in its own chassis frame, in NumPy only.
+
+The chassis frame has its origin on the rear axle, x forward, y to the left, z up from
+the ground. Poses are ``[x, y, theta, v]``: rear-axle position [m] and heading [rad] in
+the world frame (x east, y north), speed [m/s] along the heading. :mod:`cdf_mj.sim`
+reads one :class:`CarGeometry` per car from the MJCF model
+(``Scene.ego.geometry``, ``Scene.layout().ego``); the drivers, the filter and the
+planners use it without MuJoCo. ::
+
+    from cdf_mj.model.vehicle import CarGeometry
+
+    car = CarGeometry(wheelbase=2.7, hull_offset=(1.35, 0.0), hull_half=(2.3, 0.9),
+                      hull_height=1.5, eye_offset=(1.2, 0.4, 1.2),
+                      accel_range=(-4.877, 3.0), steer_range=(-0.6, 0.6))
+    car.footprint([0.0, 0.0, 0.0, 0.0])     # (4, 2) corners of the collision box [m]
+    car.eye(poses)                          # (N, 3) driver's eye for N poses (N, 4) [m]
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from cdf_mj.model.geometry import rotated_corners
+
+__all__ = ["CarGeometry"]
+
+
+def _vector(value: Sequence[float] | np.ndarray, size: int) -> np.ndarray | None:
+    """``value`` as a read-only float array of shape ``(size,)``, or None if it is not one."""
+    try:
+        out = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    if out.shape != (size,):
+        return None
+    out.flags.writeable = False
+    return out
+
+
+def _pair(value: Sequence[float]) -> tuple[float, float] | None:
+    """``value`` as a pair of floats, or None if it is not one."""
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError):
+        return None
+    return lo, hi
+
+
+@dataclass(frozen=True, eq=False)
+class CarGeometry:
+    """Dimensions of one car in its chassis frame (origin on the rear axle) and the
+    ranges of its two actuators.
+
+    Attributes:
+        wheelbase: rear axle to front axle [m], > 0.
+        hull_offset: ``(2,)`` centre of the collision box in the chassis frame [m].
+        hull_half: ``(2,)`` half length (x) and half width (y) of the collision box [m], > 0.
+        hull_height: top of the collision box above the ground [m], > 0.
+        eye_offset: ``(3,)`` the driver's eye in the chassis frame [m] (z: height above
+            the ground).
+        accel_range: ``(maximum braking, maximum acceleration)`` [m/s^2], braking < 0 < accel.
+        steer_range: ``(full right, full left)`` steering angle [rad], right < 0 < left.
+
+    Arrays are stored read-only; ValueError (one message listing every bad field) on a
+    value that is not finite, of the wrong shape, or out of range.
+    """
+
+    wheelbase: float
+    hull_offset: np.ndarray
+    hull_half: np.ndarray
+    hull_height: float
+    eye_offset: np.ndarray
+    accel_range: tuple[float, float]
+    steer_range: tuple[float, float]
+
+    def __post_init__(self) -> None:
+        bad: list[str] = []
+        vectors = {"hull_offset": 2, "hull_half": 2, "eye_offset": 3}
+        for name, size in vectors.items():
+            value = _vector(getattr(self, name), size)
+            if value is None or not np.all(np.isfinite(value)):
+                bad.append(f"{name}={getattr(self, name)!r} must be {size} finite numbers [m]")
+            elif name == "hull_half" and not np.all(value > 0):
+                bad.append(f"hull_half={value.tolist()} must be > 0 [m]")
+            else:
+                object.__setattr__(self, name, value)
+        for name in ("wheelbase", "hull_height"):
+            value = getattr(self, name)
+            try:
+                number = float(value)
+            except (TypeError, ValueError):
+                number = math.nan
+            if not (math.isfinite(number) and number > 0):
+                bad.append(f"{name}={value!r} must be a finite number > 0 [m]")
+            else:
+                object.__setattr__(self, name, number)
+        for name, unit, sides in (("accel_range", "m/s^2", "braking < 0 < acceleration"),
+                                  ("steer_range", "rad", "right < 0 < left")):
+            pair = _pair(getattr(self, name))
+            if pair is None or not (math.isfinite(pair[0]) and math.isfinite(pair[1])
+                                    and pair[0] < 0.0 < pair[1]):
+                bad.append(f"{name}={getattr(self, name)!r} must be two finite numbers, "
+                           f"{sides} [{unit}]")
+            else:
+                object.__setattr__(self, name, pair)
+        if bad:
+            raise ValueError(f"CarGeometry: {'; '.join(bad)}")
+
+    @property
+    def max_brake(self) -> float:
+        """Maximum braking deceleration [m/s^2], positive."""
+        return -self.accel_range[0]
+
+    @property
+    def max_accel(self) -> float:
+        """Maximum acceleration [m/s^2], positive."""
+        return self.accel_range[1]
+
+    @property
+    def max_steer(self) -> float:
+        """Largest steering angle [rad] reachable to both sides, positive."""
+        return min(-self.steer_range[0], self.steer_range[1])
+
+    def footprint(self, pose: np.ndarray | Sequence[float]) -> np.ndarray:
+        """Corners ``(..., 4, 2)`` [m, world frame] of the collision box for pose(s)
+        ``(..., 4)`` ``[x, y, theta, v]``, counter-clockwise."""
+        pose = np.asarray(pose, dtype=float)
+        c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
+        ox, oy = self.hull_offset
+        return rotated_corners(pose[..., 0] + c * ox - s * oy, pose[..., 1] + s * ox + c * oy, c, s,
+                               self.hull_half)
+
+    def eye(self, pose: np.ndarray | Sequence[float]) -> np.ndarray:
+        """World position(s) ``(..., 3)`` [m] of the driver's eye for pose(s) ``(..., 4)``
+        ``[x, y, theta, v]``; z is the eye's height above the ground."""
+        pose = np.asarray(pose, dtype=float)
+        c, s = np.cos(pose[..., 2]), np.sin(pose[..., 2])
+        ex, ey, ez = self.eye_offset
+        out = np.empty((*pose.shape[:-1], 3))
+        out[..., 0] = pose[..., 0] + c * ex - s * ey
+        out[..., 1] = pose[..., 1] + s * ex + c * ey
+        out[..., 2] = ez
+        return out

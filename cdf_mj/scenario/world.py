@@ -1,0 +1,250 @@
+"""The scenario world: both cars ticked at ``config.dt``, the obstacle's side of the
+scenario in one place (:class:`World`), used by :func:`cdf_mj.scenario.episode.run_episode`
+and by the Gymnasium environment (:mod:`cdf_mj.envs.t_intersection`). ::
+
+    world = World(scene, config)
+    m = world.reset(seed=7)                    # draws intent and ego start; places cars
+    while not world.done:
+        m = world.measure()                    # S_t and whether the obstacle is in the lane
+        tick = world.step(np.array([0.0, 0.0]))    # ego [accel m/s^2, steer rad]
+
+Frames and units: world frame (x east, y north), metres, seconds, radians; poses are
+rear-axle ``[x, y, theta, v]``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+
+from cdf_mj.config import ScenarioConfig
+from cdf_mj.model.driver import DriverModel, Intent, Mode, obstacle_control, update_belief
+from cdf_mj.sim.scene import Scene, SimulationDivergedError
+from cdf_mj.sim.visibility import ego_visible
+
+__all__ = ["Measurement", "NonFiniteStateError", "Tick", "World"]
+
+
+_HELD_BACK = frozenset((int(Mode.YIELDING), int(Mode.WAITING)))  # plain ints: a cheap test per tick
+
+
+class NonFiniteStateError(FloatingPointError):
+    """The simulation produced a NaN or infinite pose, or MuJoCo found its state unstable."""
+
+
+@dataclass(slots=True)
+class Measurement:
+    """What the ego measures at the start of a tick, before it chooses its controls
+    (read-only by convention; not frozen, which would cost microseconds every tick)."""
+
+    t: float  # [s] episode time
+    poses: np.ndarray  # (2, 4) system pose S_t: ego, obstacle [x m, y m, theta rad, v m/s], world frame
+    obstacle_in_lane: bool  # any corner of the obstacle's collision box inside the ego lane
+
+
+@dataclass(slots=True)
+class Tick:
+    """What one :meth:`World.step` did (read-only by convention). Times in seconds from the
+    start of the episode."""
+
+    t: float  # [s] time at the start of the tick
+    poses: np.ndarray  # (2, 4) the system pose S_t the tick started from (world frame)
+    obstacle_in_lane: bool  # at the start of the tick
+    observed: bool  # the obstacle observed the ego on this tick
+    mode: int  # the obstacle driver's Mode after its decision
+    seen: bool  # the obstacle has observed the ego at least once
+    belief: np.ndarray  # (4,) its believed ego pose [x m, y m, theta rad, v m/s] (zeros if not seen)
+    gap: float  # [m] distance between the two cars' collision boxes at the start of the tick
+    collision: str | None  # "obstacle" | "building" if the ego touched one during the tick
+    done: bool  # the episode is over (contact, the ego past the end, or the duration reached)
+
+
+def _streams(seed: int) -> dict[str, np.random.Generator]:
+    ss = np.random.SeedSequence(seed)
+    names = ("scenario", "obstacle", "ego", "planner")
+    return {n: np.random.Generator(np.random.PCG64(s)) for n, s in zip(names, ss.spawn(len(names)), strict=True)}
+
+
+def _substeps(scene: Scene, config: ScenarioConfig) -> int:
+    ratio = config.dt / scene.model.opt.timestep
+    n = round(ratio)
+    if n < 1 or abs(ratio - n) > 1e-6:
+        raise ValueError(f"dt={config.dt} s must be a whole multiple of the scene's timestep "
+                         f"{scene.model.opt.timestep} s")
+    return n
+
+
+class World:
+    """The scenario world, ticked at ``config.dt``: the obstacle looks, believes and drives;
+    the ego takes the controls it is given (see the module docstring for an example).
+
+    One tick, in order: the obstacle looks (MuJoCo rays; with probability ``beta`` it
+    observes the ego's pose with Gaussian noise) and updates its belief; its driver state
+    machine gives its controls; both cars' controls get the scenario's process noise;
+    MuJoCo steps ``dt / timestep`` physics steps, stopping at the ego's first contact.
+
+    Randomness: ``reset(seed)`` splits the seed into independent streams (``rng``:
+    ``scenario``, ``obstacle``, ``ego``, ``planner``), each drawn the same way whatever
+    the ego does (common random numbers). The ``planner`` stream is not used here; it is
+    for the ego's decision maker.
+
+    Args:
+        scene: the loaded scene (its model is not changed; its data is).
+        config: scenario parameters; ``config.dt`` must be a whole multiple of the scene's
+            timestep.
+
+    Attributes: ``scene``, ``config``, ``layout`` (``scene.layout()``), ``driver`` (the
+    obstacle's :class:`~cdf_mj.model.driver.DriverModel`). After :meth:`reset` (updated by
+    :meth:`step`): ``seed``, ``intent`` (:class:`cdf_mj.model.driver.Intent`),
+    ``ego_start_offset`` [m], ``first_seen`` [s], ``yielded``, ``entered_lane`` [s], ``min_gap`` [m], ``collision``
+    (``"obstacle"``/``"building"``/``None``), ``collision_time`` [s], ``done`` and
+    ``end_reason`` (``None`` while running, then ``"collision"``, ``"passed"``: the ego's
+    rear axle 20 m past the conflict point, or ``"duration"``).
+    """
+
+    def __init__(self, scene: Scene, config: ScenarioConfig | None = None) -> None:
+        self.scene = scene
+        self.config = config = config or ScenarioConfig()
+        self.layout = layout = scene.layout()
+        self.driver = DriverModel.from_layout(layout, config)
+        self.n_sub = _substeps(scene, config)
+        self._obs_std = np.array([config.obs_noise_pos, config.obs_noise_pos,
+                                  config.obs_noise_heading, config.obs_noise_speed])
+        self._nu_std = np.array([config.noise_accel, config.noise_steer])
+        self._s0 = layout.route_ego.project(layout.ego_start[:2])[0]
+        self._s_conflict = layout.route_ego.project(layout.conflict)[0]
+        self.done = True  # until reset
+
+    # ------------------------------------------------------------------ episode
+    def reset(self, seed: int) -> Measurement:
+        """Start the episode of ``seed`` (a non-negative integer): draw the intent and the
+        ego's start offset, place both cars (the ego at its nominal speed, the obstacle at
+        rest at its start site), and return the first measurement."""
+        scene, config, layout = self.scene, self.config, self.layout
+        self.seed = seed
+        self.rng = rng = _streams(seed)
+        # Scenario draw: intent, then the ego's start along its route.
+        self.intent = Intent.LEFT if rng["scenario"].random() < config.p_left else Intent.RIGHT
+        self.ego_start_offset = offset = float(rng["scenario"].uniform(*config.ego_start_spread))
+        route = layout.route_ego
+        xy0 = route.point_at(self._s0 + offset)
+        ahead = route.point_at(self._s0 + offset + 1.0)
+        heading0 = math.atan2(ahead[1] - xy0[1], ahead[0] - xy0[0])
+        scene.reset(ego=np.array([xy0[0], xy0[1], heading0, config.ego_speed]),
+                    obstacle=layout.obstacle_start)
+        self._mode = np.array([Mode.WAITING])
+        self._belief = np.zeros((1, 4))
+        self._has_belief = np.zeros(1, dtype=bool)
+        self._intents = np.array([int(self.intent)])
+        self.first_seen: float | None = None
+        self.yielded = False
+        self.entered_lane: float | None = None
+        self.min_gap = math.inf
+        self.collision: str | None = None
+        self.collision_time: float | None = None
+        self.done = False
+        self.end_reason: str | None = None
+        self._k = 0
+        self._measured: Measurement | None = None
+        return self.measure()
+
+    @property
+    def t(self) -> float:
+        """[s] episode time at the start of the current tick."""
+        return round(self._k * self.config.dt, 6)
+
+    @property
+    def end_time(self) -> float:
+        """[s] simulated time so far (the episode's end time once ``done``)."""
+        return round(float(self.scene.data.time), 6)
+
+    @property
+    def time_lost(self) -> float:
+        """[s] the ego's progress deficit along its route over its nominal speed, so far."""
+        cfg = self.config
+        s_end = self.layout.route_ego.project(self.scene.pose(self.scene.ego)[:2])[0]
+        s_start = self._s0 + self.ego_start_offset
+        return float((s_start + cfg.ego_speed * self.end_time - s_end) / cfg.ego_speed)
+
+    def measure(self) -> Measurement:
+        """The system pose ``S_t`` (2, 4) read from MuJoCo at the start of the current tick,
+        and whether the obstacle is in the ego lane. NonFiniteStateError on a NaN pose."""
+        if self._measured is not None:
+            return self._measured
+        scene = self.scene
+        poses = scene.poses()
+        if not np.all(np.isfinite(poses)):
+            raise NonFiniteStateError(f"non-finite system pose at t={self.t:.1f} s "
+                                      f"(seed {self.seed}): {poses.tolist()}")
+        hull = self.layout.obstacle.footprint(poses[1])
+        in_lane = bool(self.layout.ego_lane.contains(hull).any())
+        self._hull = hull
+        self._measured = Measurement(t=self.t, poses=poses, obstacle_in_lane=in_lane)
+        return self._measured
+
+    def step(self, ego_controls: np.ndarray) -> Tick:
+        """One tick of ``config.dt`` with the ego's controls ``[accel m/s^2, steer rad]``
+        (process noise is added; MuJoCo clips them to the actuator ranges).
+
+        RuntimeError after the episode is over (call :meth:`reset`).
+        """
+        if self.done:
+            raise RuntimeError("the episode is over: call reset(seed) before step()")
+        scene, config, rng, layout = self.scene, self.config, self.rng, self.layout
+        m = self.measure()
+        t, poses = m.t, m.poses
+        ego, obs = poses[0], poses[1]
+        dt = config.dt
+
+        # The obstacle looks (draws are made every tick, whatever is visible: CRN).
+        scene.sync()
+        u_look = rng["obstacle"].random()
+        noise = rng["obstacle"].standard_normal(4) * self._obs_std
+        nu1 = rng["obstacle"].standard_normal(2) * self._nu_std
+        nu2 = rng["ego"].standard_normal(2) * self._nu_std
+        observed = bool(u_look < config.beta) and ego_visible(scene, obs, ego)
+        self._belief, self._has_belief = update_belief(
+            self._belief, self._has_belief, np.array([observed]), (ego + noise)[None], dt,
+            layout.obstacle.wheelbase)
+        if observed and self.first_seen is None:
+            self.first_seen = t
+
+        # The obstacle decides.
+        u1, self._mode = obstacle_control(self.driver, obs[None], self._mode, self._belief,
+                                          self._has_belief, self._intents)
+        mode = int(self._mode[0])
+        # Held back by what it believes: braking to yield, or still waiting after its first look.
+        self.yielded |= mode in _HELD_BACK
+        if m.obstacle_in_lane and self.entered_lane is None:
+            self.entered_lane = t
+        hulls = shapely.polygons(np.stack([layout.ego.footprint(ego), self._hull]))  # one call for both
+        gap = float(shapely.distance(hulls[0], hulls[1]))
+        self.min_gap = min(self.min_gap, gap)
+
+        scene.set_controls("obstacle", *(u1[0] + nu1))
+        scene.set_controls("ego", *(np.asarray(ego_controls, dtype=float) + nu2))
+        self._measured = None
+        try:
+            hit = scene.step(self.n_sub)
+        except SimulationDivergedError as exc:
+            self.done = True
+            raise NonFiniteStateError(f"non-finite system pose between t={t:.1f} s and "
+                                      f"t={t + dt:.1f} s (seed {self.seed}): {exc}") from None
+        self._k += 1
+        if hit is not None:
+            self.collision = hit
+            self.collision_time = self.end_time
+            self.min_gap = 0.0
+            self.end_reason = "collision"
+        # The ego's rear axle is 20 m past the conflict point: nothing more can happen to it.
+        elif layout.route_ego.project(scene.pose(scene.ego)[:2])[0] > self._s_conflict + 20.0:
+            self.end_reason = "passed"
+        elif self._k >= config.n_ticks:
+            self.end_reason = "duration"
+        self.done = self.end_reason is not None
+        return Tick(t=t, poses=poses, obstacle_in_lane=m.obstacle_in_lane, observed=observed,
+                    mode=mode, seen=bool(self._has_belief[0]), belief=self._belief[0].copy(),
+                    gap=gap, collision=hit, done=self.done)

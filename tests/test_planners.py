@@ -1,0 +1,134 @@
+"""The planner registry (names, ``"module:Class"`` targets, pickling, lazy imports) and
+the base of deciding planners, on real episodes."""
+
+from __future__ import annotations
+
+import ast
+import pickle
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import cdf_mj.planners
+from cdf_mj.config import ScenarioConfig
+from cdf_mj.model.layout import Layout
+from cdf_mj.planners import (
+    PLANNERS,
+    DecidingPlanner,
+    LazyPlanner,
+    Planner,
+    PlannerInput,
+    ReactivePlanner,
+    base,
+    make_planner,
+    register,
+)
+from cdf_mj.scenario.episode import run_episode
+
+
+def test_builtin_planners_are_registered_by_name():
+    assert {"constant", "reactive", "cdf", "cv", "imm"} <= set(PLANNERS)
+    for name in ("constant", "reactive", "cdf", "cv", "imm"):
+        planner = make_planner(name)
+        assert isinstance(planner, Planner) and planner.name == name
+        assert make_planner(name) is not planner  # a fresh one every time
+    planner = ReactivePlanner()
+    assert make_planner(planner) is planner
+
+
+def test_a_target_string_is_imported_on_first_use_and_pickles(monkeypatch):
+    monkeypatch.setitem(PLANNERS, "twin", PLANNERS["reactive"])
+    register("twin", "cdf_mj.planners.simple:ReactivePlanner")
+    factory = PLANNERS["twin"]
+    assert factory == LazyPlanner("cdf_mj.planners.simple:ReactivePlanner")
+    assert isinstance(pickle.loads(pickle.dumps(factory))(), ReactivePlanner)
+    assert isinstance(make_planner("twin"), ReactivePlanner)
+
+
+def test_a_callable_target_is_kept_as_it_is(monkeypatch):
+    monkeypatch.setitem(PLANNERS, "mine", PLANNERS["reactive"])
+    register("mine", ReactivePlanner)
+    assert PLANNERS["mine"] is ReactivePlanner
+
+
+@pytest.mark.parametrize(("target", "error", "match"), [
+    ("cdf_mj.planners.simple", ValueError, "must be 'package.module:ClassName'"),
+    (":ReactivePlanner", ValueError, "must be 'package.module:ClassName'"),
+    ("cdf_mj.planners.simple:Reactive Planner", ValueError, "must be 'package.module:ClassName'"),
+    (42, TypeError, "target must be 'module:Class' or a callable"),
+])
+def test_bad_targets_are_refused_when_registered(target, error, match):
+    before = dict(PLANNERS)
+    with pytest.raises(error, match=match):
+        register("bad", target)
+    assert before == PLANNERS
+    with pytest.raises(ValueError, match="non-empty string"):
+        register("", "cdf_mj.planners.simple:ReactivePlanner")
+
+
+def test_a_target_that_cannot_be_imported_says_so(monkeypatch):
+    monkeypatch.setitem(PLANNERS, "ghost", PLANNERS["reactive"])
+    register("ghost", "cdf_mj.planners.simple:NoSuchPlanner")
+    with pytest.raises(ImportError, match=r"'cdf_mj\.planners\.simple:NoSuchPlanner' cannot be imported"):
+        make_planner("ghost")
+    with pytest.raises(ValueError, match=r"unknown planner 'psychic': choose one of .*reactive"):
+        make_planner("psychic")
+
+
+def test_the_registry_imports_no_planner_module():
+    """base.py names the planners by string: it imports none of their modules (no cycle)."""
+    tree = ast.parse(Path(base.__file__).read_text())
+    imported = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    imported |= {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    assert not {m for m in imported if m and m.startswith("cdf_mj.planners")}
+
+
+def test_the_baselines_load_when_first_made():
+    """filterpy (about 1 s to import) loads with the first cv or imm planner, not before."""
+    code = ("import sys, cdf_mj.planners as p\n"
+            "print('cdf_mj.planners.baselines' in sys.modules, 'filterpy' in sys.modules)\n"
+            "p.make_planner('cv')\n"
+            "print('cdf_mj.planners.baselines' in sys.modules, 'filterpy' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=False)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["False", "False", "True", "True"]
+
+
+def test_the_package_gives_the_baselines_on_first_access():
+    assert cdf_mj.planners.IMMPlanner().name == "imm"
+    assert cdf_mj.planners.CVConfig().horizon > 0
+    with pytest.raises(AttributeError, match="no attribute 'Nope'"):
+        _ = cdf_mj.planners.Nope
+
+
+class _BrakesLate(DecidingPlanner):
+    """Wants to brake from t = 0.5 s to t = 0.7 s only; records its measured obstacle speed."""
+
+    name = "late"
+    history_keys = ("p_left", "speed")
+
+    def reset(self, layout: Layout, config: ScenarioConfig, rng: np.random.Generator) -> None:
+        super().reset(layout, config, rng)
+        self.layout = layout
+
+    def decide(self, obs: PlannerInput) -> bool:
+        self.record(obs.t, p_left=0.123456789, speed=obs.poses[1, 3])
+        return 0.45 < obs.t < 0.75
+
+
+def test_a_deciding_planner_latches_its_first_yes_and_keeps_a_history(scene):
+    planner = _BrakesLate()
+    rec = run_episode(ScenarioConfig(), seed=4, planner=planner, scene=scene, label=False, trace=True)
+    assert isinstance(planner.layout, Layout) and planner.layout is scene.layout()
+    assert rec.brake_time == 0.5 and all(rec.trace["brake"][5:]) and not any(rec.trace["brake"][:5])
+    info = rec.planner_info
+    assert info["decision_time"] == 0.5 and info["prediction"] == "Cutoff"
+    history = info["history"]
+    assert history["t"] == rec.trace["t"]
+    assert set(history["p_left"]) == {0.12346}  # rounded to 5 decimals
+    assert len(history["speed"]) == len(history["t"])
+    planner.reset(scene.layout(), ScenarioConfig(), np.random.default_rng(0))  # forgets the episode
+    assert planner.decision_time is None and planner.history == {"t": [], "p_left": [], "speed": []}
