@@ -6,10 +6,11 @@ import json
 
 import pytest
 
+from cdf_mj.analysis.tables import experiment_tables
 from cdf_mj.cli import main
 from cdf_mj.config import CDFConfig
-from cdf_mj.records import Labels
-from cdf_mj.experiments.experiment import experiment_tables, load_records, run_experiment
+from cdf_mj.experiments.experiment import ResultsExistError, run_experiment
+from cdf_mj.records import LABELS, Label, load_records
 
 SEEDS = range(0, 12)
 SMALL = CDFConfig(n_particles=300)
@@ -39,14 +40,13 @@ def test_planners_share_labels_and_tables_match_records(small_run):
         by_seed.setdefault(r["seed"], set()).add(r["label"])
     assert all(len(labels) == 1 for labels in by_seed.values())  # common random numbers
 
-    table = experiment_tables(records)
+    table = experiment_tables(records, fmt="markdown")
     cdf = [r for r in records if r["planner"] == "cdf"]
-    for lab in (Labels.CUTOFF, Labels.YIELD, Labels.RIGHT):
-        row = [sum(1 for r in cdf if r["label"] == lab and r["planner_info"]["prediction"] == p)
-               for p in (Labels.CUTOFF, Labels.YIELD, Labels.RIGHT)]
+    for lab in LABELS:
+        row = [sum(1 for r in cdf if r["label"] == lab and r["planner_info"]["prediction"] == p) for p in LABELS]
         assert sum(row) == sum(1 for r in cdf if r["label"] == lab)
         assert f"| {lab} | {row[0]} \\| " in table
-    n_cut = sum(1 for r in cdf if r["label"] == Labels.CUTOFF)
+    n_cut = sum(1 for r in cdf if r["label"] == Label.CUTOFF)
     reactive_hits = sum(1 for r in records if r["planner"] == "reactive" and r["collision_with"] == "obstacle")
     assert f"| reactive | {n_cut} | {reactive_hits} |" in table
     assert "417 / 9 / 98 %" in table and "404 / 213 / 47 %" in table  # the paper beside ours
@@ -54,9 +54,11 @@ def test_planners_share_labels_and_tables_match_records(small_run):
 
 def test_other_settings_in_the_same_directory_are_refused(small_run):
     out, _ = small_run
-    with pytest.raises(ValueError, match="other settings"):
+    with pytest.raises(ValueError, match=r"other settings \(differing: cdf.n_particles, planners\)") as info:
         run_experiment(out, SEEDS, ("reactive",), progress=False)
-    with pytest.raises(ValueError, match="already holds results"):
+    assert not isinstance(info.value, ResultsExistError)
+    # The same settings without resume: its own error, in neutral terms.
+    with pytest.raises(ResultsExistError, match=f"^{out} already holds results of this experiment$"):
         run_experiment(out, SEEDS, ("cdf", "reactive"), cdf=SMALL, progress=False)
 
 
@@ -73,6 +75,10 @@ def test_bad_experiment_input_is_refused_before_work(tmp_path, capsys):
 def test_cli_experiment_prints_both_tables(tmp_path, capsys):
     assert main(["experiment", "--episodes", "3", "--seed0", "40", "--planners", "reactive,constant",
                  "--out", str(tmp_path / "r"), "--quiet"]) == 0
-    out = capsys.readouterr().out
-    assert "| reactive |" in out and "| constant |" in out
+    lines = capsys.readouterr().out.splitlines()
+    assert "Collisions with the obstacle" in lines and "Braking" in lines
+    assert sum(line.startswith("reactive ") for line in lines) == 2  # one row in each table
+    assert sum(line.startswith("constant ") for line in lines) == 2
+    tables = lines[lines.index("Collisions with the obstacle"):]
+    assert max(map(len, tables)) <= 100
     assert len(load_records(tmp_path / "r")) == 6

@@ -1,5 +1,5 @@
-"""The experiment runner: the same records on any backend, nothing lost or duplicated by a
-killed run, failed episodes recorded, other settings refused."""
+"""The experiment runner and its record store: the same records on any backend, nothing
+lost or duplicated by a killed run, failed episodes recorded, other settings refused."""
 
 from __future__ import annotations
 
@@ -15,11 +15,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cdf_mj.analysis.tables import experiment_tables
 from cdf_mj.cli import main
 from cdf_mj.config import CDFConfig
-from cdf_mj.experiments.experiment import experiment_tables, load_records, run_experiment
-from cdf_mj.planners.base import PLANNERS, Planner, PlannerInput, ReactivePlanner
-from cdf_mj.experiments.runner import FAILED, OK, START_METHOD, RecordStore, WorkerDiedError, locked
+from cdf_mj.experiments.experiment import run_experiment
+from cdf_mj.experiments.runner import START_METHOD, WorkerDiedError
+from cdf_mj.experiments.store import RecordStore, locked
+from cdf_mj.planners import PLANNERS, Planner, PlannerInput, ReactivePlanner
+from cdf_mj.records import FAILED, OK, load_records
 
 SMALL = CDFConfig(n_particles=200)
 SEEDS = range(30, 38)
@@ -100,9 +103,8 @@ def test_sigkilled_run_resumes_without_loss_or_duplicates(tmp_path):
     saved = _count_lines(out / "episodes.jsonl")
     assert 5 <= saved < len(seeds)  # really killed in the middle
 
-    # Without --resume the directory is refused; with it the run completes.
-    assert main(cmd[3:]) == 2
-    assert main([*cmd[3:], "--resume"]) == 0
+    # The same command again completes the run.
+    assert main(cmd[3:]) == 0
     records = load_records(out)
     counts = Counter(_key(r) for r in records)
     assert set(counts) == {(s, "reactive") for s in seeds}
@@ -144,9 +146,9 @@ def test_a_failing_episode_is_recorded_and_the_run_goes_on(tmp_path, monkeypatch
         if r["planner"] == "exploding" and r["status"] == OK:
             assert r["label"] == reactive[r["seed"]]["label"]
 
-    # Resuming keeps the failures; --retry-failed runs them again (here, once fixed).
+    # Running it again keeps the failures; --retry-failed runs them again (here, once fixed).
     args = ["experiment", "--episodes", "10", "--planners", "reactive,exploding", "--workers", "2",
-            "--out", str(tmp_path), "--quiet", "--resume"]
+            "--out", str(tmp_path), "--quiet"]
     assert main(args) == 1 and len(load_records(tmp_path)) == 20
     monkeypatch.setitem(PLANNERS, "exploding", ReactivePlanner)  # the bug is fixed
     assert main([*args, "--retry-failed"]) == 0
@@ -185,7 +187,7 @@ def test_resume_with_other_settings_is_refused(serial, tmp_path):
         run_experiment(out, SEEDS, ("cdf", "reactive"), progress=False, resume=True)
     with pytest.raises(ValueError, match="planners"):
         run_experiment(out, SEEDS, ("reactive",), cdf=SMALL, progress=False, resume=True)
-    assert main(["experiment", "--episodes", "8", "--seed0", "30", "--out", str(out), "--resume",
+    assert main(["experiment", "--episodes", "8", "--seed0", "30", "--out", str(out),
                  "--set", "beta=0.1", "--quiet"]) == 2
     assert (out / "episodes.jsonl").read_bytes() == before
     # The same settings: nothing left to run, the same records.
@@ -193,17 +195,20 @@ def test_resume_with_other_settings_is_refused(serial, tmp_path):
     assert again.ran == 0 and again.resumed == 2 * len(SEEDS) and again.records == serial.records
 
 
-def test_store_drops_a_half_written_last_line_and_refuses_a_damaged_one(tmp_path):
+def test_store_drops_a_half_written_last_line_and_refuses_a_damaged_one(serial, tmp_path):
     path = tmp_path / "episodes.jsonl"
-    good = [{"seed": 1, "planner": "reactive", "status": OK}, {"seed": 2, "planner": "reactive", "status": OK}]
-    path.write_text("".join(json.dumps(r) + "\n" for r in good) + '{"seed": 3, "plan')
+    good = [r for r in serial.records if r["planner"] == "reactive"][:3]
+    path.write_text("".join(json.dumps(r) + "\n" for r in good[:2]) + json.dumps(good[2])[:40])
     with RecordStore.open(path) as store:
-        assert store.records == good and store.done() == {(1, "reactive"), (2, "reactive")}
-        store.append([{"seed": 3, "planner": "reactive", "status": OK}])
-    assert [json.loads(line)["seed"] for line in path.read_text().splitlines()] == [1, 2, 3]
+        assert store.records == good[:2] and store.done() == {(30, "reactive"), (31, "reactive")}
+        store.append([good[2]])
+    assert load_records(tmp_path) == good  # the cut line truncated, the new one whole
 
     path.write_text(json.dumps(good[0]) + "\nnot json\n" + json.dumps(good[1]) + "\n")
-    with pytest.raises(ValueError, match=r"episodes.jsonl:2 is not an episode record"):
+    with pytest.raises(ValueError, match=r"episodes.jsonl:2 is not an episode record: not JSON .*the file is damaged"):
+        RecordStore.open(path)
+    path.write_text(json.dumps({**good[0], "label": "Maybe"}) + "\n")
+    with pytest.raises(ValueError, match=r"episodes.jsonl:1 is not an episode record: field 'label' must be one of"):
         RecordStore.open(path)
 
 
@@ -240,9 +245,8 @@ def test_a_planner_defined_inside_a_function_runs_where_it_can(tmp_path, monkeyp
 
 
 def test_a_second_run_into_a_busy_directory_is_refused(tmp_path):
-    with locked(tmp_path):  # as a run in another process holds it
-        with pytest.raises(ValueError, match="in use by another run"):
-            run_experiment(tmp_path, range(2), ("reactive",), progress=False, workers=1)
+    with locked(tmp_path), pytest.raises(ValueError, match="in use by another run"):  # as another run holds it
+        run_experiment(tmp_path, range(2), ("reactive",), progress=False, workers=1)
     assert not (tmp_path / "episodes.jsonl").exists()
     assert run_experiment(tmp_path, range(2), ("reactive",), progress=False, workers=1).ran == 2
 
@@ -251,10 +255,10 @@ def test_results_without_their_settings_are_refused(serial, tmp_path):
     out = tmp_path / "copy"
     out.mkdir()
     (out / "episodes.jsonl").write_bytes((serial.out_dir / "episodes.jsonl").read_bytes())
-    with pytest.raises(ValueError, match="no settings.json beside it"):
+    with pytest.raises(ValueError, match=r"no settings\.json beside it"):
         run_experiment(out, SEEDS, ("cdf", "reactive"), cdf=SMALL, progress=False, resume=True)
     (out / "settings.json").write_text("")
-    with pytest.raises(ValueError, match="settings.json is damaged"):
+    with pytest.raises(ValueError, match=r"settings\.json is damaged"):
         run_experiment(out, SEEDS, ("cdf", "reactive"), cdf=SMALL, progress=False, resume=True)
 
 
@@ -264,8 +268,8 @@ class NumpySummaryPlanner(ReactivePlanner):
 
     name = "numpy-summary"
 
-    def reset(self, scene, config, rng) -> None:
-        super().reset(scene, config, rng)
+    def reset(self, layout, config, rng) -> None:
+        super().reset(layout, config, rng)
         self.odd = None
 
     def brake(self, obs: PlannerInput) -> bool:

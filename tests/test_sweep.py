@@ -7,9 +7,12 @@ import sys
 
 import pytest
 
+from cdf_mj.analysis.metrics import planner_metrics, tau_curve
 from cdf_mj.cli import main
 from cdf_mj.config import CDFConfig, ScenarioConfig
-from cdf_mj.experiments.sweep import SWEEPS, run_sweep, tau_curve
+from cdf_mj.experiments.sweep import SWEEPS, comparison_figures, run_sweep
+from cdf_mj.extras import install_hint
+from cdf_mj.records import load_records
 
 
 def test_tiny_beta_sweep_writes_table_and_figure(tmp_path):
@@ -20,6 +23,13 @@ def test_tiny_beta_sweep_writes_table_and_figure(tmp_path):
     assert [(r["value"], r["planner"]) for r in rows] == [("0.05", "reactive"), ("0.05", "cv"),
                                                           ("0.2", "reactive"), ("0.2", "cv")]
     assert all(r["episodes"] == "2" for r in rows)
+    # Every row is the metrics of its point's records.
+    for value in ("0.05", "0.2"):
+        metrics = planner_metrics(load_records(tmp_path / "beta" / value))
+        for r in (r for r in rows if r["value"] == value):
+            m = metrics[r["planner"]]
+            assert (int(r["imminent"]), int(r["collisions"]), int(r["avoided_k"]), int(r["false_alarms_k"])) == \
+                (m.imminent, m.collisions, m.avoided.k, m.false_alarms.k)
     assert "| 0.2 | cv |" in res.markdown_path.read_text(encoding="utf-8")
     assert res.figure_path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # Each point is an experiment directory of its own; a second call reuses them.
@@ -43,6 +53,19 @@ def test_tau_sweep_reads_the_fine_curve_from_the_histories(tmp_path):
     assert fa == sorted(fa, reverse=True)  # a higher threshold never brakes more often
     assert (tmp_path / "tau_curve.csv").is_file() and res.figure_path.is_file()
     assert tau_curve([], tau_max=0.5)[0]["episodes"] == 0
+    # At a threshold that was run, the curve's false alarms are those of the braking run.
+    at_half = planner_metrics(load_records(tmp_path / "tau" / "0.5"))["cdf"]
+    assert next(c for c in curve if c["tau"] == 0.5)["false_alarms_k"] == at_half.false_alarms.k
+
+
+def test_comparison_figures_are_written(tmp_path):
+    from cdf_mj.experiments.experiment import run_experiment
+
+    result = run_experiment(tmp_path / "run", range(4), ("cdf", "reactive"), cdf=CDFConfig(n_particles=300),
+                            progress=False, workers=1)
+    paths = comparison_figures(result.records, tmp_path / "figures")
+    assert [p.name for p in paths] == ["brier_over_time.png", "brake_times.png"]
+    assert all(p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" for p in paths)
 
 
 def test_sweep_refuses_bad_requests(tmp_path):
@@ -65,9 +88,9 @@ def test_cli_sweep(tmp_path, capsys, monkeypatch):
     assert (tmp_path / "noise.png").is_file()
     # Without matplotlib: the tables are written, then one line naming the extra.
     monkeypatch.setitem(sys.modules, "matplotlib", None)
-    assert main(argv[:-1] + [str(tmp_path / "novis")]) == 2
+    assert main([*argv[:-1], str(tmp_path / "novis")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "pip install 'cdf-mj[viz]'" in err[0]
+    assert len(err) == 1 and install_hint("viz") in err[0]
     assert (tmp_path / "novis" / "noise.csv").is_file()
     assert main(["sweep", "noise", "--values", "x"]) == 2
     assert main(["sweep", "noise", "beta", "--values", "1"]) == 2

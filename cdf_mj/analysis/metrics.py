@@ -1,5 +1,13 @@
-"""Rates with confidence intervals, the scenario summary of a set of episode records, the
-per-planner metrics and the Brier scores of the filters' probabilities.
+"""Rates with confidence intervals and the metrics of a set of episode records: label
+shares, each planner's outcomes, the CDF's predictions, seed-by-seed comparisons, the
+braking threshold's operating curve and the Brier scores of the filters' probabilities.
+
+Every count applies a rule of :mod:`cdf_mj.records` (:func:`~cdf_mj.records.avoided`,
+:func:`~cdf_mj.records.is_false_alarm`, :func:`~cdf_mj.records.lead_time`, ...); the
+tables (:mod:`cdf_mj.analysis.tables`), the report's figures and the sweeps print and draw
+these metrics, so a rate means the same everywhere. Records may be dicts (lines of a
+records file) or :class:`~cdf_mj.records.EpisodeRecord` objects; failed records
+(``"status": "failed"``) and unlabelled ones are left out where a label is needed.
 
 Every rate is reported with its 95 % Wilson score interval, which stays inside [0, 1]
 and behaves at small counts and at 0 % or 100 % (where the normal approximation fails).
@@ -13,29 +21,48 @@ obstacle had observed the ego on an earlier tick (from the record's ``first_seen
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import statistics
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from cdf_mj.records import Labels
+from cdf_mj.records import (
+    LABELS,
+    EpisodeRecord,
+    Label,
+    RecordLike,
+    avoided,
+    completed,
+    hit_obstacle,
+    is_false_alarm,
+    is_imminent,
+    lead_time,
+    paper_avoided,
+    prediction,
+    record_field,
+)
 
 __all__ = [
     "FILTER_QUANTITIES",
     "BrierCurve",
+    "PairedCounts",
     "PlannerMetrics",
     "Rate",
     "brier_over_time",
     "brier_score",
-    "filter_table",
-    "format_scenario_summary",
-    "paired_table",
+    "confusion_matrix",
+    "cutoff_recall",
+    "decision_time",
+    "paired_counts",
     "planner_metrics",
-    "planner_table",
+    "prior_brier",
     "scenario_summary",
+    "tau_curve",
     "wilson_interval",
 ]
 
@@ -76,52 +103,50 @@ class Rate:
         lo, hi = self.interval
         return f"{100 * self.value:.1f} % [{100 * lo:.1f}, {100 * hi:.1f}] ({self.k}/{self.n})"
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-serialisable view."""
         lo, hi = self.interval
         return {"k": self.k, "n": self.n, "value": self.value, "ci95": [lo, hi]}
 
 
-def _get(rec: object, key: str):
-    return rec[key] if isinstance(rec, Mapping) else getattr(rec, key)
+def _labelled(records: Iterable[RecordLike]) -> list[RecordLike]:
+    """The completed records that carry a scenario label."""
+    return [r for r in completed(records) if record_field(r, "label") is not None]
 
 
-def scenario_summary(records: Iterable[object]) -> dict[str, Rate]:
-    """Label shares and collision avoidance of episode records (objects or dicts).
+def scenario_summary(records: Iterable[RecordLike]) -> dict[str, Rate]:
+    """Label shares and collision avoidance of episode records.
 
-    Returns ``Cutoff``, ``Yield``, ``Right`` shares of all labelled episodes, and
-    ``avoided``: among Cutoff episodes, the share in which the planner did not collide
-    with the obstacle.
+    Returns ``Cutoff``, ``Yield``, ``Right``: shares of all labelled episodes, and
+    ``avoided``: Cutoff episodes without a collision with the obstacle
+    (:func:`~cdf_mj.records.avoided`), of all Cutoff episodes.
     """
-    recs = [r for r in records if _get(r, "label") is not None]
-    n = len(recs)
-    counts = Counter(_get(r, "label") for r in recs)
-    cutoffs = [r for r in recs if _get(r, "label") == Labels.CUTOFF]
-    avoided = sum(_get(r, "collision_with") != "obstacle" for r in cutoffs)
-    out = {lab: Rate(counts.get(lab, 0), n) for lab in (Labels.CUTOFF, Labels.YIELD, Labels.RIGHT)}
-    out["avoided"] = Rate(avoided, len(cutoffs))
+    recs = _labelled(records)
+    counts = Counter(record_field(r, "label") for r in recs)
+    out = {str(lab): Rate(counts.get(lab, 0), len(recs)) for lab in LABELS}
+    out["avoided"] = Rate(sum(map(avoided, recs)), sum(map(is_imminent, recs)))
     return out
 
 
-def format_scenario_summary(summary: dict[str, Rate], planner: str) -> str:
-    """A Markdown table of :func:`scenario_summary` beside the paper's figures."""
-    paper = {Labels.CUTOFF: "41.7 %", Labels.YIELD: "34.7 %", Labels.RIGHT: "23.6 %",
-             "avoided": "47 % (reactive), 98 % (CDF)"}
-    rows = ["| quantity | ours (95 % CI) | paper |", "|---|---|---|"]
-    for key in (Labels.CUTOFF, Labels.YIELD, Labels.RIGHT):
-        rows.append(f"| {key} share | {summary[key]} | {paper[key]} |")
-    rows.append(f"| imminent collisions avoided ({planner}) | {summary['avoided']} | {paper['avoided']} |")
-    return "\n".join(rows)
+def confusion_matrix(records: Iterable[RecordLike]) -> dict[str, tuple[int, int, int]]:
+    """Scenario label -> counts of predicted ``Cutoff``, ``Yield``, ``Right``
+    (:func:`~cdf_mj.records.prediction`), over the labelled records given (those without a
+    prediction are in no column)."""
+    recs = _labelled(records)
+    pairs = Counter((record_field(r, "label"), prediction(r)) for r in recs)
+    return {str(a): (pairs[(a, LABELS[0])], pairs[(a, LABELS[1])], pairs[(a, LABELS[2])]) for a in LABELS}
+
+
+def cutoff_recall(records: Iterable[RecordLike]) -> Rate:
+    """Cutoff episodes predicted ``Cutoff`` (:func:`~cdf_mj.records.prediction`), of all
+    Cutoff episodes."""
+    cut = [r for r in _labelled(records) if is_imminent(r)]
+    return Rate(sum(1 for r in cut if prediction(r) == Label.CUTOFF), len(cut))
 
 
 # ----------------------------------------------------------------- planners and filters
 #: The probabilities a filter's history may hold that have a truth in the record.
 FILTER_QUANTITIES = ("p_left", "p_seen")
-
-
-def _usable(records: Iterable[object]) -> list[object]:
-    """Records of episodes that ran to the end (records with ``"status": "failed"`` left out)."""
-    return [r for r in records if not (isinstance(r, Mapping) and r.get("status") == "failed")]
 
 
 def brier_score(probs: Sequence[float] | np.ndarray, truths: Sequence[float] | np.ndarray) -> float:
@@ -137,16 +162,14 @@ def brier_score(probs: Sequence[float] | np.ndarray, truths: Sequence[float] | n
     return float(np.mean((p - y) ** 2))
 
 
-def _truth(rec: object, quantity: str, times: np.ndarray) -> np.ndarray:
+def _truth(rec: RecordLike, quantity: str, times: np.ndarray) -> np.ndarray:
     """Per-tick truth of ``quantity`` in one episode (see :func:`brier_over_time`)."""
     if quantity == "p_left":
-        return np.full(len(times), 1.0 if _get(rec, "intent") == "left" else 0.0)
-    if quantity == "p_seen":
-        seen = _get(rec, "first_seen_time")
-        if seen is None:
-            return np.zeros(len(times))
-        return (np.asarray(times) > seen + 1e-6).astype(float)
-    raise ValueError(f"unknown filter quantity {quantity!r}: choose one of {', '.join(FILTER_QUANTITIES)}")
+        return np.full(len(times), 1.0 if record_field(rec, "intent") == "left" else 0.0)
+    seen = record_field(rec, "first_seen_time")
+    if seen is None:
+        return np.zeros(len(times))
+    return np.asarray(np.asarray(times) > seen + 1e-6, dtype=float)
 
 
 @dataclass(frozen=True)
@@ -170,7 +193,12 @@ class BrierCurve:
         return float((self.reference * self.counts).sum() / n) if n else math.nan
 
 
-def brier_over_time(records: Iterable[object], quantity: str = "p_left") -> BrierCurve:
+def _history(rec: RecordLike) -> Mapping[str, Any]:
+    """The per-tick history a filter planner keeps in ``planner_info`` (empty if none)."""
+    return (record_field(rec, "planner_info") or {}).get("history") or {}
+
+
+def brier_over_time(records: Iterable[RecordLike], quantity: str = "p_left") -> BrierCurve:
     """Brier score of a filter's per-tick probability ``quantity`` against the truth.
 
     Truth: for ``p_left``, the obstacle's intent was left; for ``p_seen``, the obstacle had
@@ -184,14 +212,14 @@ def brier_over_time(records: Iterable[object], quantity: str = "p_left") -> Brie
         raise ValueError(f"unknown filter quantity {quantity!r}: choose one of {', '.join(FILTER_QUANTITIES)}")
     by_time: dict[float, list[tuple[float, float]]] = {}
     episodes = 0
-    for rec in _usable(records):
-        hist = (_get(rec, "planner_info") or {}).get("history") or {}
-        if quantity not in hist or not hist[quantity]:
+    for rec in completed(records):
+        hist = _history(rec)
+        if not hist.get(quantity):
             continue
         episodes += 1
         times = np.round(np.asarray(hist["t"], dtype=float), 6)
         probs = np.asarray(hist[quantity], dtype=float)
-        for t, p, y in zip(times, probs, _truth(rec, quantity, times)):
+        for t, p, y in zip(times, probs, _truth(rec, quantity, times), strict=True):
             by_time.setdefault(float(t), []).append((float(p), float(y)))
     times = np.array(sorted(by_time))
     scores, counts, reference = [], [], []
@@ -210,22 +238,35 @@ def brier_over_time(records: Iterable[object], quantity: str = "p_left") -> Brie
                       reference=np.array(reference))
 
 
+def prior_brier(records: Iterable[RecordLike], p_left: float = 0.75) -> float:
+    """Brier score of the prior ``p_left`` held constant as a forecast of the obstacle's
+    intent being left, over the completed records (a reference for P(left)); NaN if none."""
+    y = np.array([record_field(r, "intent") == "left" for r in completed(records)], dtype=float)
+    return float(np.mean((p_left - y) ** 2)) if y.size else math.nan
+
+
 @dataclass(frozen=True)
 class PlannerMetrics:
-    """One planner's outcomes over many labelled episodes (definitions as in the paper's
-    planner table of :func:`cdf_mj.experiment.experiment_tables`)."""
+    """One planner's outcomes over many labelled episodes, each counted by a rule of
+    :mod:`cdf_mj.records`."""
 
     planner: str
     episodes: int
-    imminent: int  # episodes labelled Cutoff
-    collisions: int  # episodes in which the ego touched the obstacle, any label
-    avoided: Rate  # Cutoff episodes without contact with the obstacle
-    false_alarms: Rate  # episodes not labelled Cutoff in which the planner braked, of all
-    lead_time: float  # [s] median of (obstacle enters the ego lane - brake) over braking Cutoff episodes
+    imminent: int  # episodes labelled Cutoff (is_imminent)
+    collisions: int  # episodes in which the ego touched the obstacle, any label (hit_obstacle)
+    avoided: Rate  # Cutoff episodes without a collision with the obstacle (avoided), of the Cutoff ones
+    false_alarms: Rate  # episodes not labelled Cutoff in which the planner braked (is_false_alarm), of all
+    lead_time: float  # [s] median lead_time over braking Cutoff episodes (NaN if none)
     min_gap: float  # [m] median of the smallest gap between the cars, over all episodes
-    time_lost: float  # [s] mean over episodes without a collision
+    time_lost: float  # [s] mean over episodes without a collision (NaN if none)
     brier_left: float | None  # Brier score of P(left) over all ticks (filters only)
     brier_seen: float | None  # Brier score of P(seen) over all ticks (filters that model belief)
+
+    @property
+    def paper_avoided(self) -> float:
+        """The paper's count, ``(imminent - collisions) / imminent``
+        (:func:`cdf_mj.records.paper_avoided`)."""
+        return paper_avoided(self.imminent, self.collisions)
 
     def to_row(self) -> dict[str, float | int | str | None]:
         """Flat, JSON- and CSV-ready view (rates as fractions with their 95 % interval)."""
@@ -245,122 +286,113 @@ def _median(values: list[float]) -> float:
     return float(statistics.median(values)) if values else math.nan
 
 
-def planner_metrics(records: Iterable[object]) -> dict[str, PlannerMetrics]:
+def planner_metrics(records: Iterable[RecordLike]) -> dict[str, PlannerMetrics]:
     """:class:`PlannerMetrics` per planner name, in order of first appearance; failed
     episodes (``"status": "failed"``) and unlabelled ones are left out."""
-    by_planner: dict[str, list[object]] = {}
-    for rec in _usable(records):
-        if _get(rec, "label") is not None:
-            by_planner.setdefault(_get(rec, "planner"), []).append(rec)
+    by_planner: dict[str, list[RecordLike]] = {}
+    for rec in _labelled(records):
+        by_planner.setdefault(record_field(rec, "planner"), []).append(rec)
     out: dict[str, PlannerMetrics] = {}
     for name, recs in by_planner.items():
-        cut = [r for r in recs if _get(r, "label") == Labels.CUTOFF]
-        leads = [_get(r, "entered_lane_time") - _get(r, "brake_time") for r in cut
-                 if _get(r, "brake_time") is not None and _get(r, "entered_lane_time") is not None]
-        intact = [_get(r, "time_lost") for r in recs if not _get(r, "collision")]
+        leads = [t for t in map(lead_time, recs) if t is not None]
+        intact = [record_field(r, "time_lost") for r in recs if not record_field(r, "collision")]
         brier = {}
         for q in FILTER_QUANTITIES:
             curve = brier_over_time(recs, q)
             brier[q] = curve.overall if curve.episodes else None
         out[name] = PlannerMetrics(
-            planner=name, episodes=len(recs), imminent=len(cut),
-            collisions=sum(1 for r in recs if _get(r, "collision_with") == "obstacle"),
-            avoided=Rate(sum(1 for r in cut if _get(r, "collision_with") != "obstacle"), len(cut)),
-            false_alarms=Rate(sum(1 for r in recs if _get(r, "label") != Labels.CUTOFF
-                                  and _get(r, "brake_time") is not None), len(recs)),
-            lead_time=_median(leads), min_gap=_median([_get(r, "min_gap") for r in recs]),
+            planner=name, episodes=len(recs), imminent=sum(map(is_imminent, recs)),
+            collisions=sum(map(hit_obstacle, recs)),
+            avoided=Rate(sum(map(avoided, recs)), sum(map(is_imminent, recs))),
+            false_alarms=Rate(sum(map(is_false_alarm, recs)), len(recs)),
+            lead_time=_median(leads), min_gap=_median([record_field(r, "min_gap") for r in recs]),
             time_lost=float(statistics.fmean(intact)) if intact else math.nan,
             brier_left=brier["p_left"], brier_seen=brier["p_seen"])
     return out
 
 
-def _fmt(value: float | None, digits: int = 2) -> str:
-    return "-" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
+@dataclass(frozen=True)
+class PairedCounts:
+    """Two planners compared seed by seed (common random numbers), on the seeds both ran."""
+
+    first: str
+    second: str
+    seeds: int  # labelled seeds both planners ran
+    collides_only_first: int  # Cutoff episodes in which only the first hits the obstacle
+    collides_only_second: int
+    false_alarm_only_first: int  # episodes not labelled Cutoff in which only the first brakes
+    false_alarm_only_second: int
+    false_alarm_both: int
 
 
-def planner_table(records: Iterable[object]) -> str:
-    """Markdown: every planner's avoided collisions, false alarms, lead time, gap, time lost
-    and, for the filters, the Brier scores of P(left) and P(seen) over all ticks."""
-    rows = [("| planner | episodes | imminent | collisions | avoided (95 % CI) | false alarms (95 % CI) "
-            "| median lead time [s] | median min gap [m] | mean time lost, no collision [s] "
-            "| Brier P(left) | Brier P(seen) |"),
-            "|---|---|---|---|---|---|---|---|---|---|---|"]
-    for m in planner_metrics(records).values():
-        rows.append(f"| {m.planner} | {m.episodes} | {m.imminent} | {m.collisions} | {m.avoided} "
-                    f"| {m.false_alarms} | {_fmt(m.lead_time)} | {_fmt(m.min_gap)} | {_fmt(m.time_lost)} "
-                    f"| {_fmt(m.brier_left, 3)} | {_fmt(m.brier_seen, 3)} |")
-    return "\n".join(rows)
+def paired_counts(records: Iterable[RecordLike], first: str, second: str) -> PairedCounts:
+    """:class:`PairedCounts` of planners ``first`` and ``second`` (collisions by
+    :func:`~cdf_mj.records.hit_obstacle`, false alarms by
+    :func:`~cdf_mj.records.is_false_alarm`)."""
+    by_key = {(record_field(r, "planner"), record_field(r, "seed")): r for r in _labelled(records)}
+    seeds = sorted({s for p, s in by_key if p == first} & {s for p, s in by_key if p == second})
+    counts = [0] * 5
+    for seed in seeds:
+        a, b = by_key[(first, seed)], by_key[(second, seed)]
+        if is_imminent(a):
+            hit_a, hit_b = hit_obstacle(a), hit_obstacle(b)
+            counts[0] += hit_a and not hit_b
+            counts[1] += hit_b and not hit_a
+        else:
+            alarm_a, alarm_b = is_false_alarm(a), is_false_alarm(b)
+            counts[2] += alarm_a and not alarm_b
+            counts[3] += alarm_b and not alarm_a
+            counts[4] += alarm_a and alarm_b
+    return PairedCounts(first, second, len(seeds), *counts)
 
 
-def paired_table(records: Iterable[object], pairs: Sequence[tuple[str, str]]) -> str:
-    """Markdown: two planners compared seed by seed (common random numbers), on the seeds
-    both ran: Cutoff episodes in which only the first or only the second collides with the
-    obstacle, and episodes not labelled Cutoff in which only the first, only the second,
-    or both brake (false alarms)."""
-    by_key = {(_get(r, "planner"), _get(r, "seed")): r for r in _usable(records)
-              if _get(r, "label") is not None}
-    rows = ["| pair | collides only with the first | only with the second "
-            "| false alarm only with the first | only with the second | both |",
-            "|---|---|---|---|---|---|"]
-    for first, second in pairs:
-        seeds = sorted({seed for planner, seed in by_key if planner == first}
-                       & {seed for planner, seed in by_key if planner == second})
-        counts = [0] * 5
-        for seed in seeds:
-            a, b = by_key[(first, seed)], by_key[(second, seed)]
-            if _get(a, "label") == Labels.CUTOFF:
-                hit_a = _get(a, "collision_with") == "obstacle"
-                hit_b = _get(b, "collision_with") == "obstacle"
-                counts[0] += hit_a and not hit_b
-                counts[1] += hit_b and not hit_a
-            else:
-                alarm_a, alarm_b = _get(a, "brake_time") is not None, _get(b, "brake_time") is not None
-                counts[2] += alarm_a and not alarm_b
-                counts[3] += alarm_b and not alarm_a
-                counts[4] += alarm_a and alarm_b
-        rows.append(f"| {first} / {second} | " + " | ".join(str(c) for c in counts) + " |")
-    return "\n".join(rows)
+# ----------------------------------------------------------------- the braking threshold
+def decision_time(rec: RecordLike, tau: float) -> float | None:
+    """[s] the first tick of a filter's history at which ``P(cutoff) >= tau``: where a run
+    with braking threshold ``tau`` brakes, for every ``tau`` up to the one the record was
+    run with (before the ego brakes the history does not depend on the threshold: same
+    seed, same random streams). None if it never reaches ``tau``."""
+    hist = _history(rec)
+    for t, p in zip(hist.get("t", ()), hist.get("p_cutoff", ()), strict=True):
+        if p >= tau:
+            return float(t)
+    return None
 
 
-def _cells_at(times: np.ndarray, values: np.ndarray, at: Sequence[float]) -> str:
-    """Markdown cells of ``values`` at the tick times ``at`` ("-" where no tick is there)."""
-    cells = []
-    for t in at:
-        k = np.flatnonzero(np.isclose(times, t))
-        cells.append(_fmt(float(values[k[0]]), 3) if k.size else "-")
-    return " | ".join(cells)
+def _with_brake_time(rec: RecordLike, brake_time: float | None) -> RecordLike:
+    """The record as it would read had the planner braked at ``brake_time``."""
+    if isinstance(rec, EpisodeRecord):
+        return dataclasses.replace(rec, brake_time=brake_time)
+    return {**rec, "brake_time": brake_time}
 
 
-def filter_table(records: Iterable[object], times: Sequence[float] = (0.5, 1.0, 1.5, 2.0),
-                 p_left: float = 0.75) -> str:
-    """Markdown: Brier scores of each filter's P(left) and P(seen), over all ticks and at
-    the given tick ``times`` [s], beside two references: the prior ``p_left`` held
-    constant, and the per-time base rate fitted on these episodes (in-sample)."""
-    recs = _usable(records)
-    planners = list(dict.fromkeys(_get(r, "planner") for r in recs))
-    head = " | ".join(f"t = {t:g} s" for t in times)
-    rows = [f"| planner | quantity | episodes | ticks | all ticks | {head} |",
-            "|---|---|---|---|---|" + "---|" * len(times)]
-    for name in planners:
-        mine = [r for r in recs if _get(r, "planner") == name]
-        for q in FILTER_QUANTITIES:
-            c = brier_over_time(mine, q)
-            if not c.episodes:
-                continue
-            rows.append(f"| {name} | {q} | {c.episodes} | {c.ticks} | {_fmt(c.overall, 3)} "
-                        f"| {_cells_at(c.times, c.scores, times)} |")
-    if planners:
-        first = [r for r in recs if _get(r, "planner") == planners[0]]
-        y = np.array([1.0 if _get(r, "intent") == "left" else 0.0 for r in first])
-        prior = float(np.mean((p_left - y) ** 2))
-        rows.append(f"| prior P(left) = {p_left:g}, held | p_left | {len(first)} | - | {_fmt(prior, 3)} | "
-                    + " | ".join(_fmt(prior, 3) for _ in times) + " |")
-    for q in FILTER_QUANTITIES:
-        for name in planners:  # the episodes and ticks of the first filter with this history
-            c = brier_over_time([r for r in recs if _get(r, "planner") == name], q)
-            if not c.episodes:
-                continue
-            rows.append(f"| base rate per time (in-sample, {name}'s ticks) | {q} | {c.episodes} | {c.ticks} "
-                        f"| {_fmt(c.reference_overall, 3)} | {_cells_at(c.times, c.reference, times)} |")
-            break
-    return "\n".join(rows)
+def tau_curve(records: Iterable[RecordLike], tau_max: float, step: float = 0.01) -> list[dict[str, Any]]:
+    """False alarms and detections of the CDF for thresholds ``step, 2 step, ..., tau_max``,
+    read from the P(cutoff) histories of CDF records run at ``tau_max``
+    (:func:`decision_time`: exact up to ``tau_max``). Each record is judged as if the CDF
+    had braked at that decision time: a false alarm by
+    :func:`~cdf_mj.records.is_false_alarm`, of all episodes; a detection is a Cutoff
+    episode braked for before the obstacle entered the ego lane (positive
+    :func:`~cdf_mj.records.lead_time`, or no entry), of the Cutoff episodes. Collisions are
+    not derived. Rates carry their 95 % Wilson interval."""
+    recs = [r for r in _labelled(records) if record_field(r, "planner") == "cdf"]
+    n_cut = sum(map(is_imminent, recs))
+    out = []
+    for tau in np.arange(step, tau_max + 1e-9, step):
+        tau = round(float(tau), 6)
+        fa = det = 0
+        times = []
+        for r in recs:
+            d = decision_time(r, tau)
+            at_tau = _with_brake_time(r, d)
+            fa += is_false_alarm(at_tau)
+            lead = lead_time(at_tau)
+            if d is not None and is_imminent(r) and (lead is None or lead > 0):
+                det += 1
+                times.append(d)
+        far, detr = Rate(fa, len(recs)), Rate(det, n_cut)
+        out.append({"tau": tau, "false_alarms": far.value, "false_alarms_lo": far.interval[0],
+                    "false_alarms_hi": far.interval[1], "false_alarms_k": fa, "episodes": len(recs),
+                    "detected": detr.value, "detected_k": det, "cutoffs": n_cut,
+                    "median_decision_time": float(np.median(times)) if times else math.nan})
+    return out

@@ -1,2 +1,2 @@
-"""Many episodes: the parallel, resumable runner and its record store, experiments, sweeps
-and the benchmarks."""
+"""Many episodes: the parallel, resumable runner, its record store, experiments, sweeps and
+the benchmarks."""

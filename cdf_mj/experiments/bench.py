@@ -15,6 +15,7 @@ import statistics
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -24,8 +25,15 @@ from cdf_mj.scenario.episode import run_episode
 from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
 from cdf_mj.sim.visibility import ego_visible, isovist
 
-__all__ = ["median_time", "bench_core", "bench_filter", "bench_planners", "bench_env", "bench_reproduction",
-           "format_rows"]
+__all__ = [
+    "bench_core",
+    "bench_env",
+    "bench_filter",
+    "bench_planners",
+    "bench_reproduction",
+    "format_rows",
+    "median_time",
+]
 
 
 def median_time(fn: Callable[[int], object], repeats: int) -> float:
@@ -49,17 +57,18 @@ def bench_core(episodes: int = 60, scene: str | Path = DEFAULT_SCENE,
     """Rows ``(what, median seconds, note)`` for the scenario's building blocks, on
     ``scene`` (an MJCF path) with ``config``."""
     world, cfg = _setup(scene, config)
+    layout = world.layout()
     rows: list[tuple[str, float, str]] = []
-    ego = world.ego_start.copy()
+    ego = layout.ego_start.copy()
     ego[3] = cfg.ego_speed  # at its start, at speed
-    world.reset(ego, world.obstacle_start)
-    n_sub = int(round(cfg.dt / world.model.opt.timestep))
+    world.reset(ego, layout.obstacle_start)
+    n_sub = round(cfg.dt / world.model.opt.timestep)
     rows.append(("mj_step (two cars)", median_time(lambda i: mujoco.mj_step(world.model, world.data), 2000), ""))
     rows.append((f"planner tick of physics ({n_sub} steps + contact check)",
                  median_time(lambda i: world.step(n_sub), 300), ""))
-    world.reset(ego, world.obstacle_start)
+    world.reset(ego, layout.obstacle_start)
     world.sync()
-    eye = world.obstacle.eye(world.obstacle_start)
+    eye = layout.obstacle.eye(layout.obstacle_start)
     rows.append(("ego_visible (5 sight lines, mj_multiRay)", median_time(lambda i: ego_visible(world), 500), ""))
     rows.append(("isovist 360 rays + shapely polygon",
                  median_time(lambda i: isovist(world, eye).polygon, 300), ""))
@@ -104,12 +113,14 @@ def bench_filter(n_values: tuple[int, ...] = (250, 1000, 4000), passes: int = 3,
     from cdf_mj.inference.particle_filter import ParticleFilter
 
     world, cfg = _setup(scene, config)
-    rec = run_episode(cfg, 1, "constant", world, trace=True)
-    poses = np.array(rec.trace["poses"])
+    trace = run_episode(cfg, 1, "constant", world, trace=True).trace
+    assert trace is not None  # asked for
+    poses = np.array(trace["poses"])
     stages = ("look + believe", "act", "move", "weigh", "resample")
     rows: list[tuple[str, float, str]] = []
     for n in n_values:
-        pf = ParticleFilter.from_scene(world, cfg, CDFConfig(n_particles=n), np.random.default_rng(0))
+        pf = ParticleFilter.from_layout(world.layout(), cfg, CDFConfig(n_particles=n),
+                                        np.random.default_rng(0))
         times: dict[str, list[float]] = {s: [] for s in ("tick", *stages)}
         for pass_i in range(passes + 1):  # the first pass warms up and is not timed
             pf.reset(poses[0])
@@ -128,7 +139,7 @@ def bench_filter(n_values: tuple[int, ...] = (250, 1000, 4000), passes: int = 3,
                 c5 = time.perf_counter()
                 if pass_i:
                     times["tick"].append(c5 - c0)
-                    for stage, dt in zip(stages, (c1 - c0, c2 - c1, c3 - c2, c4 - c3, c5 - c4)):
+                    for stage, dt in zip(stages, (c1 - c0, c2 - c1, c3 - c2, c4 - c3, c5 - c4), strict=True):
                         times[stage].append(dt)
         med = {s: statistics.median(v) for s, v in times.items()}
         note = ""
@@ -181,8 +192,10 @@ def bench_env(seconds: float = 1.0, repeats: int = 3, scene: str | Path = DEFAUL
 
     world, cfg = _setup(scene, config)
     rows = []
-    for what, kwargs in (("no filter", {"run_filter": False, "label": False}),
-                         ("with the filter", {"label": False}), ("defaults: filter and labels", {})):
+    variants: tuple[tuple[str, dict[str, Any]], ...] = (
+        ("no filter", {"run_filter": False, "label": False}), ("with the filter", {"label": False}),
+        ("defaults: filter and labels", {}))
+    for what, kwargs in variants:
         env = TIntersectionEnv(scene=world, config=cfg, **kwargs)
         env.action_space.seed(0)
         per_step = []

@@ -7,15 +7,17 @@ JSON line per episode and planner to ``DIR/episodes.jsonl`` as soon as its seed
 finishes (flushed and fsync-ed); the settings go to ``DIR/settings.json``. The records
 are the same whatever the backend and the number of workers.
 
-A run that was killed continues with ``resume=True`` (``--resume``): the seeds already
-on disk are skipped, a half-written last line is dropped, and nothing is run twice. A
-directory holding results from other settings is refused, and so is a directory with
-results when ``resume`` is not asked for. An episode that raises is recorded with its
-traceback (``"status": "failed"``) and the run goes on.
+A run that was killed continues with ``resume=True`` (as ``cdf-mj experiment`` does):
+the seeds already on disk are skipped, a half-written last line is dropped, and nothing
+is run twice. A directory holding results from other settings is refused, and so is a
+directory with results when ``resume`` is not asked for (:class:`ResultsExistError`). An
+episode that raises is recorded with its traceback (``"status": "failed"``) and the run
+goes on.
 
-``experiment_tables`` turns records into the paper's two tables beside ours, with 95 %
-Wilson intervals. ::
+:func:`~cdf_mj.analysis.tables.experiment_tables` turns records into the paper's two
+tables beside ours, with 95 % Wilson intervals. ::
 
+    from cdf_mj.analysis.tables import experiment_tables
     result = run_experiment("results/run1", seeds=range(100), planners=("cdf", "reactive"))
     print(experiment_tables(result.records))
 """
@@ -27,41 +29,37 @@ import json
 import operator
 import os
 import pickle
-import statistics
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, overload
 
 from tqdm import tqdm
 
 from cdf_mj.config import CDFConfig, ScenarioConfig
-from cdf_mj.scenario.episode import run_episode
-from cdf_mj.records import EpisodeRecord, Labels
-from cdf_mj.analysis.metrics import Rate
-from cdf_mj.planners.base import PLANNERS, CDFPlanner, Planner, make_planner
 from cdf_mj.experiments.runner import (
-    FAILED,
     START_METHOD,
     Backend,
-    RecordStore,
     SeedJob,
     WorkerDiedError,
     check_backend,
     effective_backend,
-    locked,
     run_seeds,
 )
+from cdf_mj.experiments.store import RecordStore, locked
+from cdf_mj.planners.base import PLANNERS, Planner, make_planner
+from cdf_mj.planners.cdf import CDFPlanner
+from cdf_mj.records import FAILED, RECORDS_FILE, EpisodeRecord
+from cdf_mj.scenario.episode import run_episode
 from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
 
-__all__ = ["run_many", "iter_episodes", "run_experiment", "ExperimentResult", "experiment_tables",
-           "load_records", "completed", "PAPER_CONFUSION", "PAPER_PLANNERS"]
+__all__ = ["ExperimentResult", "ResultsExistError", "iter_episodes", "run_experiment", "run_many"]
 
-LABELS = (Labels.CUTOFF, Labels.YIELD, Labels.RIGHT)
-#: The paper's Figure "Simulation results using the CDF": rows scenario, columns prediction.
-PAPER_CONFUSION = {Labels.CUTOFF: (417, 0, 0), Labels.YIELD: (13, 334, 0), Labels.RIGHT: (0, 0, 236)}
-#: The paper's planner comparison: (collisions imminent, collisions occurred).
-PAPER_PLANNERS = {"cdf": (417, 9), "reactive": (404, 213)}
+
+class ResultsExistError(ValueError):
+    """The result directory already holds results of this experiment (the same settings)
+    and ``resume`` was not asked for."""
 
 
 def _factory(name: str, cdf: CDFConfig | None) -> Callable[[], Planner]:
@@ -94,13 +92,13 @@ def run_many(seeds: Iterable[int], planner: str = "reactive", config: ScenarioCo
 
 
 def _settings(seeds: Sequence[int], planners: Sequence[str], config: ScenarioConfig,
-              cdf: CDFConfig, scene: str | Path) -> dict:
+              cdf: CDFConfig, scene: str | Path) -> dict[str, Any]:
     return {"seeds": [int(seeds[0]), int(seeds[-1]) + 1] if seeds else [0, 0],
             "planners": list(planners), "scenario": config.to_dict(), "cdf": cdf.to_dict(),
             "scene": str(Path(scene).resolve())}
 
 
-def _differences(old: dict, new: dict, prefix: str = "") -> list[str]:
+def _differences(old: dict[str, Any], new: dict[str, Any], prefix: str = "") -> list[str]:
     """Dotted keys whose values differ between two settings dicts."""
     keys = []
     for key in sorted(set(old) | set(new)):
@@ -113,7 +111,7 @@ def _differences(old: dict, new: dict, prefix: str = "") -> list[str]:
 
 
 @dataclass(frozen=True)
-class ExperimentResult(Sequence):
+class ExperimentResult(Sequence[dict[str, Any]]):
     """What :func:`run_experiment` did; a sequence of its records (``list(result)``).
 
     ``records`` holds every record of the experiment (also those an earlier, resumed run
@@ -121,7 +119,7 @@ class ExperimentResult(Sequence):
     """
 
     out_dir: Path
-    records: list[dict]
+    records: list[dict[str, Any]]
     ran: int  # episodes run by this call
     resumed: int  # episodes that were already on disk
     failed: int  # failed records among ``records``
@@ -130,7 +128,14 @@ class ExperimentResult(Sequence):
     wall_time: float  # [s] of this call
     peak_worker_rss_mb: float  # [MiB] largest peak resident memory of a worker (nan if none ran)
 
-    def __getitem__(self, index):  # type: ignore[override]
+    @overload
+    def __getitem__(self, index: int) -> dict[str, Any]: ...
+
+    @overload
+    def __getitem__(self, index: slice) -> list[dict[str, Any]]: ...
+
+    def __getitem__(self, index: int | slice) -> dict[str, Any] | list[dict[str, Any]]:
+        """The record at ``index`` (a list of them for a slice)."""
         return self.records[index]
 
     def __len__(self) -> int:
@@ -160,9 +165,12 @@ def run_experiment(out_dir: str | Path, seeds: Sequence[int], planners: Sequence
         address: with ``backend="ray"``, the address of an existing Ray cluster.
 
     Raises:
-        ValueError: bad settings, a directory holding other settings, or results
-            without ``resume``; nothing is run then.
-        cdf_mj.runner.WorkerDiedError: a worker died; the finished seeds are saved.
+        ResultsExistError: ``out_dir`` holds results of this experiment and ``resume`` is
+            False; nothing is run then.
+        ValueError: bad settings, or a directory holding results of other settings (the
+            message names the differing keys); nothing is run then.
+        ImportError: ``backend="ray"`` without the ``ray`` extra.
+        cdf_mj.experiments.runner.WorkerDiedError: a worker died; the finished seeds are saved.
     """
     t0 = time.perf_counter()
     config, cdf = config or ScenarioConfig(), cdf or CDFConfig()
@@ -181,14 +189,14 @@ def run_experiment(out_dir: str | Path, seeds: Sequence[int], planners: Sequence
     if n_workers > 1 and backend == "process" and START_METHOD != "fork":
         try:  # spawned workers get the job pickled: refuse early what cannot be
             pickle.dumps(job)
-        except Exception as exc:  # noqa: BLE001 - any pickling failure means the same
+        except Exception as exc:  # any pickling failure means the same
             raise ValueError(f"the planners cannot be sent to worker processes ({exc}); register "
                              "module-level planner classes, or run with workers=1") from None
     Scene.load(scene, names=config.names)  # a broken scene is refused before anything is written
 
     out = Path(out_dir)
     settings = _settings(seeds, planners, config, cdf, scene)
-    settings_path, records_path = out / "settings.json", out / "episodes.jsonl"
+    settings_path, records_path = out / "settings.json", out / RECORDS_FILE
     out.mkdir(parents=True, exist_ok=True)
     with locked(out):  # a second run into this directory is refused here, before any check
         _check_directory(out, settings, resume)
@@ -210,8 +218,8 @@ def run_experiment(out_dir: str | Path, seeds: Sequence[int], planners: Sequence
                         peaks.append(result.peak_rss_mb)
                         bar.update(len(result.records))
                 except WorkerDiedError as exc:
-                    raise WorkerDiedError(f"{exc}; {len(store.records)} episodes are saved in {records_path}: "
-                                          "run again with resume=True (--resume) to finish") from None
+                    raise WorkerDiedError(f"{exc}; {len(store.records)} episodes are saved in {records_path}, "
+                                          "and a run with resume continues from there") from None
             records = sorted(store.records, key=lambda r: (r["seed"], order.get(r["planner"], len(order))))
     ran_on = effective_backend(backend, n_workers, len(todo))
     return ExperimentResult(out_dir=out, records=records, ran=total, resumed=resumed,
@@ -221,10 +229,11 @@ def run_experiment(out_dir: str | Path, seeds: Sequence[int], planners: Sequence
                             peak_worker_rss_mb=max(peaks, default=float("nan")))
 
 
-def _check_directory(out: Path, settings: dict, resume: bool) -> None:
+def _check_directory(out: Path, settings: dict[str, Any], resume: bool) -> None:
     """Refuse a directory whose results were made with other settings, results that
-    cannot be checked, or results without ``resume``. An empty directory passes."""
-    settings_path, records_path = out / "settings.json", out / "episodes.jsonl"
+    cannot be checked, or results without ``resume`` (:class:`ResultsExistError`). An
+    empty directory passes."""
+    settings_path, records_path = out / "settings.json", out / RECORDS_FILE
     if not (records_path.exists() and records_path.stat().st_size > 0):
         return  # settings only matter where there are results made with them
     if not settings_path.exists():
@@ -241,76 +250,4 @@ def _check_directory(out: Path, settings: dict, resume: bool) -> None:
         raise ValueError(f"{out} holds results from other settings (differing: {', '.join(diff)}); "
                          "choose another directory")
     if not resume:
-        raise ValueError(f"{records_path} already holds results: pass resume=True (--resume) to "
-                         "continue that run, or choose another directory")
-
-
-def completed(records: Iterable[dict]) -> list[dict]:
-    """The records of episodes that ran to the end (failed ones left out)."""
-    return [r for r in records if r.get("status") != FAILED]
-
-
-def load_records(out_dir: str | Path) -> list[dict]:
-    """The records of an experiment directory."""
-    path = Path(out_dir) / "episodes.jsonl"
-    with open(path, encoding="utf-8") as fh:
-        return [json.loads(line) for line in fh if line.strip()]
-
-
-def _prediction(rec: dict) -> str:
-    return rec.get("planner_info", {}).get("prediction") or (Labels.CUTOFF if rec["brake_time"] is not None else "-")
-
-
-def experiment_tables(records: Iterable[dict]) -> str:
-    """Markdown: the CDF confusion matrix beside the paper's, and the planner comparison
-    (imminent collisions, collisions, avoided, false alarms, lead time, gap, time lost).
-    Failed episodes are left out and counted in a last line."""
-    records = list(records)
-    good = completed(records)
-    by_planner: dict[str, list[dict]] = {}
-    for rec in good:
-        by_planner.setdefault(rec["planner"], []).append(rec)
-    lines: list[str] = []
-    if "cdf" in by_planner:
-        recs = by_planner["cdf"]
-        lines += [f"CDF predictions ({len(recs)} episodes): ours | paper", "",
-                  "| scenario \\ prediction | Cutoff | Yield | Right | total |", "|---|---|---|---|---|"]
-        for lab in LABELS:
-            row = [sum(1 for r in recs if r["label"] == lab and _prediction(r) == p) for p in LABELS]
-            paper = PAPER_CONFUSION[lab]
-            cells = " | ".join(f"{o} \\| {p}" for o, p in zip(row, paper))
-            lines.append(f"| {lab} | {cells} | {sum(row)} \\| {sum(paper)} |")
-        recall = Rate(sum(1 for r in recs if r["label"] == Labels.CUTOFF and _prediction(r) == Labels.CUTOFF),
-                      sum(1 for r in recs if r["label"] == Labels.CUTOFF))
-        lines += ["", f"Cutoff recall: {recall} (paper 100 %)", ""]
-    lines += ["| planner | collisions imminent | collisions occurred | avoided (95 % CI) | (imminent - occurred) / imminent "
-              "| paper: imminent / occurred / avoided | false alarms (95 % CI) | median lead time [s] "
-              "| median min gap [m] | mean time lost, no collision [s] |",
-              "|---|---|---|---|---|---|---|---|---|---|"]
-    for name, recs in by_planner.items():
-        cut = [r for r in recs if r["label"] == Labels.CUTOFF]
-        occurred = sum(1 for r in recs if r["collision_with"] == "obstacle")
-        avoided = Rate(sum(1 for r in cut if r["collision_with"] != "obstacle"), len(cut))
-        false_alarm = Rate(sum(1 for r in recs if r["label"] != Labels.CUTOFF and r["brake_time"] is not None),
-                           len(recs))
-        leads = [r["entered_lane_time"] - r["brake_time"] for r in cut
-                 if r["brake_time"] is not None and r["entered_lane_time"] is not None]
-        lead = f"{statistics.median(leads):.2f}" if leads else "-"
-        gap = statistics.median(r["min_gap"] for r in recs) if recs else float("nan")
-        # Over episodes without a collision: a collision ends an episode early and would
-        # make a planner that crashes look fast. Braking is latched, so this is large.
-        intact = [r["time_lost"] for r in recs if not r["collision"]]
-        lost = statistics.fmean(intact) if intact else float("nan")
-        paper_style = (len(cut) - occurred) / len(cut) if cut else float("nan")
-        if name in PAPER_PLANNERS:
-            pi, po = PAPER_PLANNERS[name]
-            paper = f"{pi} / {po} / {100 * (pi - po) / pi:.0f} %"
-        else:
-            paper = "-"
-        lines.append(f"| {name} | {len(cut)} | {occurred} | {avoided} | {100 * paper_style:.1f} % | {paper} "
-                     f"| {false_alarm} | {lead} "
-                     f"| {gap:.2f} | {lost:.2f} |")
-    if len(good) < len(records):
-        lines += ["", f"{len(records) - len(good)} failed episode(s) left out of these tables "
-                      "(their records hold the error and traceback)."]
-    return "\n".join(lines)
+        raise ResultsExistError(f"{out} already holds results of this experiment")

@@ -12,49 +12,41 @@ backend       where the seeds run
 ``process``   a ``concurrent.futures`` process pool, one scene per worker (``fork`` on
               Linux, so scripts need no ``__main__`` guard and planners registered
               anywhere are inherited; ``spawn`` elsewhere)
-``ray``       Ray actors (``pip install 'cdf-mj[ray]'``), one scene per actor; a local
-              Ray instance, or an existing cluster with ``address``
+``ray``       Ray actors (the ``ray`` extra), one scene per actor; a local Ray
+              instance, or an existing cluster with ``address``
 ============  ===================================================================
-
-:class:`RecordStore` persists records: one JSON line per episode, appended as soon as a
-seed finishes, flushed and ``fsync``-ed, so a run killed at any moment (``SIGKILL``
-included) loses at most the seeds that were still running. :meth:`RecordStore.open`
-reads what an earlier run left, dropping a half-written last line, so that the run can
-resume without duplicating or missing an episode.
 
 An episode that raises is recorded as a *failed* record (``"status": "failed"``, with its
 seed, planner, error and traceback) and the run goes on. Successful records carry
-``"status": "ok"``.
+``"status": "ok"``. The records are persisted by :mod:`cdf_mj.experiments.store`.
 """
 
 from __future__ import annotations
 
-import json
 import os
 import resource
 import sys
 import threading
 import traceback
-from collections.abc import Callable, Iterable, Iterator, Sequence
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from contextlib import contextmanager
 from dataclasses import dataclass
 from multiprocessing import get_context
-from pathlib import Path
-from typing import Literal
-
-import numpy as np
+from typing import TYPE_CHECKING, Any, Literal
 
 from cdf_mj.config import ScenarioConfig
+from cdf_mj.extras import require
+from cdf_mj.records import FAILED, OK
 
-__all__ = ["SeedJob", "SeedResult", "RecordStore", "run_seeds", "Backend", "BACKENDS",
-           "WorkerDiedError", "OK", "FAILED", "check_backend", "effective_backend",
-           "START_METHOD", "locked", "json_default"]
+if TYPE_CHECKING:
+    from cdf_mj.planners.base import Planner
+
+__all__ = ["BACKENDS", "START_METHOD", "Backend", "SeedJob", "SeedResult", "WorkerDiedError", "check_backend",
+           "effective_backend", "run_seeds"]
 
 Backend = Literal["serial", "process", "ray"]
 BACKENDS: tuple[str, ...] = ("serial", "process", "ray")
-OK, FAILED = "ok", "failed"
 
 
 class WorkerDiedError(RuntimeError):
@@ -73,7 +65,7 @@ class SeedJob:
     config: ScenarioConfig
     scene: str
     planners: tuple[str, ...]
-    factories: dict[str, Callable]
+    factories: dict[str, Callable[[], Planner]]
 
 
 @dataclass(frozen=True)
@@ -81,7 +73,7 @@ class SeedResult:
     """The records of one seed (one per planner, in the job's planner order)."""
 
     seed: int
-    records: list[dict]
+    records: list[dict[str, Any]]
     peak_rss_mb: float  # [MiB] the worker's peak resident memory so far
     pid: int
 
@@ -92,7 +84,7 @@ def _peak_rss_mb() -> float:
     return rss / (1024 * 1024) if sys.platform == "darwin" else rss / 1024
 
 
-def _failed(seed: int, planner: str, exc: BaseException) -> dict:
+def _failed(seed: int, planner: str, exc: BaseException) -> dict[str, Any]:
     return {"seed": seed, "planner": planner, "status": FAILED,
             "error": f"{type(exc).__name__}: {exc}",
             "traceback": "".join(traceback.format_exception(type(exc), exc, exc.__traceback__))}
@@ -117,11 +109,11 @@ class SeedWorker:
         from cdf_mj.scenario.episode import counterfactual, label_of, run_episode
 
         job = self.job
-        records: list[dict] = []
+        records: list[dict[str, Any]] = []
         for name in planners or job.planners:
             try:
                 rec = run_episode(job.config, seed, job.factories[name](), self.scene, label=False).to_dict()
-            except Exception as exc:  # noqa: BLE001 - recorded with its traceback; the run goes on
+            except Exception as exc:  # recorded with its traceback; the run goes on
                 records.append(_failed(seed, name, exc))
                 continue
             rec["planner"] = name  # the experiment's name for it, whatever the class calls itself
@@ -133,7 +125,7 @@ class SeedWorker:
             try:
                 label, hit = (label_of(done[0]["intent"], hit), hit) if hit is not None else \
                     counterfactual(job.config, seed, self.scene)
-            except Exception as exc:  # noqa: BLE001 - without a label no record of this seed is usable
+            except Exception as exc:  # without a label no record of this seed is usable
                 records = [_failed(seed, r["planner"], exc) if r["status"] == OK else r for r in records]
             else:
                 for r in done:
@@ -190,7 +182,7 @@ def _process_pool(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], wor
                   address: str | None) -> Iterator[SeedResult]:
     # At most 2 seeds in flight per worker keeps memory flat and cancellation prompt.
     ctx = get_context(START_METHOD)
-    pending: set = set()
+    pending: set[Future[SeedResult]] = set()
     queue = list(todo)[::-1]
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_process,
                              # The death signal follows the thread that forks the workers:
@@ -222,11 +214,8 @@ def _process_pool(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], wor
 
 def _ray(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], workers: int,
          address: str | None) -> Iterator[SeedResult]:
-    try:
-        import ray
-        from ray.util import ActorPool
-    except ImportError:
-        raise ValueError("--backend ray needs Ray: pip install 'cdf-mj[ray]'") from None
+    ray = require("ray", "ray", "the ray backend")
+    from ray.util import ActorPool
     started = not ray.is_initialized()
     if started:
         kwargs = {"address": address} if address else {"num_cpus": workers}
@@ -265,10 +254,10 @@ def run_seeds(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], backend
     """
     cluster_default = backend == "ray" and address is not None and workers is None
     workers = check_backend(backend, workers)
-    backend = effective_backend(backend, workers, len(todo))
+    where = effective_backend(backend, workers, len(todo))
     if cluster_default:
         workers = 0  # one actor per CPU of the cluster
-    return _BACKENDS[backend](job, todo, min(workers, max(1, len(todo))), address)
+    return _BACKENDS[where](job, todo, min(workers, max(1, len(todo))), address)
 
 
 def effective_backend(backend: str, workers: int, n_items: int) -> str:
@@ -287,129 +276,3 @@ def check_backend(backend: str, workers: int | None) -> int:
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"workers={workers!r} must be a positive integer")
     return workers
-
-
-# ----------------------------------------------------------------- persistence
-def json_default(obj: object) -> object:
-    """NumPy values in records (planner summaries, traces) as plain JSON; TypeError otherwise."""
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
-
-
-@contextmanager
-def locked(directory: str | Path) -> Iterator[None]:
-    """Hold an exclusive ``flock`` on ``directory`` (which must exist) for the block, so
-    that a second run into the same directory is refused (ValueError, at once) instead
-    of writing the same episodes twice. The lock goes when the block ends or every
-    process holding it has exited, however it ended. No lock where ``fcntl`` does not
-    exist (Windows)."""
-    try:
-        import fcntl
-    except ImportError:
-        yield
-        return
-    fd = os.open(directory, os.O_RDONLY)
-    try:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise ValueError(f"{directory} is in use by another run: wait for it to finish, "
-                             "or choose another directory") from None
-        yield
-    finally:
-        os.close(fd)
-
-
-class RecordStore:
-    """Append-only JSON lines of episode records: every seed is flushed and ``fsync``-ed.
-
-    Use :meth:`open`; the store is a context manager that closes the file.
-    """
-
-    def __init__(self, path: Path, records: list[dict], fh) -> None:
-        self.path = path
-        self.records = records  # everything on disk, in file order
-        self._fh = fh
-
-    @classmethod
-    def open(cls, path: str | Path, drop_failed: bool = False) -> RecordStore:
-        """Open ``path`` for appending, reading the records already there.
-
-        A last line cut short by a killed run is dropped (truncated from the file); any
-        other line that is not a JSON object is an error naming its line number. With
-        ``drop_failed``, failed records are removed from the file (rewritten atomically)
-        so that their episodes run again. Writers of one file must not overlap: hold
-        :func:`locked` on its directory.
-        """
-        path = Path(path)
-        records: list[dict] = []
-        if path.exists():
-            data = path.read_bytes()
-            end = data.rfind(b"\n") + 1  # everything after the last newline is a partial line
-            for number, line in enumerate(data[:end].splitlines(), start=1):
-                if not line.strip():
-                    continue
-                try:
-                    rec = json.loads(line)
-                except ValueError:
-                    rec = None
-                if not isinstance(rec, dict) or "seed" not in rec or "planner" not in rec:
-                    raise ValueError(f"{path}:{number} is not an episode record; "
-                                     "the file is damaged: move it away or choose another directory")
-                records.append(rec)
-            if end < len(data):
-                with open(path, "r+b") as fh:
-                    fh.truncate(end)
-                    fh.flush()
-                    os.fsync(fh.fileno())
-        if drop_failed and any(r.get("status") == FAILED for r in records):
-            records = [r for r in records if r.get("status") != FAILED]
-            tmp = path.with_name(path.name + ".tmp")
-            with open(tmp, "w", encoding="utf-8") as fh:
-                fh.write("".join(json.dumps(r, allow_nan=False) + "\n" for r in records))
-                fh.flush()
-                os.fsync(fh.fileno())
-            os.replace(tmp, path)
-        fh = open(path, "a", encoding="utf-8")  # noqa: SIM115 - closed by close() / __exit__
-        return cls(path, records, fh)
-
-    def done(self) -> set[tuple[int, str]]:
-        """``(seed, planner)`` pairs already recorded (failed ones included)."""
-        return {(int(r["seed"]), str(r["planner"])) for r in self.records}
-
-    def append(self, records: Iterable[dict]) -> None:
-        """Write records as one block, then flush and fsync (one seed per call).
-
-        NumPy values are written as plain JSON (:func:`json_default`); a record JSON cannot
-        hold (a NaN, an object) is stored as a failed record of its seed and planner
-        instead, so that one planner's odd summary never stops the run."""
-        kept, lines = [], []
-        for rec in records:
-            try:
-                line = json.dumps(rec, allow_nan=False, default=json_default)
-            except (TypeError, ValueError) as exc:
-                rec = {"seed": rec.get("seed"), "planner": rec.get("planner"), "status": FAILED,
-                       "error": f"the record is not JSON-serialisable: {exc}", "traceback": ""}
-                line = json.dumps(rec)
-            kept.append(rec)
-            lines.append(line + "\n")
-        if not lines:
-            return
-        self._fh.write("".join(lines))
-        self._fh.flush()
-        os.fsync(self._fh.fileno())
-        self.records.extend(kept)
-
-    def close(self) -> None:
-        """Close the file."""
-        self._fh.close()
-
-    def __enter__(self) -> RecordStore:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-

@@ -15,23 +15,24 @@ obs-noise   observation noise: ``obs_noise_pos``, ``_heading``,   0.5 1 2 4
             ``_speed`` times the factor
 ==========  ====================================================  =========================
 
-Every point is one :func:`cdf_mj.experiment.run_experiment` call in its own directory
+Every point is one :func:`cdf_mj.experiments.experiment.run_experiment` call in its own directory
 ``OUT/<sweep>/<value>/`` (so a point that finished is reused by a later call with the same
 settings, and an interrupted one resumes), on the same seeds for every point (common
 random numbers). Settings that only the CDF reads (``particles``, ``tau``) run the other
 planners once, as references, in ``OUT/<sweep>/reference/`` (reported at the first point),
 so that a point's directory holds the same settings whatever the other values are. Each
 sweep writes ``OUT/<sweep>.csv``, ``OUT/<sweep>.md`` (the metrics of
-:func:`cdf_mj.metrics.planner_metrics` per point and planner) and ``OUT/<sweep>.png``
-(matplotlib, the optional extra ``viz``).
+:func:`cdf_mj.analysis.metrics.planner_metrics` per point and planner) and
+``OUT/<sweep>.png`` (matplotlib, the optional extra ``viz``).
 
 The ``tau`` sweep also writes ``OUT/tau_curve.csv``, the false alarms and detections for
-a fine grid of thresholds, read from the filter's P(cutoff) history of the run at the
-largest tau: before it brakes, the filter's history is the same whatever the threshold
-(same seed, same random streams, the ego not yet braking), so the first tick at which
-P(cutoff) >= tau is exactly where a run at that tau would brake, for every tau up to the
-largest. Collisions are not read this way: avoidance comes from the braking runs only,
-and the sweep reports how many derived brake times agree with those runs. ::
+a fine grid of thresholds (:func:`cdf_mj.analysis.metrics.tau_curve`), read from the
+filter's P(cutoff) history of the run at the largest tau: before it brakes, the filter's
+history is the same whatever the threshold (same seed, same random streams, the ego not
+yet braking), so the first tick at which P(cutoff) >= tau is exactly where a run at that
+tau would brake, for every tau up to the largest. Collisions are not read this way:
+avoidance comes from the braking runs only, and the sweep reports how many derived brake
+times agree with those runs. ::
 
     from cdf_mj.experiments.sweep import run_sweep
     result = run_sweep("beta", "results/sweeps", seeds=range(200), planners=("cdf", "reactive"))
@@ -42,22 +43,35 @@ from __future__ import annotations
 
 import csv
 import json
-import math
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from cdf_mj.analysis.metrics import (
+    PlannerMetrics,
+    brier_over_time,
+    decision_time,
+    planner_metrics,
+    prior_brier,
+    tau_curve,
+)
+from cdf_mj.analysis.tables import format_number, format_rate
 from cdf_mj.config import CDFConfig, ScenarioConfig
-from cdf_mj.records import Labels
-from cdf_mj.analysis.metrics import Rate, planner_metrics
+from cdf_mj.extras import require
+from cdf_mj.records import (
+    RecordLike,
+    completed,
+    is_false_alarm,
+    is_imminent,
+    lead_time,
+    record_field,
+)
 from cdf_mj.sim.scene import DEFAULT_SCENE
 
-__all__ = ["SWEEPS", "SweepResult", "SweepSpec", "VizUnavailableError", "run_sweep", "tau_curve"]
-
-_VIZ_HINT = "pip install 'cdf-mj[viz]'"
-
+__all__ = ["SWEEPS", "SweepResult", "SweepSpec", "VizUnavailableError", "comparison_figures", "run_sweep"]
 
 class VizUnavailableError(ImportError):
     """matplotlib is missing: the figures need the optional extra ``viz``."""
@@ -113,12 +127,12 @@ class SweepResult:
     """What :func:`run_sweep` wrote: one row per point and planner, and the file paths."""
 
     name: str
-    rows: list[dict]
+    rows: list[dict[str, Any]]  # PlannerMetrics.to_row() with "sweep", "value" and "point_wall_s"
     csv_path: Path
     markdown_path: Path
     figure_path: Path | None
     markdown: str
-    extra: dict = field(default_factory=dict)  # tau: the fine curve and the agreement check
+    extra: dict[str, Any] = field(default_factory=dict)  # tau: the fine curve and the agreement check
 
 
 def _value_text(value: float) -> str:
@@ -135,15 +149,28 @@ def _planners_in(point: Path) -> list[str] | None:
 
 
 def _run_point(out: Path, seeds: Sequence[int], planners: Sequence[str], config: ScenarioConfig,
-               cdf: CDFConfig, scene: str | Path, progress: bool, workers: int | None) -> tuple[list[dict], float]:
+               cdf: CDFConfig, scene: str | Path, progress: bool,
+               workers: int | None) -> tuple[list[RecordLike], float]:
     """One :func:`run_experiment` call, resumed where ``out`` holds the same settings (a
     finished point is reused, an interrupted one continues); returns its completed records
     and its wall time [s]."""
-    from cdf_mj.experiments.experiment import completed, run_experiment
+    from cdf_mj.experiments.experiment import run_experiment
 
     result = run_experiment(out, seeds, list(planners), config, cdf, scene, progress,
                             workers=workers, resume=True)
     return completed(result), result.wall_time
+
+
+@dataclass(frozen=True)
+class _Point:
+    """One planner's metrics at one value of the swept setting."""
+
+    value: float
+    metrics: PlannerMetrics
+    wall: float  # [s] of the point's run_experiment calls
+
+    def row(self, sweep: str) -> dict[str, Any]:
+        return {"sweep": sweep, "value": self.value, **self.metrics.to_row(), "point_wall_s": round(self.wall, 2)}
 
 
 def run_sweep(name: str, out_dir: str | Path, seeds: Iterable[int], planners: Sequence[str] = ("cdf", "reactive"),
@@ -186,8 +213,8 @@ def run_sweep(name: str, out_dir: str | Path, seeds: Iterable[int], planners: Se
     if spec.name == "tau":  # the largest tau first: its histories give the fine curve
         points.sort(key=lambda p: -p[0])
 
-    rows: list[dict] = []
-    records_by_value: dict[float, list[dict]] = {}
+    table: list[_Point] = []
+    records_by_value: dict[float, list[RecordLike]] = {}
     references = [p for p in planners if p != "cdf"] if spec.cdf_only else []
     for i, (value, cfg, cdf_v) in enumerate(points):
         point = out / name / _value_text(value)
@@ -200,19 +227,19 @@ def run_sweep(name: str, out_dir: str | Path, seeds: Iterable[int], planners: Se
                                        progress, workers)
             recs, wall = recs + ref, wall + ref_wall
         records_by_value[value] = recs
-        for m in planner_metrics(recs).values():
-            rows.append({"sweep": name, "value": value, **m.to_row(), "point_wall_s": round(wall, 2)})
-    rows.sort(key=lambda r: (r["value"], planners.index(r["planner"]) if r["planner"] in planners else 99))
+        table += [_Point(value, m, wall) for m in planner_metrics(recs).values()]
+    table.sort(key=lambda p: (p.value, planners.index(p.metrics.planner) if p.metrics.planner in planners else 99))
+    rows = [p.row(name) for p in table]
 
-    extra: dict = {}
+    extra: dict[str, Any] = {}
     if spec.name == "tau":
         top = max(records_by_value)
-        curve = tau_curve([r for r in records_by_value[top] if r["planner"] == "cdf"], tau_max=top)
+        curve = tau_curve(records_by_value[top], tau_max=top)
         extra["curve"] = curve
         extra["agreement"] = _tau_agreement(records_by_value, top)
         _write_csv(out / "tau_curve.csv", curve)
 
-    md = _markdown(spec, rows, extra)
+    md = _markdown(spec, table, extra)
     csv_path, md_path = out / f"{name}.csv", out / f"{name}.md"
     _write_csv(csv_path, rows)
     md_path.write_text(md + "\n", encoding="utf-8")
@@ -224,56 +251,21 @@ def run_sweep(name: str, out_dir: str | Path, seeds: Iterable[int], planners: Se
                        figure_path=fig_path, markdown=md, extra=extra)
 
 
-# ----------------------------------------------------------------- tau from histories
-def _decision_time(rec: dict, tau: float) -> float | None:
-    hist = (rec.get("planner_info") or {}).get("history") or {}
-    for t, p in zip(hist.get("t", ()), hist.get("p_cutoff", ())):
-        if p >= tau:
-            return float(t)
-    return None
-
-
-def tau_curve(records: Iterable[dict], tau_max: float, step: float = 0.01) -> list[dict]:
-    """False alarms and detections of the CDF for thresholds ``step, 2 step, ..., tau_max``,
-    from the P(cutoff) histories of CDF records run at ``tau_max`` (exact up to ``tau_max``:
-    see the module docstring). A detection is a Cutoff episode in which it would brake
-    before the obstacle enters the ego lane; rates carry their 95 % Wilson interval."""
-    recs = [r for r in records if r.get("planner") == "cdf" and r.get("label") is not None]
-    n_cut = sum(1 for r in recs if r["label"] == Labels.CUTOFF)
-    out = []
-    for tau in np.arange(step, tau_max + 1e-9, step):
-        tau = round(float(tau), 6)
-        fa = det = 0
-        times = []
-        for r in recs:
-            d = _decision_time(r, tau)
-            if d is None:
-                continue
-            if r["label"] != Labels.CUTOFF:
-                fa += 1
-            elif r.get("entered_lane_time") is None or d < r["entered_lane_time"]:
-                det += 1
-                times.append(d)
-        far, detr = Rate(fa, len(recs)), Rate(det, n_cut)
-        out.append({"tau": tau, "false_alarms": far.value, "false_alarms_lo": far.interval[0],
-                    "false_alarms_hi": far.interval[1], "false_alarms_k": fa, "episodes": len(recs),
-                    "detected": detr.value, "detected_k": det, "cutoffs": n_cut,
-                    "median_decision_time": float(np.median(times)) if times else math.nan})
-    return out
-
-
-def _tau_agreement(records_by_value: dict[float, list[dict]], top: float) -> dict:
+def _tau_agreement(records_by_value: dict[float, list[RecordLike]], top: float) -> dict[str, int]:
     """How many brake times of the braking runs (the top run's own included) the top run's
-    histories predict. The history stores P(cutoff) rounded to 5 decimals, so a value within
-    5e-6 of a threshold may be read on the other side of it."""
-    base = {r["seed"]: r for r in records_by_value[top] if r["planner"] == "cdf"}
+    histories predict (:func:`~cdf_mj.analysis.metrics.decision_time`). The history stores
+    P(cutoff) rounded to 5 decimals, so a value within 5e-6 of a threshold may be read on
+    the other side of it."""
+    def cdf_runs(recs: list[RecordLike]) -> list[RecordLike]:
+        return [r for r in recs if record_field(r, "planner") == "cdf"]
+
+    base = {record_field(r, "seed"): r for r in cdf_runs(records_by_value[top])}
     same = total = 0
     for tau, recs in records_by_value.items():
-        for r in recs:
-            if r["planner"] != "cdf" or r["seed"] not in base:
-                continue
-            total += 1
-            same += _decision_time(base[r["seed"]], tau) == r["brake_time"]
+        for r in cdf_runs(recs):
+            if record_field(r, "seed") in base:
+                total += 1
+                same += decision_time(base[record_field(r, "seed")], tau) == record_field(r, "brake_time")
     return {"episodes": total, "agree": same}
 
 
@@ -284,7 +276,7 @@ _COLUMNS = ("sweep", "value", "planner", "episodes", "imminent", "collisions", "
             "brier_seen", "point_wall_s")
 
 
-def _write_csv(path: Path, rows: list[dict]) -> None:
+def _write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
     if not rows:
         path.write_text("", encoding="utf-8")
         return
@@ -296,30 +288,20 @@ def _write_csv(path: Path, rows: list[dict]) -> None:
             w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in cols})
 
 
-def _pct(rate: float, lo: float, hi: float, k: int, n: int) -> str:
-    if not n:
-        return "-"
-    return f"{100 * rate:.1f} % [{100 * lo:.1f}, {100 * hi:.1f}] ({k}/{n})"
-
-
-def _num(v: float | None, digits: int = 2) -> str:
-    return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f"{v:.{digits}f}"
-
-
-def _markdown(spec: SweepSpec, rows: list[dict], extra: dict) -> str:
+def _markdown(spec: SweepSpec, table: list[_Point], extra: dict[str, Any]) -> str:
     lines = [f"Sweep `{spec.name}`: {spec.label}", "",
              ("| value | planner | imminent | collisions | avoided (95 % CI) | false alarms (95 % CI) "
              "| median lead [s] | median min gap [m] | mean time lost [s] | Brier P(left) | Brier P(seen) "
              "| point wall time [s] |"),
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for r in rows:
-        lines.append(
-            f"| {_value_text(r['value'])} | {r['planner']} | {r['imminent']} | {r['collisions']} "
-            f"| {_pct(r['avoided'], r['avoided_lo'], r['avoided_hi'], r['avoided_k'], r['avoided_n'])} "
-            f"| {_pct(r['false_alarms'], r['false_alarms_lo'], r['false_alarms_hi'], r['false_alarms_k'], r['false_alarms_n'])} "
-            f"| {_num(r['lead_time'])} | {_num(r['min_gap'])} | {_num(r['time_lost'])} "
-            f"| {_num(r['brier_left'], 3)} | {_num(r['brier_seen'], 3)} | {_num(r['point_wall_s'], 1)} |")
-    others = sorted({_value_text(r["value"]) for r in rows if r["planner"] != "cdf"})
+    for p in table:
+        m = p.metrics
+        cells = [_value_text(p.value), m.planner, str(m.imminent), str(m.collisions), format_rate(m.avoided),
+                 format_rate(m.false_alarms), format_number(m.lead_time), format_number(m.min_gap),
+                 format_number(m.time_lost), format_number(m.brier_left, 3), format_number(m.brier_seen, 3),
+                 format_number(p.wall, 1)]
+        lines.append("| " + " | ".join(cells) + " |")
+    others = sorted({_value_text(p.value) for p in table if p.metrics.planner != "cdf"})
     if spec.cdf_only and others:
         lines += ["", (f"Planners other than `cdf` do not read this setting: they ran once and are "
                        f"listed at {spec.name} = {', '.join(others)}.")]
@@ -332,18 +314,18 @@ def _markdown(spec: SweepSpec, rows: list[dict], extra: dict) -> str:
     return "\n".join(lines)
 
 
-def _pyplot():
+def _pyplot() -> Any:
     try:
-        import matplotlib
-    except ImportError:
-        raise VizUnavailableError(f"the sweep figures need matplotlib: {_VIZ_HINT}") from None
+        matplotlib = require("matplotlib", "viz", "the sweep figures")
+    except ImportError as exc:
+        raise VizUnavailableError(str(exc)) from exc
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     return plt
 
 
-def _save(fig, path: Path) -> Path:
+def _save(fig: Any, path: Path) -> Path:
     """Lay out, write as PNG (110 dpi, parents created) and close a figure; returns ``path``."""
     import matplotlib.pyplot as plt
 
@@ -354,7 +336,7 @@ def _save(fig, path: Path) -> Path:
     return path
 
 
-def _figure(spec: SweepSpec, rows: list[dict], extra: dict, path: Path) -> None:
+def _figure(spec: SweepSpec, rows: list[dict[str, Any]], extra: dict[str, Any], path: Path) -> None:
     """Avoided and false alarms against the swept value (tau: the operating curve)."""
     plt = _pyplot()
     planners = list(dict.fromkeys(r["planner"] for r in rows))
@@ -397,7 +379,7 @@ def _figure(spec: SweepSpec, rows: list[dict], extra: dict, path: Path) -> None:
         fig, axes = plt.subplots(1, 3 if any(r["brier_left"] is not None for r in rows) else 2,
                                  figsize=(13, 4))
         series = [("avoided", "imminent collisions avoided [%]"), ("false_alarms", "false alarms [% of episodes]")]
-        for ax, (key, title) in zip(axes, series):
+        for ax, (key, title) in zip(axes, series, strict=False):  # a third axis: the Brier scores
             for j, p in enumerate(planners):
                 rs = sorted((r for r in rows if r["planner"] == p), key=lambda r: r["value"])
                 xs = [r["value"] for r in rs]
@@ -432,39 +414,21 @@ def _figure(spec: SweepSpec, rows: list[dict], extra: dict, path: Path) -> None:
     _save(fig, path)
 
 
-def load_rows(path: str | Path) -> list[dict]:
-    """Rows of a sweep's CSV (numbers as floats, empty cells as None)."""
-    out = []
-    with open(path, newline="", encoding="utf-8") as fh:
-        for row in csv.DictReader(fh):
-            conv: dict = {}
-            for k, v in row.items():
-                if v == "":
-                    conv[k] = None
-                else:
-                    try:
-                        conv[k] = json.loads(v)
-                    except ValueError:
-                        conv[k] = v
-            out.append(conv)
-    return out
-
-
 # ----------------------------------------------------------------- planner comparison figures
-def comparison_figures(records: Iterable[dict], out_dir: str | Path, p_left: float = 0.75) -> list[Path]:
+def comparison_figures(records: Iterable[RecordLike], out_dir: str | Path, p_left: float = 0.75) -> list[Path]:
     """Figures of an experiment's records (planners on the same seeds), written to ``out_dir``:
 
     ``brier_over_time.png``: Brier score of P(left) and P(seen) per tick time for every
     planner with such a history, beside the prior ``p_left`` held constant and the per-time
-    base rate (in-sample); ``brake_times.png``: when each planner brakes, relative to the
-    obstacle entering the ego lane (Cutoff episodes), and the share of other episodes in
-    which it has braked by each time (its false alarms).
+    base rate (in-sample); ``brake_times.png``: each planner's lead times in Cutoff
+    episodes (:func:`~cdf_mj.records.lead_time`), and its false alarms
+    (:func:`~cdf_mj.records.is_false_alarm`, of all episodes) by each time.
     """
-    from cdf_mj.analysis.metrics import brier_over_time
-
     plt = _pyplot()
-    recs = [r for r in records if r.get("status") != "failed" and r.get("label") is not None]
-    planners = list(dict.fromkeys(r["planner"] for r in recs))
+    recs = [r for r in completed(records) if record_field(r, "label") is not None]
+    by_planner: dict[str, list[RecordLike]] = {}
+    for r in recs:
+        by_planner.setdefault(record_field(r, "planner"), []).append(r)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths = []
@@ -473,8 +437,8 @@ def comparison_figures(records: Iterable[dict], out_dir: str | Path, p_left: flo
     for ax, q, title in ((axes[0], "p_left", "P(left) against the true intent"),
                          (axes[1], "p_seen", "P(seen) against 'observed the ego on an earlier tick'")):
         ref = None
-        for j, p in enumerate(planners):
-            c = brier_over_time([r for r in recs if r["planner"] == p], q)
+        for j, (p, mine) in enumerate(by_planner.items()):
+            c = brier_over_time(mine, q)
             if not c.episodes:
                 continue
             keep = c.counts >= max(10, 0.1 * c.episodes)
@@ -483,9 +447,7 @@ def comparison_figures(records: Iterable[dict], out_dir: str | Path, p_left: flo
         if ref is not None:
             keep = ref.counts >= max(10, 0.1 * ref.episodes)
             if q == "p_left":
-                first = [r for r in recs if r["planner"] == planners[0]]
-                y = np.array([r["intent"] == "left" for r in first], dtype=float)
-                ax.axhline(float(np.mean((p_left - y) ** 2)), color="0.5", ls=":",
+                ax.axhline(prior_brier(next(iter(by_planner.values())), p_left), color="0.5", ls=":",
                            label=f"prior {p_left:g}, held")
             else:
                 ax.plot(ref.times[keep], ref.reference[keep], color="0.5", ls=":",
@@ -498,25 +460,21 @@ def comparison_figures(records: Iterable[dict], out_dir: str | Path, p_left: flo
     paths.append(_save(fig, out / "brier_over_time.png"))
 
     fig, axes = plt.subplots(1, 2, figsize=(12, 4))
-    for j, p in enumerate(planners):
-        mine = [r for r in recs if r["planner"] == p]
-        lead = sorted(r["entered_lane_time"] - r["brake_time"] for r in mine if r["label"] == Labels.CUTOFF
-                      and r["brake_time"] is not None and r["entered_lane_time"] is not None)
-        n_cut = sum(1 for r in mine if r["label"] == Labels.CUTOFF)
-        if lead and n_cut:
-            axes[0].step(lead, np.arange(1, len(lead) + 1) / n_cut * 100, where="post", color=f"C{j}", label=p)
-        other = [r for r in mine if r["label"] != Labels.CUTOFF]
-        fa = sorted(r["brake_time"] for r in other if r["brake_time"] is not None)
-        if other:
-            axes[1].step([0.0, *fa, 8.0], [0.0, *(np.arange(1, len(fa) + 1) / len(other) * 100), len(fa) / len(other) * 100],
-                         where="post", color=f"C{j}", label=p)
+    for j, (p, mine) in enumerate(by_planner.items()):
+        leads = sorted(t for t in map(lead_time, mine) if t is not None)
+        n_cut = sum(map(is_imminent, mine))
+        if leads:
+            axes[0].step(leads, np.arange(1, len(leads) + 1) / n_cut * 100, where="post", color=f"C{j}", label=p)
+        alarms = sorted(record_field(r, "brake_time") for r in mine if is_false_alarm(r))
+        share = np.arange(len(alarms) + 1) / len(mine) * 100
+        axes[1].step([0.0, *alarms, 8.0], [*share, share[-1]], where="post", color=f"C{j}", label=p)
     axes[0].invert_xaxis()
     axes[0].set_xlabel("lead time: obstacle enters the ego lane minus brake [s]")
     axes[0].set_ylabel("Cutoff episodes braked with at least this lead [%]")
     axes[1].set_xlabel("time [s]")
-    axes[1].set_ylabel("Yield and Right episodes braked by then [%]")
+    axes[1].set_ylabel("false alarms by then [% of all episodes]")
     axes[0].set_title("Lead time in Cutoff episodes", fontsize=10)
-    axes[1].set_title("False alarms over time", fontsize=10)
+    axes[1].set_title("False alarms over time (braked in a Yield or Right episode)", fontsize=10)
     for ax in axes:
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)

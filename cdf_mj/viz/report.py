@@ -9,15 +9,18 @@ Reads ``DIR/settings.json`` and ``DIR/episodes.jsonl`` (as written by
 ``trajectories.png`` top-down paths of both cars for a few seeds over the road layout of the MJCF
 ``posterior.png``   P(left), P(seen), P(cutoff) over time for the same seeds (CDF)
 ``lead_times.png``  distribution of braking lead times, entered_lane_time - brake_time [s]
-``report.md``       the tables of :func:`cdf_mj.experiment.experiment_tables` and every figure
+``report.md``       the tables of :func:`cdf_mj.analysis.tables.experiment_tables`, every figure
 ==================  ==========================================================================
 
 A figure whose data are absent (no CDF records, no braking before a lane entry) is left
-out and the page says why. Failed episodes (``"status": "failed"``) and unreadable lines
-are skipped and counted. Planners other than ``cdf`` and ``reactive`` are shown like
-them. The trajectories are re-simulated from the stored settings (``trace=True``); the
-posterior traces come from the stored records. Figures use matplotlib's Agg canvas
-directly, so no global backend is changed. ::
+out and the page says why. The records file is read with
+:func:`cdf_mj.records.read_records`: a damaged line is an error naming it; failed episodes
+(``"status": "failed"``) and a half-written last line (a run still writing) are skipped
+and counted. Every rate and count comes from :mod:`cdf_mj.analysis.metrics`, as in the
+tables. Planners other than ``cdf`` and ``reactive`` are shown like them. The
+trajectories are re-simulated from the stored settings (``trace=True``); the posterior
+traces come from the stored records. Figures use matplotlib's Agg canvas directly, so no
+global backend is changed. ::
 
     from cdf_mj.viz.report import write_report
     result = write_report("results/experiment")
@@ -37,17 +40,18 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from cdf_mj.analysis.metrics import Rate, confusion_matrix, planner_metrics
+from cdf_mj.analysis.tables import PAPER_CONFUSION, PAPER_PLANNERS, experiment_tables
 from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames
+from cdf_mj.extras import require
+from cdf_mj.planners.base import Planner, make_planner
+from cdf_mj.planners.cdf import CDFPlanner
+from cdf_mj.records import FAILED, LABELS, RECORDS_FILE, Label, lead_time, paper_avoided, prediction, read_records
 from cdf_mj.scenario.episode import run_episode
-from cdf_mj.records import Labels
-from cdf_mj.experiments.experiment import PAPER_CONFUSION, PAPER_PLANNERS, experiment_tables
-from cdf_mj.analysis.metrics import Rate
-from cdf_mj.planners.base import CDFPlanner, Planner, make_planner
 from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
 
 __all__ = ["FIGURES", "Experiment", "ReportError", "ReportResult", "load_experiment", "write_report"]
 
-LABELS = (Labels.CUTOFF, Labels.YIELD, Labels.RIGHT)
 #: Figure file names and what each shows.
 FIGURES = {
     "confusion": "the CDF's predictions against the scenario labels, beside the paper's",
@@ -56,7 +60,6 @@ FIGURES = {
     "posterior": "P(left), P(seen) and P(cutoff) of the CDF over time for the same seeds",
     "lead_times": "braking lead time (obstacle enters the ego lane minus brake decision) on Cutoff episodes",
 }
-_VIZ_HINT = "pip install 'cdf-mj[viz]'"
 _PLANNER_COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#7f7f7f")
 _CURVES = (("p_left", "P(left)", "#c020c0"), ("p_seen", "P(seen)", "#d4a000"),
            ("p_cutoff", "P(cutoff)", "#e04010"))
@@ -71,13 +74,13 @@ class Experiment:
     """The completed records of an experiment directory and its settings."""
 
     path: Path
-    settings: dict
-    records: list[dict]  # completed episodes only
+    settings: dict[str, Any]
+    records: list[dict[str, Any]]  # completed episodes only
     failed: int = 0  # records with "status": "failed", skipped
-    unreadable: int = 0  # lines that are not JSON objects (a run killed mid-line), skipped
+    unreadable: int = 0  # 1 if the file ends in a half-written line (a run killed or still writing), skipped
     planners: list[str] = field(default_factory=list)  # settings order, then any others
 
-    def by_planner(self, name: str) -> list[dict]:
+    def by_planner(self, name: str) -> list[dict[str, Any]]:
         """The completed records of one planner."""
         return [r for r in self.records if r.get("planner") == name]
 
@@ -91,15 +94,15 @@ class ReportResult:
     omitted: dict[str, str]  # name -> why the figure was left out
     records: int  # completed records used
     failed: int  # failed records skipped
-    unreadable: int  # unreadable lines skipped
+    unreadable: int  # 1 if a half-written last line was skipped, else 0
 
 
 def load_experiment(path: str | Path) -> Experiment:
-    """Read ``settings.json`` and ``episodes.jsonl``; failed and unreadable records are
-    counted and skipped. :class:`ReportError` if either file is missing or no episode
-    completed."""
+    """Read ``settings.json`` and ``episodes.jsonl``; failed records and a half-written last
+    line are counted and skipped. :class:`ReportError` if either file is missing, a line is
+    not a record (naming the file, the line and the field), or no episode completed."""
     path = Path(path)
-    settings_path, records_path = path / "settings.json", path / "episodes.jsonl"
+    settings_path, records_path = path / "settings.json", path / RECORDS_FILE
     for p in (settings_path, records_path):
         if not p.is_file():
             raise ReportError(f"{path} is not an experiment directory: {p.name} is missing "
@@ -108,27 +111,15 @@ def load_experiment(path: str | Path) -> Experiment:
         settings = json.loads(settings_path.read_text(encoding="utf-8"))
     except ValueError as exc:
         raise ReportError(f"{settings_path}: not JSON ({exc})") from None
-    records, failed, unreadable = [], 0, 0
-    with open(records_path, encoding="utf-8") as fh:
-        for line in fh:
-            if not line.strip():
-                continue
-            try:
-                rec = json.loads(line)
-            except ValueError:
-                unreadable += 1
-                continue
-            if not isinstance(rec, dict) or "planner" not in rec:
-                unreadable += 1
-            elif rec.get("status") == "failed":
-                failed += 1
-            elif not all(key in rec for key in _RECORD_KEYS):  # not an episode record of ours
-                unreadable += 1
-            else:
-                records.append(rec)
+    try:
+        found = read_records(records_path)
+    except ValueError as exc:
+        raise ReportError(str(exc)) from None
+    records = [r for r in found.records if r.get("status") != FAILED]
+    failed, unreadable = len(found.records) - len(records), int(found.partial)
     if not records:
         raise ReportError(f"{records_path} holds no completed episode "
-                          f"({failed} failed, {unreadable} unreadable line(s))")
+                          f"({failed} failed, {unreadable} half-written line(s))")
     planners = [p for p in settings.get("planners", []) if any(r["planner"] == p for r in records)]
     planners += sorted({r["planner"] for r in records} - set(planners))
     return Experiment(path, settings, records, failed, unreadable, planners)
@@ -139,7 +130,7 @@ def _tuples(value: Any) -> Any:
     return tuple(_tuples(v) for v in value) if isinstance(value, list) else value
 
 
-def _scenario(settings: dict) -> ScenarioConfig:
+def _scenario(settings: dict[str, Any]) -> ScenarioConfig:
     raw = dict(settings.get("scenario", {}))
     names = raw.pop("names", None)
     fields = {k: _tuples(v) for k, v in raw.items()}
@@ -151,7 +142,7 @@ def _scenario(settings: dict) -> ScenarioConfig:
         raise ReportError(f"settings.json: scenario settings this version cannot read ({exc})") from None
 
 
-def _cdf(settings: dict) -> CDFConfig:
+def _cdf(settings: dict[str, Any]) -> CDFConfig:
     try:
         return CDFConfig(**{k: _tuples(v) for k, v in settings.get("cdf", {}).items()})
     except TypeError as exc:
@@ -165,12 +156,12 @@ def _planner(name: str, cdf: CDFConfig) -> Planner:
 # ----------------------------------------------------------------- figures
 def _figure(width: float, height: float) -> Any:
     try:
-        from matplotlib.backends.backend_agg import FigureCanvasAgg
-        from matplotlib.figure import Figure
-    except ImportError:
-        raise ReportError(f"cdf-mj report needs matplotlib: {_VIZ_HINT}") from None
-    fig = Figure(figsize=(width, height), dpi=100, layout="constrained")
-    FigureCanvasAgg(fig)
+        canvas = require("matplotlib.backends.backend_agg", "viz", "cdf-mj report").FigureCanvasAgg
+        figure = require("matplotlib.figure", "viz", "cdf-mj report").Figure
+    except ImportError as exc:
+        raise ReportError(str(exc)) from None
+    fig = figure(figsize=(width, height), dpi=100, layout="constrained")
+    canvas(fig)
     return fig
 
 
@@ -179,20 +170,11 @@ def _save(fig: Any, path: Path) -> Path:
     return path
 
 
-#: Fields every figure reads from a completed record.
-_RECORD_KEYS = ("seed", "label", "collision_with", "brake_time", "entered_lane_time")
-
-
-def _prediction(rec: dict) -> str | None:
-    return (rec.get("planner_info") or {}).get("prediction")
-
-
 def _confusion(exp: Experiment, path: Path) -> Path | str:
-    recs = [r for r in exp.by_planner("cdf") if _prediction(r) in LABELS and r.get("label") in LABELS]
-    if not recs:
+    matrix = confusion_matrix(exp.by_planner("cdf"))
+    ours = np.array([matrix[a] for a in LABELS])
+    if not ours.sum():
         return "no CDF records with a prediction"
-    ours = np.array([[sum(1 for r in recs if r["label"] == a and _prediction(r) == b) for b in LABELS]
-                     for a in LABELS])
     paper = np.array([PAPER_CONFUSION[a] for a in LABELS])
     fig = _figure(8.0, 3.4)
     axes = fig.subplots(1, 2)
@@ -213,17 +195,10 @@ def _confusion(exp: Experiment, path: Path) -> Path | str:
     return _save(fig, path)
 
 
-def _rates(recs: list[dict]) -> tuple[Rate, Rate]:
-    cut = [r for r in recs if r.get("label") == Labels.CUTOFF]
-    avoided = Rate(sum(1 for r in cut if r.get("collision_with") != "obstacle"), len(cut))
-    # As in experiment_tables: braking on an episode that is not a Cutoff, over all episodes.
-    false_alarm = Rate(sum(1 for r in recs if r.get("label") != Labels.CUTOFF and r.get("brake_time") is not None),
-                       len(recs))
-    return avoided, false_alarm
-
-
 def _avoidance(exp: Experiment, path: Path) -> Path | str:
-    rates = {p: _rates(exp.by_planner(p)) for p in exp.planners}
+    metrics = planner_metrics(exp.records)
+    none = (Rate(0, 0), Rate(0, 0))  # a planner without labelled episodes
+    rates = {p: (metrics[p].avoided, metrics[p].false_alarms) if p in metrics else none for p in exp.planners}
     fig = _figure(8.0, 3.8)
     axes = fig.subplots(1, 2)
     x = np.arange(len(exp.planners))
@@ -238,17 +213,17 @@ def _avoidance(exp: Experiment, path: Path) -> Path | str:
         ax.bar(x, np.nan_to_num(v), color=colors, alpha=0.8)
         ax.errorbar(x, v, yerr=[np.nan_to_num(v - lo), np.nan_to_num(hi - v)], fmt="none", ecolor="black",
                     capsize=5, label="95 % Wilson interval")
-        for xi, r, top in zip(x, vals, hi):
+        for xi, r, top in zip(x, vals, hi, strict=True):
             y = min(top, 92) + 1.5 if r.n else 1.5  # inside the axes, above the interval
             ax.text(xi + 0.08, y, f"{r.k}/{r.n}", ha="left", va="bottom", fontsize=8)
         if k == 0:
             if not any(r.n for r in vals):
                 ax.text(0.5, 0.5, "no Cutoff episodes", transform=ax.transAxes, ha="center", va="center")
-            paper = [(i, 100 * (PAPER_PLANNERS[p][0] - PAPER_PLANNERS[p][1]) / PAPER_PLANNERS[p][0])
-                     for i, p in enumerate(exp.planners) if p in PAPER_PLANNERS]
+            paper = [(i, 100 * paper_avoided(*PAPER_PLANNERS[p])) for i, p in enumerate(exp.planners)
+                     if p in PAPER_PLANNERS]
             if paper:
                 ax.scatter([i for i, _ in paper], [v for _, v in paper], marker="D", color="black",
-                           zorder=3, label="paper")
+                           zorder=3, label="paper (its formula)")
         ax.set_xticks(x, exp.planners)
         ax.set_ylim(0, 105)
         ax.set_ylabel("%")
@@ -286,7 +261,7 @@ def _pick_seeds(exp: Experiment, planner: str, count: int = 3) -> list[int]:
     for lab in LABELS:
         cand = [r for r in recs if r.get("label") == lab]
         # A Cutoff the planner braked for; a Yield or Right it did not brake for.
-        cand.sort(key=lambda r: (r.get("brake_time") is None) == (lab == Labels.CUTOFF))
+        cand.sort(key=lambda r: (r.get("brake_time") is None) == (lab == Label.CUTOFF))
         if cand:
             seeds.append(int(cand[0]["seed"]))
     for r in recs:  # unlabelled runs, or fewer labels than wanted
@@ -321,7 +296,9 @@ def _trajectories(exp: Experiment, planner: str, seeds: Sequence[int], path: Pat
         if old is not None and old.get("brake_time") != rec.brake_time:
             notes.append(f"Seed {seed} re-simulated with brake time {rec.brake_time} against "
                          f"{old.get('brake_time')} stored: the code changed since the experiment.")
-        poses = np.asarray(rec.trace["poses"], dtype=float)  # (K, 2, 4)
+        trace = rec.trace
+        assert trace is not None, "run_episode(trace=True) records a trace"
+        poses = np.asarray(trace["poses"], dtype=np.float64)  # (K, 2, 4)
         color = _PLANNER_COLORS[i % len(_PLANNER_COLORS)]
         lab = old.get("label") if old else None
         name = f"seed {seed}" + (f" ({lab})" if lab else "")
@@ -330,7 +307,7 @@ def _trajectories(exp: Experiment, planner: str, seeds: Sequence[int], path: Pat
         ax.plot(poses[:, 1, 0], poses[:, 1, 1], color=color, lw=lw, ls="--", zorder=3,
                 label=f"{name}: obstacle")
         if rec.brake_time is not None:
-            k = int(np.argmin(np.abs(np.asarray(rec.trace["t"]) - rec.brake_time)))
+            k = int(np.argmin(np.abs(np.asarray(trace["t"]) - rec.brake_time)))
             ax.scatter(poses[k, 0, 0], poses[k, 0, 1], marker="X", s=90, color=color, edgecolor="black",
                        zorder=4)
         if rec.collision:
@@ -356,7 +333,7 @@ def _posterior(exp: Experiment, seeds: Sequence[int], path: Path) -> Path | str:
     tau = exp.settings.get("cdf", {}).get("tau")
     fig = _figure(8.0, 1.0 + 1.9 * len(chosen))
     axes = np.atleast_1d(fig.subplots(len(chosen), 1, sharex=True))
-    for ax, seed in zip(axes, chosen):
+    for ax, seed in zip(axes, chosen, strict=True):
         rec = recs[seed]
         h = rec["planner_info"]["history"]
         for key, name, color in _CURVES:
@@ -369,18 +346,14 @@ def _posterior(exp: Experiment, seeds: Sequence[int], path: Path) -> Path | str:
             ax.axvline(rec["entered_lane_time"], color="grey", ls="--", lw=1.2, label="obstacle enters ego lane")
         ax.set_ylim(-0.03, 1.03)
         ax.set_ylabel("probability")
-        ax.set_title(f"seed {seed}: label {rec.get('label')}, prediction {_prediction(rec)}", fontsize=9)
+        ax.set_title(f"seed {seed}: label {rec.get('label')}, prediction {prediction(rec)}", fontsize=9)
     axes[0].legend(fontsize=7, loc="center right", ncol=2)
     axes[-1].set_xlabel("time [s]")
     return _save(fig, path)
 
 
 def _lead_times(exp: Experiment, path: Path) -> Path | str:
-    leads = {}
-    for p in exp.planners:
-        leads[p] = [r["entered_lane_time"] - r["brake_time"] for r in exp.by_planner(p)
-                    if r.get("label") == Labels.CUTOFF and r.get("brake_time") is not None
-                    and r.get("entered_lane_time") is not None]
+    leads = {p: [t for t in map(lead_time, exp.by_planner(p)) if t is not None] for p in exp.planners}
     if not any(leads.values()):
         return "no Cutoff episode with both a brake decision and a lane entry"
     every = np.concatenate([np.asarray(v, dtype=float) for v in leads.values() if v])
@@ -459,9 +432,9 @@ def write_report(path: str | Path, out: str | Path | None = None, seeds: Sequenc
     if exp.failed:
         skipped.append(f"{exp.failed} failed episode(s) (`\"status\": \"failed\"`)")
     if exp.unreadable:
-        skipped.append(f"{exp.unreadable} unreadable line(s)")
+        skipped.append("a half-written last line")
     lines.append(f"Skipped: {', '.join(skipped)}." if skipped else "Skipped: none.")
-    lines += ["", "## Tables", "", experiment_tables(exp.records), "", "## Figures", ""]
+    lines += ["", "## Tables", "", experiment_tables(exp.records, fmt="markdown"), "", "## Figures", ""]
     for name, caption in FIGURES.items():
         if name in figures:
             lines += [f"**{name}**: {caption}.", "", f"![{name}]({figures[name].name})", ""]

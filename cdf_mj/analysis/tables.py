@@ -1,0 +1,260 @@
+"""Tables of episode records beside the paper's figures, as plain text for a terminal or as
+Markdown for the docs.
+
+:func:`experiment_tables` prints the paper's two tables beside ours (the one that
+``cdf-mj experiment`` prints); :func:`planner_table`, :func:`paired_table`,
+:func:`filter_table` and :func:`format_scenario_summary` are the Markdown tables of
+docs/ANALYSIS.md and of the calibration. Every number comes from
+:mod:`cdf_mj.analysis.metrics`, so the tables, the report's figures and the sweeps agree. ::
+
+    from cdf_mj.analysis.tables import experiment_tables
+    from cdf_mj.records import load_records
+    print(experiment_tables(load_records("results/reproduce")))                    # text
+    print(experiment_tables(load_records("results/reproduce"), fmt="markdown"))    # docs
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Collection, Iterable, Sequence
+from typing import Literal
+
+import numpy as np
+
+from cdf_mj.analysis.metrics import (
+    FILTER_QUANTITIES,
+    PlannerMetrics,
+    Rate,
+    brier_over_time,
+    confusion_matrix,
+    cutoff_recall,
+    paired_counts,
+    planner_metrics,
+    prior_brier,
+)
+from cdf_mj.records import LABELS, Label, RecordLike, completed, paper_avoided, record_field
+
+__all__ = ["PAPER_CONFUSION", "PAPER_PLANNERS", "TableFormat", "experiment_tables", "filter_table",
+           "format_number", "format_rate", "format_scenario_summary", "paired_table", "planner_table"]
+
+#: The paper's Figure "Simulation results using the CDF", 1000 episodes: scenario label ->
+#: episodes predicted Cutoff, Yield, Right.
+PAPER_CONFUSION: dict[str, tuple[int, int, int]] = {
+    Label.CUTOFF: (417, 0, 0), Label.YIELD: (13, 334, 0), Label.RIGHT: (0, 0, 236)}
+#: The paper's planner comparison: planner -> (collisions imminent, collisions occurred).
+PAPER_PLANNERS: dict[str, tuple[int, int]] = {"cdf": (417, 9), "reactive": (404, 213)}
+
+#: ``text``: aligned columns for a terminal (at most 100 characters wide with the usual
+#: planner names); ``markdown``: pipe tables for the docs.
+TableFormat = Literal["text", "markdown"]
+_FORMATS = ("text", "markdown")
+
+
+def format_number(value: float | None, digits: int = 2) -> str:
+    """``value`` with ``digits`` decimals; ``-`` for None or NaN."""
+    return "-" if value is None or (isinstance(value, float) and math.isnan(value)) else f"{value:.{digits}f}"
+
+
+def format_rate(rate: Rate) -> str:
+    """``p % [lo, hi] (k/n)`` with the 95 % Wilson interval; ``-`` for a rate of nothing (n = 0)."""
+    return str(rate) if rate.n else "-"
+
+
+def _percent(share: float, digits: int = 1) -> str:
+    """``share`` (a fraction) in per cent; ``-`` for NaN."""
+    return "-" if math.isnan(share) else f"{100 * share:.{digits}f} %"
+
+
+def _paper_share(imminent: int, occurred: int) -> str:
+    """The paper's avoided share of its own counts, as it rounds it."""
+    return _percent(paper_avoided(imminent, occurred), 0)
+
+
+def _table(header: Sequence[str], rows: Sequence[Sequence[str]], fmt: TableFormat,
+           right: Collection[int] = ()) -> str:
+    """Markdown pipe table, or text columns two spaces apart under a dashed rule (the
+    columns numbered in ``right`` right-aligned)."""
+    if fmt == "markdown":
+        lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+        return "\n".join(lines + ["| " + " | ".join(row) + " |" for row in rows])
+    widths = [max(map(len, column)) for column in zip(header, *rows, strict=True)]
+
+    def line(cells: Sequence[str]) -> str:
+        return "  ".join(c.rjust(w) if i in right else c.ljust(w)
+                         for i, (c, w) in enumerate(zip(cells, widths, strict=True))).rstrip()
+
+    return "\n".join([line(header), line(["-" * w for w in widths]), *map(line, rows)])
+
+
+def _check_format(fmt: str) -> None:
+    if fmt not in _FORMATS:
+        raise ValueError(f"unknown table format {fmt!r}: choose one of {', '.join(_FORMATS)}")
+
+
+# ----------------------------------------------------------------- the experiment
+def _confusion_part(cdf: list[RecordLike], fmt: TableFormat) -> list[str]:
+    """The CDF's confusion matrix beside the paper's, and its Cutoff recall."""
+    ours = confusion_matrix(cdf)
+    sep = " \\| " if fmt == "markdown" else " / "
+    rows = []
+    for lab in LABELS:
+        row, paper = ours[lab], PAPER_CONFUSION[lab]
+        cells = [f"{o}{sep}{p}" for o, p in zip(row, paper, strict=True)]
+        rows.append([str(lab), *cells, f"{sum(row)}{sep}{sum(paper)}"])
+    title = (f"CDF predictions ({len(cdf)} episodes): ours | paper" if fmt == "markdown"
+             else f"CDF predictions ({len(cdf)} episodes); each cell: ours / paper")
+    header = ["scenario \\ prediction", *map(str, LABELS), "total"]
+    return [title, "", _table(header, rows, fmt), "",
+            f"Cutoff recall: {cutoff_recall(cdf)} (paper 100 %)", ""]
+
+
+def _planners_markdown(metrics: Iterable[PlannerMetrics]) -> list[str]:
+    """One Markdown table of every planner, as docs/RESULTS.md shows it."""
+    header = ["planner", "collisions imminent", "collisions occurred", "avoided (95 % CI)",
+              "(imminent - occurred) / imminent", "paper: imminent / occurred / avoided",
+              "false alarms (95 % CI)", "median lead time [s]", "median min gap [m]",
+              "mean time lost, no collision [s]"]
+    rows = []
+    for m in metrics:
+        paper = "-"
+        if m.planner in PAPER_PLANNERS:
+            pi, po = PAPER_PLANNERS[m.planner]
+            paper = f"{pi} / {po} / {_paper_share(pi, po)}"
+        rows.append([m.planner, str(m.imminent), str(m.collisions), format_rate(m.avoided),
+                     _percent(m.paper_avoided), paper, format_rate(m.false_alarms),
+                     format_number(m.lead_time), format_number(m.min_gap), format_number(m.time_lost)])
+    return [_table(header, rows, "markdown")]
+
+
+def _planners_text(metrics: Sequence[PlannerMetrics]) -> list[str]:
+    """Two narrower tables, collisions and braking, each with its definitions under it."""
+    collisions = [[m.planner, str(m.imminent), str(m.collisions), format_rate(m.avoided),
+                   _percent(m.paper_avoided)] for m in metrics]
+    collisions += [[f"paper: {name}", str(pi), str(po), "-", _paper_share(pi, po)]
+                   for name, (pi, po) in PAPER_PLANNERS.items() if any(m.planner == name for m in metrics)]
+    braking = [[m.planner, format_rate(m.false_alarms), format_number(m.lead_time), format_number(m.min_gap),
+                format_number(m.time_lost)] for m in metrics]
+    return [
+        "Collisions with the obstacle",
+        _table(["planner", "imminent", "occurred", "avoided (95 % CI)", "paper's formula"], collisions,
+               "text", right=(1, 2, 4)),
+        "imminent: episodes labelled Cutoff. occurred: any episode with a collision with the obstacle.",
+        "avoided: Cutoff episodes without a collision with the obstacle / Cutoff episodes.",
+        "paper's formula: (imminent - occurred) / imminent, so a collision in a Yield episode counts too.",
+        "",
+        "Braking",
+        _table(["planner", "false alarms (95 % CI)", "lead time [s]", "min gap [m]", "time lost [s]"], braking,
+               "text", right=(2, 3, 4)),
+        "false alarms: episodes not labelled Cutoff in which the planner braked / all episodes.",
+        "lead time: median of (obstacle enters the ego lane - brake) over braking Cutoff episodes.",
+        "min gap: median smallest distance between the cars; time lost: mean, episodes without collision.",
+        "",
+        "Definitions, and how the paper counts: docs/RESULTS.md.",
+    ]
+
+
+def experiment_tables(records: Iterable[RecordLike], fmt: TableFormat = "text") -> str:
+    """The paper's two tables beside ours: the CDF's predictions against the scenario
+    labels (if the records hold CDF episodes), and every planner's collisions (imminent,
+    occurred, avoided, and the paper's formula) and braking (false alarms, lead time, gap,
+    time lost), with 95 % Wilson intervals.
+
+    ``fmt="text"`` prints aligned columns that fit 100 characters, the planner comparison
+    split in two tables with the definition of each figure under them; ``fmt="markdown"``
+    gives the pipe tables of docs/RESULTS.md. Failed episodes are left out and counted in
+    a last line.
+    """
+    _check_format(fmt)
+    records = list(records)
+    good = completed(records)
+    metrics = list(planner_metrics(good).values())
+    cdf = [r for r in good if record_field(r, "planner") == "cdf"]
+    lines = _confusion_part(cdf, fmt) if cdf else []
+    lines += _planners_markdown(metrics) if fmt == "markdown" else _planners_text(metrics)
+    failed = len(records) - len(good)
+    if failed:
+        lines += ["", f"{failed} failed episode(s) left out of these tables "
+                      "(their records hold the error and traceback)."]
+    return "\n".join(lines)
+
+
+# ----------------------------------------------------------------- analysis tables (Markdown)
+def format_scenario_summary(summary: dict[str, Rate], planner: str) -> str:
+    """Markdown: a :func:`~cdf_mj.analysis.metrics.scenario_summary` beside the paper's
+    label shares and avoided rates (:data:`PAPER_CONFUSION`, :data:`PAPER_PLANNERS`)."""
+    episodes = sum(sum(row) for row in PAPER_CONFUSION.values())
+    paper_avoid = ", ".join(f"{_paper_share(*counts)} ({name})" for name, counts in PAPER_PLANNERS.items())
+    rows = [[f"{lab} share", str(summary[lab]), f"{100 * sum(PAPER_CONFUSION[lab]) / episodes:.1f} %"]
+            for lab in LABELS]
+    rows.append([f"imminent collisions avoided ({planner})", str(summary["avoided"]), paper_avoid])
+    return _table(["quantity", "ours (95 % CI)", "paper"], rows, "markdown")
+
+
+def planner_table(records: Iterable[RecordLike]) -> str:
+    """Markdown: every planner's avoided collisions, false alarms, lead time, gap, time lost
+    and, for the filters, the Brier scores of P(left) and P(seen) over all ticks."""
+    header = ["planner", "episodes", "imminent", "collisions", "avoided (95 % CI)", "false alarms (95 % CI)",
+              "median lead time [s]", "median min gap [m]", "mean time lost, no collision [s]",
+              "Brier P(left)", "Brier P(seen)"]
+    rows = [[m.planner, str(m.episodes), str(m.imminent), str(m.collisions), format_rate(m.avoided),
+             format_rate(m.false_alarms), format_number(m.lead_time), format_number(m.min_gap),
+             format_number(m.time_lost), format_number(m.brier_left, 3), format_number(m.brier_seen, 3)]
+            for m in planner_metrics(records).values()]
+    return _table(header, rows, "markdown")
+
+
+def paired_table(records: Iterable[RecordLike], pairs: Sequence[tuple[str, str]]) -> str:
+    """Markdown: two planners compared seed by seed (common random numbers), on the seeds
+    both ran (:func:`~cdf_mj.analysis.metrics.paired_counts`): Cutoff episodes in which
+    only the first or only the second collides with the obstacle, and episodes not
+    labelled Cutoff in which only the first, only the second, or both brake (false alarms)."""
+    records = list(records)
+    header = ["pair", "collides only with the first", "only with the second",
+              "false alarm only with the first", "only with the second", "both"]
+    rows = []
+    for first, second in pairs:
+        c = paired_counts(records, first, second)
+        rows.append([f"{first} / {second}", *map(str, (c.collides_only_first, c.collides_only_second,
+                                                       c.false_alarm_only_first, c.false_alarm_only_second,
+                                                       c.false_alarm_both))])
+    return _table(header, rows, "markdown")
+
+
+def _cells_at(times: np.ndarray, values: np.ndarray, at: Sequence[float]) -> list[str]:
+    """Cells of ``values`` at the tick times ``at`` ("-" where no tick is there)."""
+    cells = []
+    for t in at:
+        k = np.flatnonzero(np.isclose(times, t))
+        cells.append(format_number(float(values[k[0]]), 3) if k.size else "-")
+    return cells
+
+
+def filter_table(records: Iterable[RecordLike], times: Sequence[float] = (0.5, 1.0, 1.5, 2.0),
+                 p_left: float = 0.75) -> str:
+    """Markdown: Brier scores of each filter's P(left) and P(seen), over all ticks and at
+    the given tick ``times`` [s], beside two references: the prior ``p_left`` held
+    constant, and the per-time base rate fitted on these episodes (in-sample)."""
+    recs = completed(records)
+    planners = list(dict.fromkeys(record_field(r, "planner") for r in recs))
+    mine = {name: [r for r in recs if record_field(r, "planner") == name] for name in planners}
+    header = ["planner", "quantity", "episodes", "ticks", "all ticks", *(f"t = {t:g} s" for t in times)]
+    rows = []
+    for name in planners:
+        for q in FILTER_QUANTITIES:
+            c = brier_over_time(mine[name], q)
+            if c.episodes:
+                rows.append([name, q, str(c.episodes), str(c.ticks), format_number(c.overall, 3),
+                             *_cells_at(c.times, c.scores, times)])
+    if planners:
+        first = mine[planners[0]]
+        prior = format_number(prior_brier(first, p_left), 3)
+        rows.append([f"prior P(left) = {p_left:g}, held", "p_left", str(len(first)), "-", prior,
+                     *(prior for _ in times)])
+    for q in FILTER_QUANTITIES:
+        for name in planners:  # the episodes and ticks of the first filter with this history
+            c = brier_over_time(mine[name], q)
+            if c.episodes:
+                rows.append([f"base rate per time (in-sample, {name}'s ticks)", q, str(c.episodes), str(c.ticks),
+                             format_number(c.reference_overall, 3), *_cells_at(c.times, c.reference, times)])
+                break
+    return _table(header, rows, "markdown")

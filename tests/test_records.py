@@ -1,0 +1,181 @@
+"""cdf_mj.records: the schema of a record, the records file, and the rules every metric counts by."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from cdf_mj.analysis.metrics import paired_counts, planner_metrics, scenario_summary, tau_curve
+from cdf_mj.records import (
+    FAILED,
+    OK,
+    EpisodeRecord,
+    avoided,
+    braked,
+    check_record,
+    hit_obstacle,
+    is_false_alarm,
+    is_imminent,
+    lead_time,
+    load_records,
+    paper_avoided,
+    prediction,
+    read_records,
+)
+from cdf_mj.scenario.episode import run_episode
+
+
+def episode(seed: int, planner: str, label: str | None, *, brake: float | None = None,
+            entered: float | None = None, collision: str | None = None, predicted: str | None = None,
+            min_gap: float = 2.0, time_lost: float = 0.5) -> dict:
+    """A complete stored record (``"status": "ok"``) with the outcomes given."""
+    rec = EpisodeRecord(seed=seed, planner=planner, intent="right" if label == "Right" else "left", label=label,
+                        ego_start_offset=0.0, first_seen_time=None, yielded=label == "Yield",
+                        entered_lane_time=entered, collision=collision is not None, collision_with=collision,
+                        collision_time=None if collision is None else 3.0,
+                        min_gap=0.0 if collision else min_gap, brake_time=brake, time_lost=time_lost,
+                        end_time=8.0, counterfactual_collision=label == "Cutoff",
+                        planner_info={} if predicted is None else {"prediction": predicted})
+    return {**rec.to_dict(), "status": OK}
+
+
+# ----------------------------------------------------------------- schema
+@pytest.mark.parametrize("planner", ["cdf", "reactive"])
+def test_from_dict_round_trips_real_records(scene, planner):
+    rec = run_episode(seed=1, planner=planner, scene=scene, trace=True)
+    assert EpisodeRecord.from_dict(rec.to_dict()) == rec
+    stored = json.loads(json.dumps({**rec.to_dict(), "status": OK}))  # a line of episodes.jsonl
+    assert EpisodeRecord.from_dict(stored) == rec
+    assert EpisodeRecord.from_dict(stored).to_dict() == rec.to_dict()
+
+
+@pytest.mark.parametrize(("change", "message"), [
+    ({"label": ...}, "field 'label' is missing"),
+    ({"min_gap": "2.0"}, "field 'min_gap' must be a number, got str '2.0'"),
+    ({"min_gap": None}, "field 'min_gap' must be a number, got null"),
+    ({"seed": True}, "field 'seed' must be an integer, got bool True"),
+    ({"brake_time": "0.9"}, "field 'brake_time' must be a number or null"),
+    ({"yielded": 1}, "field 'yielded' must be true or false"),
+    ({"planner_info": []}, "field 'planner_info' must be an object"),
+    ({"intent": "up"}, "field 'intent' must be one of 'left', 'right', got 'up'"),
+    ({"label": "Maybe"}, "field 'label' must be one of 'Cutoff', 'Yield', 'Right'"),
+    ({"collision_with": "tree"}, "field 'collision_with' must be one of"),
+    ({"colour": "red"}, "unknown field 'colour'"),
+    ({"status": FAILED}, "field 'status' is 'failed'"),
+])
+def test_from_dict_refuses_a_bad_record_naming_the_field(change, message):
+    data = episode(0, "cdf", "Cutoff", brake=0.9, entered=2.0)
+    for key, value in change.items():
+        if value is ...:
+            del data[key]
+        else:
+            data[key] = value
+    with pytest.raises(ValueError, match="^" + message.replace("(", r"\(").replace(")", r"\)")):
+        EpisodeRecord.from_dict(data)
+
+
+def test_from_dict_takes_whole_numbers_for_numbers_and_leaves_defaults_out():
+    data = {**episode(0, "reactive", "Right"), "min_gap": 2, "end_time": 8}
+    del data["planner_info"], data["trace"]
+    rec = EpisodeRecord.from_dict(data)
+    assert (rec.min_gap, rec.planner_info, rec.trace) == (2, {}, None)
+
+
+def test_failed_records_need_a_seed_and_a_planner():
+    check_record({"seed": 3, "planner": "cdf", "status": FAILED, "error": "E: x", "traceback": "..."})
+    with pytest.raises(ValueError, match="field 'seed' of a failed record must be an integer"):
+        check_record({"planner": "cdf", "status": FAILED})
+    with pytest.raises(ValueError, match="a JSON object, got list"):
+        check_record([1, 2])
+
+
+# ----------------------------------------------------------------- the records file
+def test_the_reader_names_the_file_and_the_line(tmp_path):
+    path = tmp_path / "episodes.jsonl"
+    good = [episode(0, "cdf", "Right"), episode(1, "cdf", "Yield")]
+    bad = {**episode(2, "cdf", "Yield"), "brake_time": "soon"}
+    path.write_text(json.dumps(good[0]) + "\n\n" + json.dumps(good[1]) + "\n" + json.dumps(bad) + "\n")
+    with pytest.raises(ValueError, match=rf"^{path}:4 is not an episode record: field 'brake_time' must be"):
+        read_records(path)
+    path.write_text(json.dumps(good[0]) + "\n{not json\n")
+    with pytest.raises(ValueError, match=rf"^{path}:2 is not an episode record: not JSON \(Expecting"):
+        read_records(path)
+
+
+def test_the_reader_leaves_out_a_half_written_last_line_without_changing_the_file(tmp_path):
+    path = tmp_path / "episodes.jsonl"
+    lines = "".join(json.dumps(r) + "\n" for r in (episode(0, "cdf", "Right"), episode(1, "cdf", "Yield")))
+    path.write_text(lines + '{"seed": 2, "plan')
+    before = path.read_bytes()
+    found = read_records(path)
+    assert found.records == [episode(0, "cdf", "Right"), episode(1, "cdf", "Yield")]
+    assert found.partial and found.complete_bytes == len(lines.encode()) and found.size == len(before)
+    assert path.read_bytes() == before
+    assert load_records(tmp_path) == found.records
+    path.write_text(lines)
+    assert not read_records(path).partial
+
+
+# ----------------------------------------------------------------- rules of one record
+def test_the_rules_on_records_with_known_outcomes():
+    cut_braked = episode(0, "cdf", "Cutoff", brake=0.9, entered=2.0, predicted="Cutoff")
+    cut_hit = episode(1, "reactive", "Cutoff", brake=2.1, entered=2.0, collision="obstacle")
+    yield_braked = episode(2, "reactive", "Yield", brake=0.9)
+    yield_hit = episode(3, "cdf", "Yield", brake=0.9, collision="obstacle", predicted="Cutoff")
+    right = episode(4, "reactive", "Right")
+    unlabelled = episode(5, "reactive", None, brake=1.0)
+
+    assert avoided(cut_braked) and is_imminent(cut_braked) and not is_false_alarm(cut_braked)
+    assert lead_time(cut_braked) == pytest.approx(1.1)
+    assert not avoided(cut_hit) and hit_obstacle(cut_hit)
+    assert lead_time(cut_hit) == pytest.approx(-0.1)  # braked after the obstacle entered the lane
+    # A Yield episode that braked is a false alarm, and has no imminent collision to avoid.
+    assert is_false_alarm(yield_braked) and not avoided(yield_braked) and lead_time(yield_braked) is None
+    assert hit_obstacle(yield_hit) and not is_imminent(yield_hit) and not avoided(yield_hit)
+    assert not (braked(right) or is_false_alarm(right) or hit_obstacle(right))
+    assert braked(unlabelled) and not is_false_alarm(unlabelled)  # no label, no verdict
+    # The planner's own prediction, else braking means Cutoff.
+    assert [prediction(r) for r in (cut_braked, cut_hit, yield_hit, right)] == ["Cutoff", "Cutoff", "Cutoff", None]
+    # Dicts and EpisodeRecord objects alike.
+    for rule in (avoided, braked, hit_obstacle, is_false_alarm, is_imminent, lead_time, prediction):
+        for rec in (cut_braked, cut_hit, yield_braked, yield_hit, right, unlabelled):
+            assert rule(EpisodeRecord.from_dict(rec)) == rule(rec)
+
+
+def test_a_collision_in_a_yield_episode_counts_in_the_papers_formula_only():
+    recs = [episode(0, "cdf", "Cutoff", brake=0.9, entered=2.0),
+            episode(1, "cdf", "Cutoff", brake=1.0, entered=1.9),
+            episode(2, "cdf", "Yield", brake=0.9, collision="obstacle"),
+            episode(3, "cdf", "Right"),
+            {"seed": 4, "planner": "cdf", "status": FAILED}]
+    m = planner_metrics(recs)["cdf"]
+    assert (m.episodes, m.imminent, m.collisions) == (4, 2, 1)
+    assert (m.avoided.k, m.avoided.n) == (2, 2)  # ours: every Cutoff episode without a collision
+    assert m.paper_avoided == pytest.approx(0.5)  # the paper's: (2 - 1) / 2
+    assert (m.false_alarms.k, m.false_alarms.n) == (1, 4)
+    assert m.lead_time == pytest.approx(1.0)  # median of 1.1 and 0.9
+    assert m.min_gap == pytest.approx(2.0) and m.time_lost == pytest.approx(0.5)
+    assert scenario_summary(recs)["avoided"] == m.avoided
+    assert paper_avoided(417, 9) == pytest.approx(408 / 417) and math.isnan(paper_avoided(0, 0))
+
+
+def test_paired_counts_and_the_tau_curve_use_the_same_rules():
+    def with_history(rec: dict, p_cutoff: list[float]) -> dict:
+        rec["planner_info"]["history"] = {"t": [0.1 * k for k in range(len(p_cutoff))], "p_cutoff": p_cutoff}
+        return rec
+
+    cdf = [with_history(episode(0, "cdf", "Cutoff", brake=0.2, entered=0.25), [0.1, 0.6, 0.95]),
+           with_history(episode(1, "cdf", "Yield", brake=0.1), [0.2, 0.97, 0.1]),
+           with_history(episode(2, "cdf", "Right"), [0.1, 0.1, 0.1])]
+    reactive = [episode(0, "reactive", "Cutoff", brake=0.25, entered=0.25, collision="obstacle"),
+                episode(1, "reactive", "Yield"), episode(2, "reactive", "Right", brake=0.5)]
+    c = paired_counts(cdf + reactive, "cdf", "reactive")
+    assert (c.seeds, c.collides_only_first, c.collides_only_second) == (3, 0, 1)
+    assert (c.false_alarm_only_first, c.false_alarm_only_second, c.false_alarm_both) == (1, 1, 0)
+
+    curve = {row["tau"]: row for row in tau_curve(cdf, tau_max=0.99)}
+    assert curve[0.5]["false_alarms_k"] == 1 and curve[0.5]["detected_k"] == 1  # braked at 0.1 s, entry 0.25 s
+    assert curve[0.96]["detected_k"] == 0 and curve[0.97]["false_alarms_k"] == 1
+    assert curve[0.98]["false_alarms_k"] == 0 and curve[0.98]["episodes"] == 3
