@@ -1,7 +1,9 @@
 """cdf_mj.viz.render: offscreen videos of episodes with the CDF's belief drawn in.
 
 Tests that draw need an OpenGL backend (EGL or OSMesa); they are skipped, with the
-reason, only when none can be created. Requests are checked before any simulation.
+reason, only when none can be created. Requests are checked before any simulation. The
+parts have their own tests: test_sim_gl (backend), test_viz_replay, test_viz_overlays,
+test_viz_panel, test_viz_encoding.
 """
 
 from __future__ import annotations
@@ -14,17 +16,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cdf_mj.viz import render
 from cdf_mj.cli import main
 from cdf_mj.config import ScenarioConfig
-from cdf_mj.scenario.episode import run_episode
-from cdf_mj.viz.render import (
-    RenderError,
-    check_request,
-    frame_times,
-    record_episode,
-    render_episode,
-)
+from cdf_mj.viz import render, replay
+from cdf_mj.viz.render import RenderError, check_request, frame_times, render_episode
 
 iio = pytest.importorskip("imageio.v3", reason="the viz extra (imageio) is not installed")
 
@@ -55,18 +50,6 @@ def test_frame_times_constant_rate_in_simulated_time() -> None:
     assert len(frame_times(5.3, 30)) == 160  # 0 .. 5.3 s, last frame at 159/30 = 5.2967 s
 
 
-def test_recorded_episode_is_the_plain_episode(scene) -> None:
-    rep = record_episode(1, "cdf", SHORT.replace(duration=2.0), scene, label=False)
-    plain = run_episode(SHORT.replace(duration=2.0), 1, "cdf", scene, label=False)
-    assert rep.record.brake_time == plain.brake_time
-    assert rep.record.end_time == plain.end_time
-    assert rep.record.planner_info["history"] == plain.planner_info["history"]
-    assert len(rep.particles) == len(rep.times) - 1  # one snapshot per tick
-    # Interpolation passes through the ticks and ends at the final state.
-    np.testing.assert_allclose(rep.pose_at(rep.times[3]), rep.poses[3])
-    np.testing.assert_allclose(rep.pose_at(rep.end_time), rep.poses[-1])
-
-
 @pytest.mark.parametrize(("kwargs", "message"), [
     ({"camera": "bird"}, "unknown camera 'bird': choose one of top, ego_chase, obstacle_chase"),
     ({"width": 161}, "must be even"),
@@ -86,7 +69,7 @@ def test_bad_input_refused_before_any_work(scene, tmp_path, monkeypatch, kwargs,
         raise AssertionError("simulated before the request was checked")
 
     monkeypatch.setattr(render, "record_episode", no_work)
-    monkeypatch.setattr(render, "run_episode", no_work)
+    monkeypatch.setattr(replay, "run_episode", no_work)
     monkeypatch.chdir(tmp_path)
     kwargs = {"out": "x.mp4", **kwargs}
     with pytest.raises(RenderError, match=message.replace("(", r"\(").replace(")", r"\)")):
@@ -121,47 +104,11 @@ def test_odd_sizes_are_fine_for_png_and_gif(scene, tmp_path) -> None:
 
 def test_a_broken_mujoco_gl_is_one_line_before_anything(tmp_path) -> None:
     env = {**os.environ, "MUJOCO_GL": "nonesuch"}
-    out = subprocess.run([sys.executable, "-m", "cdf_mj.cli", "episode"], env=env, capture_output=True,
+    out = subprocess.run([sys.executable, "-m", "cdf_mj", "episode"], env=env, capture_output=True,
                          text=True, timeout=60, check=False)
     assert out.returncode == 2 and out.stdout == ""
     assert out.stderr.startswith("cdf-mj: error: MuJoCo cannot load the OpenGL backend MUJOCO_GL=nonesuch")
     assert out.stderr.count("\n") == 1
-
-
-@pytest.mark.parametrize(("value", "fragment"), [("glx", "glfw:"), ("1", "glfw:"),
-                                                ("disable", "turns MuJoCo's rendering off")])
-def test_mujocos_own_spellings_of_mujoco_gl(monkeypatch, value, fragment) -> None:
-    monkeypatch.setattr(render, "_BACKEND", None)
-    monkeypatch.setenv("MUJOCO_GL", value)
-    monkeypatch.setattr(render, "_try_backend", lambda name: (_ for _ in ()).throw(OSError("no display")))
-    with pytest.raises(RenderError, match=fragment):  # glx and 1 mean GLFW to MuJoCo, not "unknown"
-        render.gl_backend()
-
-
-def test_no_gl_backend_names_the_fix(monkeypatch) -> None:
-    monkeypatch.setattr(render, "_BACKEND", None)
-    monkeypatch.setenv("MUJOCO_GL", "nonesuch")
-    with pytest.raises(RenderError) as info:
-        render.gl_backend()
-    msg = str(info.value)
-    assert "\n" not in msg and "MUJOCO_GL" in msg and "apt-get install libegl1 libosmesa6" in msg
-
-
-def test_egl_first_then_osmesa(monkeypatch) -> None:
-    tried = []
-
-    def fake(name):
-        tried.append(name)
-        if name == "egl":
-            raise OSError("libEGL.so.1: cannot open shared object file")
-        return "OSMesaContext"
-
-    monkeypatch.setattr(render, "_BACKEND", None)
-    monkeypatch.setattr(render, "_try_backend", fake)
-    monkeypatch.setenv("MUJOCO_GL", "")  # unset for gl_backend, and restored afterwards
-    assert render.gl_backend() == ("osmesa", "OSMesaContext")
-    assert tried == ["egl", "osmesa"]
-    assert render.os.environ["MUJOCO_GL"] == "osmesa"  # for any later context in this process
 
 
 # ----------------------------------------------------------------- drawing
@@ -218,8 +165,19 @@ def test_frame_wider_than_the_models_buffer(gl, scene, tmp_path) -> None:
     assert scene.model.vis.global_.offwidth == offwidth
 
 
-def test_a_baseline_with_probabilities_gets_them_in_the_panel(scene) -> None:
-    rep = record_episode(1, "imm", SHORT.replace(duration=2.0), scene, label=False)
-    assert set(rep.posterior) == {"t", "p_left", "p_conflict"} and rep.tau == 0.95
-    assert len(rep.posterior["t"]) == len(rep.posterior["p_conflict"]) > 0
-    assert record_episode(1, "reactive", SHORT, scene, label=False).posterior is None
+def test_a_failed_render_leaves_the_earlier_file(gl, scene, tmp_path, monkeypatch) -> None:
+    out = tmp_path / "v.mp4"
+    out.write_bytes(b"the earlier video")
+    frame, calls = render._Painter.frame, []
+
+    def fails_on_the_third(self, t):
+        calls.append(t)
+        if len(calls) == 3:
+            raise RuntimeError("the third frame failed")
+        return frame(self, t)
+
+    monkeypatch.setattr(render._Painter, "frame", fails_on_the_third)
+    with pytest.raises(RuntimeError, match="third frame"):
+        render_episode(out, seed=1, config=SHORT, scene=scene, fps=10, **SMALL)
+    assert out.read_bytes() == b"the earlier video"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["v.mp4"]  # no temporary file left

@@ -1,0 +1,170 @@
+"""An episode re-simulated with what a video of it needs at every tick.
+
+:func:`record_episode` runs one episode with its trace (the same record as
+:func:`cdf_mj.scenario.episode.run_episode` for that seed and planner) and, for the ``cdf``
+planner, the particle filter's weighted particles at every tick. The :class:`Replay` it
+returns gives the scene at any time ``t``: the cars' poses interpolated between the 0.1 s
+ticks (positions and speed linearly, headings along the shorter arc), the filter's state
+that of the last tick at or before ``t``. ::
+
+    from cdf_mj.viz.replay import record_episode
+
+    replay = record_episode(7, "cdf")
+    replay.pose_at(1.25), replay.particles[replay.tick(1.25)]
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, cast
+
+import numpy as np
+
+from cdf_mj.config import CDFConfig, ScenarioConfig
+from cdf_mj.inference.particle_filter import ParticleFilter
+from cdf_mj.planners import CDFPlanner, Planner, make_planner
+from cdf_mj.records import EpisodeRecord
+from cdf_mj.scenario.episode import episode_label, run_episode
+from cdf_mj.sim.scene import Scene
+
+if TYPE_CHECKING:
+    from cdf_mj.model.layout import Layout
+
+__all__ = ["POSTERIOR_KEYS", "Particles", "Replay", "record_episode"]
+
+#: The probabilities a planner's ``history`` may hold that a replay keeps, in panel order
+#: (``cdf``: p_left, p_seen, p_cutoff; ``imm``: p_left, p_conflict).
+POSTERIOR_KEYS = ("p_left", "p_seen", "p_cutoff", "p_conflict")
+
+#: One tick's distinct particles, heaviest first: obstacle rear-axle positions ``(M, 2)``
+#: float32 [m] (world frame, to 1 cm), codes ``(M,)`` uint8 (``2 * intent + seen``, intent
+#: as :class:`cdf_mj.model.driver.Intent`), summed weights ``(M,)`` float32.
+Particles = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+class _RecordingFilter(ParticleFilter):
+    """The CDF's particle filter, keeping each tick's weighted particles before it predicts."""
+
+    snapshots: list[Particles]
+
+    def predict(self, system_pose: np.ndarray | None = None) -> None:
+        self.snapshots.append(_distinct_particles(self.pose[:, :2], self.intent, self.has_belief,
+                                                  self.weights))
+        super().predict(system_pose)
+
+
+class _RecordingCDFPlanner(CDFPlanner):
+    """The ``cdf`` planner with a :class:`_RecordingFilter`: the same decisions, the same
+    random draws, plus a particle snapshot per tick."""
+
+    filter: _RecordingFilter
+
+    def reset(self, layout: Layout, config: ScenarioConfig, rng: np.random.Generator) -> None:
+        super().reset(layout, config, rng)
+        # Building a filter draws nothing from rng: the recorded run is the plain run.
+        self.filter = cast(_RecordingFilter, _RecordingFilter.from_layout(layout, config, self.cdf, rng))
+        self.filter.snapshots = []
+
+
+def _distinct_particles(xy: np.ndarray, intent: np.ndarray, seen: np.ndarray,
+                        weights: np.ndarray) -> Particles:
+    """The particles merged by (position to 1 cm, intent, seen), heaviest first."""
+    code = (2 * np.asarray(intent) + np.asarray(seen)).astype(np.int64)
+    key = np.column_stack([np.round(xy * 100.0).astype(np.int64), code])
+    uniq, inverse = np.unique(key, axis=0, return_inverse=True)
+    mass = np.bincount(inverse.ravel(), weights=weights, minlength=len(uniq))
+    order = np.argsort(-mass, kind="stable")
+    uniq, mass = uniq[order], mass[order]
+    return (uniq[:, :2] / 100.0).astype(np.float32), uniq[:, 2].astype(np.uint8), mass.astype(np.float32)
+
+
+@dataclass
+class Replay:
+    """One recorded episode, ready to be drawn at any time ``t`` in ``[0, end_time]`` [s].
+
+    ``times`` are the tick times plus the end time, ``poses`` the system pose
+    ``(ego, obstacle) x [x m, y m, theta rad, v m/s]`` at each (world frame).
+    """
+
+    record: EpisodeRecord
+    label: str | None  # the scenario label, None when not computed
+    times: np.ndarray  # (K + 1,) [s]
+    poses: np.ndarray  # (K + 1, 2, 4)
+    seen: np.ndarray  # (K,) the obstacle has seen the ego, per tick
+    belief: np.ndarray  # (K, 4) the obstacle's belief of the ego's pose, per tick (world frame)
+    particles: list[Particles] | None  # per tick, ``cdf`` only
+    # "t" [s] and the POSTERIOR_KEYS the planner keeps per tick; None for a planner without any
+    posterior: dict[str, np.ndarray] | None
+    tau: float | None  # the threshold of the last of them at which the planner brakes
+
+    @property
+    def end_time(self) -> float:
+        """When the episode ended [s]."""
+        return float(self.times[-1])
+
+    def tick(self, t: float) -> int:
+        """Index of the last tick at or before ``t`` [s]."""
+        k = int(np.searchsorted(self.times[:-1], t + 1e-9, side="right")) - 1
+        return min(max(k, 0), len(self.times) - 2)
+
+    def pose_at(self, t: float) -> np.ndarray:
+        """System pose ``(2, 4)`` at time ``t`` [s], interpolated between ticks."""
+        k = min(int(np.searchsorted(self.times, t, side="right")) - 1, len(self.times) - 2)
+        k = max(k, 0)
+        t0, t1 = self.times[k], self.times[k + 1]
+        a = 0.0 if t1 <= t0 else min(max((t - t0) / (t1 - t0), 0.0), 1.0)
+        p0, p1 = self.poses[k], self.poses[k + 1]
+        out = p0 + a * (p1 - p0)
+        dth = np.remainder(p1[:, 2] - p0[:, 2] + math.pi, 2 * math.pi) - math.pi
+        out[:, 2] = p0[:, 2] + a * dth
+        return out
+
+    def braking(self, t: float) -> bool:
+        """Whether the ego's planner has decided to brake by time ``t`` [s]."""
+        bt = self.record.brake_time
+        return bt is not None and t + 1e-9 >= bt
+
+
+def record_episode(seed: int, planner: str | Planner = "cdf", config: ScenarioConfig | None = None,
+                   scene: Scene | None = None, cdf: CDFConfig | None = None,
+                   label: bool = True) -> Replay:
+    """Run one episode with its trace (and, for ``cdf``, the filter's particles per tick).
+
+    Args:
+        seed: episode seed.
+        planner: planner name or object; the name ``cdf`` records the filter's particles.
+        config: scenario parameters (default :class:`~cdf_mj.config.ScenarioConfig`).
+        scene: a loaded scene (default the package's ``scene.xml``); left at the end state.
+        cdf: the filter of the ``cdf`` planner (default :class:`~cdf_mj.config.CDFConfig`).
+        label: also run the constant-speed counterfactual for the scenario label.
+
+    The record is the one :func:`cdf_mj.scenario.episode.run_episode` gives for the same
+    seed and planner.
+    """
+    config = config or ScenarioConfig()
+    scene = scene or Scene.load(names=config.names)
+    plan = _RecordingCDFPlanner(cdf) if planner == "cdf" else make_planner(planner)
+    record = run_episode(config, seed, plan, scene, label=False, trace=True)
+    final = scene.poses()  # the scene holds the state at end_time
+    trace = record.trace or {}
+    times = np.append(np.asarray(trace["t"], dtype=float), record.end_time)
+    poses = np.concatenate([np.asarray(trace["poses"], dtype=float).reshape(-1, 2, 4), final[None]])
+    lab = episode_label(config, seed, scene) if label else None
+    particles: list[Particles] | None = None
+    tau: float | None
+    if isinstance(plan, _RecordingCDFPlanner):
+        particles = plan.filter.snapshots
+        tau = plan.cdf.tau
+    else:  # a baseline with a probability history (imm): its own threshold
+        tau = getattr(getattr(plan, "params", None), "threshold", None)
+    posterior = None
+    h = getattr(plan, "history", None)
+    if isinstance(h, dict) and "t" in h and any(k in h for k in POSTERIOR_KEYS):
+        posterior = {k: np.asarray(h[k], dtype=float) for k in ("t", *POSTERIOR_KEYS) if k in h}
+    else:
+        tau = None
+    return Replay(record=record, label=lab, times=times, poses=poses,
+                  seen=np.asarray(trace["seen"], dtype=bool),
+                  belief=np.asarray(trace["belief"], dtype=float).reshape(-1, 4),
+                  particles=particles, posterior=posterior, tau=tau)
