@@ -34,13 +34,13 @@ _EXPORTS = {
     "EpisodeRecord": "cdf_mj.records",
     "Label": "cdf_mj.records",
     "Scene": "cdf_mj.sim.scene",
-    "SceneError": "cdf_mj.sim.scene",
-    "add_car": "cdf_mj.sim.scene",
+    "SceneError": "cdf_mj.sim.checks",
+    "add_car": "cdf_mj.sim.spec",
     "ParticleFilter": "cdf_mj.inference.particle_filter",
-    "CDFPlanner": "cdf_mj.planners.base",
+    "CDFPlanner": "cdf_mj.planners.cdf",
     "CVPlanner": "cdf_mj.planners.baselines",
     "IMMPlanner": "cdf_mj.planners.baselines",
-    "World": "cdf_mj.scenario.episode",
+    "World": "cdf_mj.scenario.world",
     "run_episode": "cdf_mj.scenario.episode",
     "CDFMonitor": "cdf_mj.scenario.monitor",
     "attach": "cdf_mj.scenario.monitor",
@@ -51,7 +51,31 @@ _EXPORTS = {
     "write_report": "cdf_mj.viz.report",
 }
 
-__all__ = ["__version__", "ENV_ID", *_EXPORTS]
+__all__ = [  # literal, for linters; tests/test_layers.py checks it against _EXPORTS
+    "ENV_ID",
+    "CDFConfig",
+    "CDFMonitor",
+    "CDFPlanner",
+    "CVPlanner",
+    "EpisodeRecord",
+    "IMMPlanner",
+    "Label",
+    "ParticleFilter",
+    "ScenarioConfig",
+    "Scene",
+    "SceneError",
+    "SceneNames",
+    "TIntersectionEnv",
+    "World",
+    "__version__",
+    "add_car",
+    "attach",
+    "render_episode",
+    "run_episode",
+    "run_experiment",
+    "run_sweep",
+    "write_report",
+]
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time see __getattr__
     from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames
@@ -59,12 +83,15 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time see __getattr__
     from cdf_mj.experiments.experiment import run_experiment
     from cdf_mj.experiments.sweep import run_sweep
     from cdf_mj.inference.particle_filter import ParticleFilter
-    from cdf_mj.planners.base import CDFPlanner
     from cdf_mj.planners.baselines import CVPlanner, IMMPlanner
+    from cdf_mj.planners.cdf import CDFPlanner
     from cdf_mj.records import EpisodeRecord, Label
-    from cdf_mj.scenario.episode import World, run_episode
+    from cdf_mj.scenario.episode import run_episode
     from cdf_mj.scenario.monitor import CDFMonitor, attach
-    from cdf_mj.sim.scene import Scene, SceneError, add_car
+    from cdf_mj.scenario.world import World
+    from cdf_mj.sim.checks import SceneError
+    from cdf_mj.sim.scene import Scene
+    from cdf_mj.sim.spec import add_car
     from cdf_mj.viz.render import render_episode
     from cdf_mj.viz.report import write_report
 

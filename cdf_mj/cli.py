@@ -2,17 +2,18 @@
 
 ::
 
+    cdf-mj                                                 # the commands, one line each
     cdf-mj episode --seed 7 --planner reactive            # one episode, record as JSON
     cdf-mj episode --seed 7 --set beta=0.1 --set ego_start_spread='[-4, 4]'
-    python -m cdf_mj.cli episode --seed 7                  # the same without the script
+    python -m cdf_mj episode --seed 7                      # the same without the script
 
 Bad input (unknown planner, negative seed, out-of-range parameter, unreadable scene,
 a simulation that diverges) ends with one line ``cdf-mj: error: ...`` on stderr and exit
 status 2; ``--debug`` shows the traceback instead.
 
-Adding a subcommand: write ``_add_<name>(subparsers)``, which builds its parser (use
-:func:`add_scenario_arguments` for ``--scene`` and ``--set``) and sets ``func`` to a
-function ``(args) -> int``; append it to ``_SUBCOMMANDS``. Raise :class:`CLIError` (or
+Adding a subcommand: write ``_add_<name>(subparsers)``, which builds its parser with
+``_command`` (use :func:`add_scenario_arguments` for ``--scene`` and ``--set``) and sets
+``func`` to a function ``(args) -> int``; append it to ``_SUBCOMMANDS``. Raise :class:`CLIError` (or
 any ``ValueError``) for bad input; logic lives in the package, not here. Scripts that take
 ``--set`` too can call :func:`parse_overrides`.
 """
@@ -24,7 +25,9 @@ import dataclasses
 import json
 import os
 import sys
-from typing import Any, Callable, Iterable, NoReturn, Sequence
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
+from typing import Any, NoReturn, get_args
 
 try:  # MuJoCo loads the OpenGL backend named by MUJOCO_GL as it is imported
     import mujoco  # noqa: F401
@@ -37,18 +40,24 @@ except (ImportError, AttributeError, RuntimeError) as _exc:
     raise SystemExit(2) from None
 
 from cdf_mj import __version__
+from cdf_mj.analysis.tables import TableFormat
 from cdf_mj.config import CDFConfig, ScenarioConfig
-from cdf_mj.scenario.episode import run_episode
+from cdf_mj.experiments.runner import WorkerDiedError
+from cdf_mj.experiments.store import json_default, locked
+from cdf_mj.extras import install_hint
 from cdf_mj.planners.base import PLANNERS
-from cdf_mj.experiments.runner import WorkerDiedError, json_default
+from cdf_mj.records import RECORDS_FILE
+from cdf_mj.scenario.episode import run_episode
 from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
 
-__all__ = ["main", "build_parser", "add_scenario_arguments", "parse_overrides",
-           "config_from_args", "scene_from_args", "CLIError"]
+__all__ = ["CLIError", "add_scenario_arguments", "build_parser", "config_from_args", "main", "parse_overrides",
+           "scene_from_args"]
 
 PROG = "cdf-mj"
 EXIT_USAGE = 2  # argparse's status for bad input
 EXIT_FAILED_EPISODES = 1  # an experiment finished, but some of its episodes raised
+#: What an experiment directory holds of its run; ``--force`` removes these and nothing else.
+RUN_FILES = (RECORDS_FILE, "settings.json")
 
 #: ScenarioConfig fields that ``--set`` may change (``names`` is a nested object).
 SETTABLE = tuple(f.name for f in dataclasses.fields(ScenarioConfig) if f.name != "names")
@@ -155,6 +164,13 @@ def scene_from_args(args: argparse.Namespace, config: ScenarioConfig) -> Scene:
     return Scene.load(args.scene, names=config.names)
 
 
+def add_format_argument(parser: argparse.ArgumentParser) -> None:
+    """``--format {text,markdown}``: how the tables are printed (default text, for a terminal;
+    markdown: pipe tables for documents)."""
+    parser.add_argument("--format", choices=get_args(TableFormat), default="text",
+                        help="tables as aligned text for a terminal (default) or as Markdown")
+
+
 def add_cdf_arguments(parser: argparse.ArgumentParser, swept: bool = False) -> None:
     """``--particles``, ``--tau`` and ``--cutoff-rule``: the CDF planner's settings
     (:class:`cdf_mj.config.CDFConfig`). ``swept``: say they apply where not swept."""
@@ -179,6 +195,14 @@ def _print_json(obj: Any) -> None:
 
 
 # ----------------------------------------------------------------- subcommands
+def _command(subparsers: argparse._SubParsersAction, name: str, *, summary: str,
+             description: str) -> argparse.ArgumentParser:
+    """The parser of subcommand ``name``; ``summary`` is its line in the list of commands."""
+    p: argparse.ArgumentParser = subparsers.add_parser(name, help=summary, description=description)
+    p.set_defaults(summary=summary)
+    return p
+
+
 def _cmd_episode(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     scene = scene_from_args(args, config)
@@ -189,8 +213,8 @@ def _cmd_episode(args: argparse.Namespace) -> int:
 
 
 def _add_episode(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser(
-        "episode", help="run one episode and print its record as JSON",
+    p = _command(
+        subparsers, "episode", summary="run one episode and print its record as JSON",
         description="Run one episode of the T-intersection scenario and print its record "
                     "as JSON on stdout. The same seed gives the same record.")
     p.add_argument("--seed", type=_non_negative_int, default=0,
@@ -231,37 +255,54 @@ def _planner_list(text: str) -> list[str]:
 
 
 def _cmd_experiment(args: argparse.Namespace) -> int:
-    from cdf_mj.experiments.experiment import experiment_tables, run_experiment
+    from cdf_mj.analysis.tables import experiment_tables
+    from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
 
     config = config_from_args(args)
     cdf = cdf_from_args(args)
     seeds = range(args.seed0, args.seed0 + args.episodes)
-    if args.retry_failed and not args.resume:
-        raise CLIError("--retry-failed needs --resume")
+    if args.retry_failed and args.force:
+        raise CLIError("--force starts over, so --retry-failed has nothing to retry: give one of them")
     if args.address is not None and args.backend != "ray":
         raise CLIError("--address is the address of a Ray cluster: it needs --backend ray")
-    try:
+    if args.force:
+        _remove_run(Path(args.out))
+    try:  # resume: the same command again continues a run, or shows its tables if it is complete
         result = run_experiment(args.out, seeds, args.planners, config, cdf, args.scene,
                                 progress=not args.quiet, workers=args.workers, backend=args.backend,
-                                resume=args.resume, retry_failed=args.retry_failed,
-                                address=args.address)
+                                resume=True, retry_failed=args.retry_failed, address=args.address)
+    except SettingsMismatchError as exc:
+        raise CLIError(f"{exc}, or give --force to replace them") from None
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted; the finished episodes are saved in {args.out}/episodes.jsonl: "
-              f"continue with the same command and --resume", file=sys.stderr)
+              f"run the same command again to continue", file=sys.stderr)
         return 130
-    resumed = f", {result.resumed} already on disk" if result.resumed else ""
-    peak = f"{result.peak_worker_rss_mb:.0f} MiB" if result.ran else "n/a (nothing ran)"
-    print(f"{args.episodes} episodes from seed {args.seed0}, planners {','.join(args.planners)}: "
-          f"{result.ran} run in {result.wall_time:.1f} s on {result.workers} worker(s) ({result.backend})"
-          f"{resumed}; peak memory per worker {peak}; "
-          f"records in {args.out}/episodes.jsonl\n")
-    print(experiment_tables(result.records))
+    what = f"{args.episodes} episodes from seed {args.seed0}, planners {','.join(args.planners)}"
+    if result.ran:
+        resumed = f", {result.resumed} already on disk" if result.resumed else ""
+        print(f"{what}: {result.ran} run in {result.wall_time:.1f} s on {result.workers} worker(s) "
+              f"({result.backend}){resumed}; peak memory per worker {result.peak_worker_rss_mb:.0f} MiB; "
+              f"records in {args.out}/episodes.jsonl\n")
+    else:
+        print(f"{what}: all {result.resumed} records were already in {args.out}/episodes.jsonl "
+              f"(--force runs them again)\n")
+    print(experiment_tables(result.records, fmt=args.format))
     if result.failed:
         print(f"{PROG}: {result.failed} of {len(result)} episodes failed; their records in "
               f"{args.out}/episodes.jsonl hold the error and traceback (\"status\": \"failed\")",
               file=sys.stderr)
         return EXIT_FAILED_EPISODES
     return 0
+
+
+def _remove_run(out: Path) -> None:
+    """Remove the records and settings of the run in ``out`` (:data:`RUN_FILES`), under the
+    directory's lock so that a run still using it is not pulled from under it."""
+    if not out.is_dir():
+        return
+    with locked(out):
+        for name in RUN_FILES:
+            (out / name).unlink(missing_ok=True)
 
 
 def _add_experiment_arguments(p: argparse.ArgumentParser, episodes: int, out: str) -> None:
@@ -274,33 +315,36 @@ def _add_experiment_arguments(p: argparse.ArgumentParser, episodes: int, out: st
     p.add_argument("--workers", type=_positive_int, default=None,
                    help="worker processes (default: the CPU count; 1 runs in this process)")
     p.add_argument("--backend", choices=("process", "ray"), default="process",
-                   help="where episodes run: a local process pool (default) or Ray "
-                        "(pip install 'cdf-mj[ray]')")
+                   help=f"where episodes run: a local process pool (default) or Ray ({install_hint('ray')})")
     p.add_argument("--address", default=None,
                    help="with --backend ray: the address of an existing Ray cluster "
                         "(default: start a local Ray instance)")
-    p.add_argument("--resume", action="store_true",
-                   help="continue an interrupted run in --out with the same settings")
+    p.add_argument("--force", action="store_true",
+                   help="start over: remove the records and settings of the run in --out (no other file)")
     p.add_argument("--retry-failed", action="store_true",
-                   help="with --resume: run the episodes that failed again")
+                   help="run the episodes of the run in --out that failed again")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_format_argument(p)
     add_scenario_arguments(p)
     p.set_defaults(func=_cmd_experiment)
 
 
 def _add_experiment(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser(
-        "experiment", help="run planners on the same seeds; print the paper's tables beside ours",
+    p = _command(
+        subparsers, "experiment", summary="run planners on the same seeds; print the paper's tables beside ours",
         description="Run each planner on the same seeds, write one JSON line per episode and "
-                    "planner to OUT/episodes.jsonl, and print the paper's two tables beside ours.")
+                    "planner to OUT/episodes.jsonl, and print the paper's two tables beside ours. "
+                    "The same command again continues an interrupted run, or only prints the "
+                    "tables of a finished one; other settings in the same OUT are refused.")
     _add_experiment_arguments(p, episodes=100, out="results/experiment")
 
 
 def _add_reproduce(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser(
-        "reproduce", help="the paper's experiment: 1000 episodes, CDF and reactive",
+    p = _command(
+        subparsers, "reproduce", summary="the paper's experiment: 1000 episodes, CDF and reactive",
         description="The paper's experiment with the default settings: seeds 0-999, the CDF "
-                    "and the reactive planner on the same seeds, both tables.")
+                    "and the reactive planner on the same seeds, both tables. The same command "
+                    "again continues an interrupted run, or only prints the tables of a finished one.")
     _add_experiment_arguments(p, episodes=1000, out="results/reproduce")
 
 
@@ -338,11 +382,12 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 def _add_sweep(subparsers: argparse._SubParsersAction) -> None:
     from cdf_mj.experiments.sweep import SWEEPS
 
-    p = subparsers.add_parser(
-        "sweep", help="run the planners over a range of one setting; table (CSV, Markdown) and figure",
+    p = _command(
+        subparsers, "sweep", summary="run the planners over a range of one setting; table (CSV, Markdown) and figure",
         description="Sweep one setting (beta, particle count, threshold tau, noise levels) over "
                     "values, each point an experiment on the same seeds; write OUT/<sweep>.csv, "
-                    "OUT/<sweep>.md and OUT/<sweep>.png. Finished points are reused.")
+                    "OUT/<sweep>.md and OUT/<sweep>.png. Finished points are reused. The figure "
+                    f"needs matplotlib ({install_hint('viz')}).")
     p.add_argument("sweeps", nargs="+", choices=sorted(SWEEPS), metavar="SWEEP",
                    help=f"one or more of: {', '.join(SWEEPS)}")
     p.add_argument("--values", type=_value_list, default=None,
@@ -383,12 +428,13 @@ def _cmd_render(args: argparse.Namespace) -> int:
 
 
 def _add_render(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser(
-        "render", help="render one episode offscreen to MP4, GIF or a PNG frame",
+    p = _command(
+        subparsers, "render", summary="render one episode offscreen to MP4, GIF or a PNG frame",
         description="Run one episode and render it offscreen (MUJOCO_GL=egl unless set, else "
                     "osmesa) at a constant frame rate in simulated time, with the obstacle's "
                     "isovist, the CDF's particles, the braking moment and P(left), P(seen), "
-                    "P(cutoff) drawn in. The suffix of --out chooses MP4, GIF or PNG (--frame).")
+                    "P(cutoff) drawn in. The suffix of --out chooses MP4, GIF or PNG (--frame). "
+                    f"Needs imageio and Pillow ({install_hint('viz')}).")
     p.add_argument("--seed", type=_non_negative_int, default=7, help="episode seed (default 7)")
     p.add_argument("--planner", choices=sorted(PLANNERS), default="cdf", help="ego planner (default cdf)")
     p.add_argument("--out", required=True, help="output file: .mp4, .gif, or .png with --frame")
@@ -434,12 +480,13 @@ def _seed_list(text: str) -> list[int]:
 
 
 def _add_report(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser(
-        "report", help="figures (PNG) and a Markdown page from an experiment directory",
+    p = _command(
+        subparsers, "report", summary="figures (PNG) and a Markdown page from an experiment directory",
         description="Turn an experiment directory (settings.json, episodes.jsonl) into PNG "
                     "figures and report.md: confusion matrix beside the paper's, avoidance per "
                     "planner with 95 %% intervals, trajectories, posterior traces, braking lead "
-                    "times. Failed episodes are skipped and counted.")
+                    "times. Failed episodes are skipped and counted. "
+                    f"Needs matplotlib ({install_hint('viz')}).")
     p.add_argument("dir", metavar="DIR", help="experiment directory (cdf-mj experiment --out DIR)")
     p.add_argument("--out", default=None, help="output directory (default DIR)")
     p.add_argument("--seeds", type=_seed_list, default=None,
@@ -450,8 +497,14 @@ def _add_report(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
-    from cdf_mj.experiments.bench import (bench_core, bench_env, bench_filter, bench_planners, bench_reproduction,
-                              format_rows)
+    from cdf_mj.experiments.bench import (
+        bench_core,
+        bench_env,
+        bench_filter,
+        bench_planners,
+        bench_reproduction,
+        format_rows,
+    )
 
     sizes = tuple(args.particles)
     config = config_from_args(args)
@@ -478,8 +531,8 @@ def _int_list(text: str) -> list[int]:
 
 
 def _add_bench(subparsers: argparse._SubParsersAction) -> None:
-    p = subparsers.add_parser(
-        "bench", help="timing table: physics, filter stages, planners, reproduction scaling",
+    p = _command(
+        subparsers, "bench", summary="timing table: physics, filter stages, planners, reproduction scaling",
         description="Print the benchmark table of docs/PERFORMANCE.md: medians from one run "
                     "(pin to one core with taskset -c 0 for the single-core rows).")
     p.add_argument("--episodes", type=_positive_int, default=30,
@@ -500,9 +553,10 @@ def _add_bench(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_cmd_bench)
 
 
-_SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [_add_episode, _add_experiment, _add_bench,
-                                                                    _add_reproduce, _add_sweep,
-                                                                    _add_render, _add_report]
+#: In the order of the list of commands: a newcomer's first steps first.
+_SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [_add_reproduce, _add_episode, _add_experiment,
+                                                                    _add_sweep, _add_render, _add_report,
+                                                                    _add_bench]
 
 
 # ----------------------------------------------------------------- entry point
@@ -513,20 +567,35 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     parser.add_argument("--debug", action="store_true",
                         help="on error, show the full traceback instead of one line")
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", title="commands")
     for add in _SUBCOMMANDS:
         add(sub)
     return parser
 
 
+def _command_list(parser: argparse.ArgumentParser) -> str:
+    """What ``cdf-mj`` without a command prints: usage, then every command on one line."""
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    width = max(map(len, sub.choices))
+    lines = [f"usage: {PROG} [--version] [--debug] COMMAND [options]", "", f"{parser.description}", "",
+             "commands:"]
+    lines += [f"  {name:<{width}}  {p.get_default('summary')}" for name, p in sub.choices.items()]
+    lines += ["", f"'{PROG} COMMAND --help' shows the options of a command."]
+    return "\n".join(lines)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run ``cdf-mj`` with ``argv`` (default ``sys.argv[1:]``); returns the exit status."""
+    parser = build_parser()
     try:
-        args = build_parser().parse_args(argv)
+        args = parser.parse_args(argv)
     except _Exit as exc:  # --help, --version
         return exc.status
     except CLIError as exc:
         return _fail(exc)
+    if args.command is None:
+        print(_command_list(parser))
+        return 0
     try:
         return args.func(args)
     except BrokenPipeError:  # `cdf-mj episode | head`: the reader left; no traceback
@@ -535,8 +604,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     # ValueError: bad parameters or seed (SceneError, CLIError are ValueErrors too);
     # FloatingPointError: a diverged simulation (NonFiniteStateError, SimulationDivergedError);
     # WorkerDiedError: a worker process died (the finished episodes are saved);
-    # OSError: a path that cannot be written (not a directory, no permission, disk full).
-    except (ValueError, FloatingPointError, WorkerDiedError, OSError) as exc:
+    # OSError: a path that cannot be written (not a directory, no permission, disk full);
+    # ImportError: an optional extra is missing (cdf_mj.extras.require names it).
+    except (ValueError, FloatingPointError, WorkerDiedError, OSError, ImportError) as exc:
         if args.debug:
             raise
         return _fail(exc)

@@ -14,10 +14,11 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
-__all__ = ["ScenarioConfig", "SceneNames", "CDFConfig", "MAX_BRAKE"]
+__all__ = ["MAX_BRAKE", "CDFConfig", "ScenarioConfig", "SceneNames"]
 
 #: Maximum braking of a passenger car on a moderate-friction road, 16 ft/s^2 [m/s^2].
 MAX_BRAKE = 16 * 0.3048
@@ -147,9 +148,9 @@ class ScenarioConfig:
     @property
     def n_ticks(self) -> int:
         """Number of planner ticks in an episode."""
-        return int(round(self.duration / self.dt))
+        return round(self.duration / self.dt)
 
-    def replace(self, **changes: object) -> "ScenarioConfig":
+    def replace(self, **changes: Any) -> ScenarioConfig:
         """A copy with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
 
@@ -224,7 +225,7 @@ class CDFConfig:
             return cov
         return np.diag(np.square(np.asarray(self.likelihood_std, dtype=float)))
 
-    def replace(self, **changes: object) -> "CDFConfig":
+    def replace(self, **changes: Any) -> CDFConfig:
         """A copy with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
 

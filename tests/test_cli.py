@@ -1,4 +1,5 @@
-"""The ``cdf-mj`` command line: JSON on success, one line and exit status 2 on bad input."""
+"""The ``cdf-mj`` command line: JSON on success, one line and exit status 2 on bad input;
+experiments that can be run again; the list of commands."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from cdf_mj import cli
+from cdf_mj.extras import install_hint
 from cdf_mj.records import EpisodeRecord
 
 REPO = Path(__file__).resolve().parent.parent
@@ -78,7 +80,7 @@ def test_out_of_range_parameter_names_it_and_its_range(capsys):
     assert_one_line_error(*run_cli(capsys, "episode", "--set", "beta=1.5"), "beta", "[0, 1]")
 
 
-@pytest.mark.parametrize("assignment, needle", [
+@pytest.mark.parametrize(("assignment", "needle"), [
     ("nosuch=1", "nosuch"),
     ("beta=abc", "beta"),
     ("ego_start_spread=[1,2,3]", "ego_start_spread"),
@@ -99,8 +101,18 @@ def test_scene_without_cars(capsys):
     assert_one_line_error(*run_cli(capsys, "episode", "--scene", str(scene)), "ego_chassis")
 
 
-def test_no_subcommand(capsys):
-    assert_one_line_error(*run_cli(capsys))
+def test_no_command_lists_every_command_on_one_line(capsys):
+    status, out, err = run_cli(capsys)
+    assert status == 0 and err == ""
+    commands = [line.split()[0] for line in out.split("commands:\n")[1].split("\n\n")[0].splitlines()]
+    assert commands == ["reproduce", "episode", "experiment", "sweep", "render", "report", "bench"]
+    assert "cdf-mj COMMAND --help" in out
+    # the same list with --debug alone: a flag is not a command
+    assert run_cli(capsys, "--debug")[1] == out
+
+
+def test_unknown_command(capsys):
+    assert_one_line_error(*run_cli(capsys, "nosuch"), "nosuch", "reproduce")
 
 
 def test_version(capsys):
@@ -113,13 +125,82 @@ def test_module_entry_point_runs_in_a_subprocess():
     env = dict(os.environ)
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH")]))
     proc = subprocess.run(
-        [sys.executable, "-m", "cdf_mj.cli", "episode", "--seed", "1", "--planner", "reactive"],
+        [sys.executable, "-m", "cdf_mj", "episode", "--seed", "1", "--planner", "reactive"],
         cwd=REPO, env=env, capture_output=True, text=True, timeout=120,
     )
     assert proc.returncode == 0, proc.stderr
     record = json.loads(proc.stdout)
     assert record["seed"] == 1
     assert record["planner"] == "reactive"
+
+
+def _unwrapped(text: str) -> str:
+    """``text`` without whitespace: argparse wraps help lines, also at hyphens."""
+    return "".join(text.split())
+
+
+def test_help_of_an_optional_feature_names_its_extra(capsys):
+    for command, extra in (("render", "viz"), ("report", "viz"), ("sweep", "viz"), ("experiment", "ray")):
+        status, out, _ = run_cli(capsys, command, "--help")
+        assert status == 0
+        assert _unwrapped(install_hint(extra)) in _unwrapped(out), command
+
+
+# ----------------------------------------------------------------- experiments run again
+SMALL_RUN = ("--episodes", "2", "--planners", "reactive", "--workers", "1", "--quiet")
+
+
+def test_an_experiment_run_again_prints_its_stored_tables(capsys, tmp_path):
+    out = tmp_path / "run"
+    status, first, err = run_cli(capsys, "experiment", *SMALL_RUN, "--out", str(out))
+    assert status == 0, err
+    records = (out / "episodes.jsonl").read_bytes()
+    status, again, err = run_cli(capsys, "experiment", *SMALL_RUN, "--out", str(out))
+    assert status == 0, err
+    assert f"all 2 records were already in {out}/episodes.jsonl" in again
+    assert again.split("\n\n", 1)[1] == first.split("\n\n", 1)[1]  # the same tables
+    assert (out / "episodes.jsonl").read_bytes() == records  # nothing ran, nothing written
+
+
+def test_an_unfinished_experiment_is_finished_by_the_same_command(capsys, tmp_path):
+    out = tmp_path / "run"
+    assert run_cli(capsys, "experiment", *SMALL_RUN, "--out", str(out))[0] == 0
+    lines = (out / "episodes.jsonl").read_text().splitlines(keepends=True)
+    (out / "episodes.jsonl").write_text(lines[0])  # as if killed after the first seed
+    status, text, err = run_cli(capsys, "experiment", *SMALL_RUN, "--out", str(out))
+    assert status == 0, err
+    assert "1 run in" in text and "1 already on disk" in text
+    assert sorted((out / "episodes.jsonl").read_text().splitlines(keepends=True)) == sorted(lines)
+
+
+def test_other_settings_are_refused_with_the_keys_that_differ(capsys, tmp_path):
+    out = tmp_path / "run"
+    assert run_cli(capsys, "experiment", *SMALL_RUN, "--out", str(out))[0] == 0
+    before = (out / "episodes.jsonl").read_bytes()
+    assert_one_line_error(*run_cli(capsys, "experiment", *SMALL_RUN, "--out", str(out), "--set", "beta=0.1"),
+                          "other settings", "scenario.beta", "--force")
+    assert "resume=" not in capsys.readouterr().err
+    assert (out / "episodes.jsonl").read_bytes() == before
+
+
+def test_force_starts_over_and_removes_only_that_runs_files(capsys, tmp_path):
+    out = tmp_path / "run"
+    assert run_cli(capsys, "experiment", *SMALL_RUN, "--out", str(out))[0] == 0
+    (out / "report.md").write_text("a file of the user's\n")
+    status, text, err = run_cli(capsys, "experiment", *SMALL_RUN, "--out", str(out), "--force",
+                                "--set", "beta=0.1")
+    assert status == 0, err
+    assert "2 run in" in text and "already on disk" not in text
+    settings = json.loads((out / "settings.json").read_text())
+    assert settings["scenario"]["beta"] == 0.1
+    assert len((out / "episodes.jsonl").read_text().splitlines()) == 2
+    assert (out / "report.md").read_text() == "a file of the user's\n"
+
+
+def test_force_and_retry_failed_together_are_refused(capsys, tmp_path):
+    assert_one_line_error(*run_cli(capsys, "experiment", *SMALL_RUN, "--out", str(tmp_path), "--force",
+                                   "--retry-failed"), "--force", "--retry-failed")
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_parse_overrides_types_values_like_the_config():
@@ -135,3 +216,15 @@ def test_every_command_that_runs_the_cdf_takes_the_same_cdf_settings(command):
     args = cli.build_parser().parse_args([*command, "--particles", "300", "--tau", "0.6", "--cutoff-rule", "paper"])
     cdf = cli.cdf_from_args(args)
     assert (cdf.n_particles, cdf.tau, cdf.cutoff_rule) == (300, 0.6, "paper")
+
+
+def test_tables_print_as_text_by_default_and_as_markdown_on_request(capsys, tmp_path):
+    out = tmp_path / "run"
+    status, text, err = run_cli(capsys, "experiment", *SMALL_RUN, "--out", str(out))
+    assert status == 0, err
+    status, markdown, err = run_cli(capsys, "experiment", *SMALL_RUN, "--out", str(out), "--format", "markdown")
+    assert status == 0, err
+    assert "|---" in markdown and "|---" not in text
+    assert "reactive" in text and "reactive" in markdown
+    assert_one_line_error(*run_cli(capsys, "experiment", *SMALL_RUN, "--out", str(out), "--format", "html"),
+                          "--format", "text", "markdown")

@@ -54,12 +54,18 @@ from cdf_mj.records import FAILED, RECORDS_FILE, EpisodeRecord
 from cdf_mj.scenario.episode import run_episode
 from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
 
-__all__ = ["ExperimentResult", "ResultsExistError", "iter_episodes", "run_experiment", "run_many"]
+__all__ = ["ExperimentResult", "ResultsExistError", "SettingsMismatchError", "iter_episodes", "run_experiment",
+           "run_many"]
 
 
 class ResultsExistError(ValueError):
     """The result directory already holds results of this experiment (the same settings)
     and ``resume`` was not asked for."""
+
+
+class SettingsMismatchError(ValueError):
+    """The result directory holds results made with other settings; the message names the
+    differing keys. Nothing is run."""
 
 
 def _factory(name: str, cdf: CDFConfig | None) -> Callable[[], Planner]:
@@ -167,8 +173,9 @@ def run_experiment(out_dir: str | Path, seeds: Sequence[int], planners: Sequence
     Raises:
         ResultsExistError: ``out_dir`` holds results of this experiment and ``resume`` is
             False; nothing is run then.
-        ValueError: bad settings, or a directory holding results of other settings (the
-            message names the differing keys); nothing is run then.
+        SettingsMismatchError: a directory holding results of other settings (a
+            ValueError; the message names the differing keys); nothing is run then.
+        ValueError: bad settings; nothing is run then.
         ImportError: ``backend="ray"`` without the ``ray`` extra.
         cdf_mj.experiments.runner.WorkerDiedError: a worker died; the finished seeds are saved.
     """
@@ -247,7 +254,7 @@ def _check_directory(out: Path, settings: dict[str, Any], resume: bool) -> None:
         raise ValueError(f"{settings_path} is damaged ({exc}): choose another directory") from None
     diff = _differences(old, json.loads(json.dumps(settings)))
     if diff:
-        raise ValueError(f"{out} holds results from other settings (differing: {', '.join(diff)}); "
-                         "choose another directory")
+        raise SettingsMismatchError(f"{out} holds results from other settings (differing: {', '.join(diff)}); "
+                                    "choose another directory")
     if not resume:
         raise ResultsExistError(f"{out} already holds results of this experiment")
