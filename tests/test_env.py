@@ -15,6 +15,7 @@ import pytest
 
 gym = pytest.importorskip("gymnasium")
 from gymnasium.utils.env_checker import check_env  # noqa: E402  (after the skip without Gymnasium)
+from junctions import junction_scene  # noqa: E402
 
 import cdf_mj  # noqa: E402
 from cdf_mj.extras import install_hint  # noqa: E402
@@ -151,10 +152,31 @@ def test_misuse_gives_clear_errors(scene):
     env = gym.make(cdf_mj.ENV_ID, scene=scene, label=False).unwrapped
     with pytest.raises(RuntimeError, match="reset"):
         env.step(np.zeros(2))
-    with pytest.raises(ValueError, match="cameras: top"):
-        gym.make(cdf_mj.ENV_ID, scene=scene, camera="drone")
+    with pytest.raises(ValueError, match=r"camera 'drone' is not in the scene; cameras: top"):
+        gym.make(cdf_mj.ENV_ID, scene=scene, camera="drone", render_mode="rgb_array")
+    with pytest.raises(ValueError, match="offscreen buffer 1280 x 720"):
+        gym.make(cdf_mj.ENV_ID, scene=scene, width=2000, render_mode="rgb_array")
     with pytest.raises(ValueError, match="needs run_filter"):
         gym.make(cdf_mj.ENV_ID, scene=scene, posterior_in_observation=True, run_filter=False)
+
+
+def test_without_rendering_no_camera_is_needed():
+    """render_mode None checks no camera and no frame size: a scene without a camera of the
+    world and a camera name that is nowhere are both fine, and the env runs."""
+    bare = junction_scene(camera=None, rotation=0.6)
+    cams = [bare.model.camera(i).name for i in range(bare.model.ncam)]
+    assert cams == ["ego_chase", "obstacle_chase"]  # the cars' own; no camera of the world
+    env = gym.make(cdf_mj.ENV_ID, scene=bare, label=False, run_filter=False, camera="drone",
+                   width=5000).unwrapped
+    obs, _ = env.reset(seed=2)
+    assert np.all(np.isfinite(obs))
+    with pytest.warns(UserWarning, match="render_mode"):
+        assert env.render() is None  # and Gymnasium's warning says why
+    # rendering asked for: the scene's "top", else the free camera; a missing name is an error
+    assert gym.make(cdf_mj.ENV_ID, scene=bare, render_mode="rgb_array").unwrapped.camera == "free"
+    assert gym.make(cdf_mj.ENV_ID, render_mode="rgb_array").unwrapped.camera == "top"
+    with pytest.raises(ValueError, match=r"cameras: ego_chase, obstacle_chase \(camera=None looks down"):
+        gym.make(cdf_mj.ENV_ID, scene=bare, render_mode="rgb_array", camera="top")
 
 
 def test_make_vec_with_worker_processes():
@@ -199,6 +221,22 @@ def test_two_envs_render_their_own_cameras_in_turn(gl):
     finally:
         a.close()
         b.close()
+
+
+def test_a_scene_without_cameras_renders_the_junction_from_above(gl):
+    """The free camera over the junction: the frame shows the junction the same way up
+    whatever the junction's rotation (the ego drives to the right of the frame)."""
+    frames = []
+    for rotation in (0.0, 2.0):
+        env = gym.make(cdf_mj.ENV_ID, scene=junction_scene(camera=None, rotation=rotation),
+                       render_mode="rgb_array", label=False, run_filter=False, width=160, height=120)
+        try:
+            env.reset(seed=1)
+            frames.append(env.render().astype(float))
+        finally:
+            env.close()
+    assert frames[0].shape == (120, 160, 3) and frames[0].std() > 10
+    assert np.abs(frames[0] - frames[1]).mean() < 2.0  # the same picture, up to rasterisation
 
 
 def test_render_check_env_and_example_script_in_a_subprocess(tmp_path, gl):

@@ -93,7 +93,8 @@ def test_scene_steps_under_random_controls_without_warnings(path: Path, start_sp
 # ------------------------------------------------------------------ names
 # How each field of SceneNames is looked up: per car (with its prefix) or in the world.
 _CAR_FIELDS = {"chassis": ["body"], "front_axle": ["body"], "hull": ["geom"], "eye": ["site"],
-               "accel": ["actuator"], "steer": ["actuator", "joint"], "joint_x": ["joint"],
+               "accel": ["actuator"], "steer": ["actuator"], "steer_joint": ["joint"],
+               "joint_x": ["joint"],
                "joint_y": ["joint"], "joint_yaw": ["joint"]}
 _WORLD_FIELDS = {"ego_start": ["site"], "obstacle_start": ["site"], "stop_line": ["site"],
                  "ego_lane": ["site"], "conflict": ["site"], "commit": ["site"],

@@ -11,12 +11,16 @@ also in the worker processes of ``gymnasium.make_vec``::
     obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
     frame = env.render()                     # (480, 640, 3) uint8 from camera "top"
 
+A scene with no camera ``top`` renders too: through a free camera looking straight down
+at the junction (``camera=None``, the default).
+
 The obstacle is the scenario's (:class:`cdf_mj.scenario.world.World`, the same code as
 :func:`cdf_mj.run_episode`); the agent replaces the ego's planner and controller.
 """
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +44,9 @@ from cdf_mj.sim.gl import Offscreen
 from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
 
 __all__ = ["TIntersectionEnv"]
+
+_DEFAULT_CAMERA = "top"  # the camera used when the scene has one and none is named
+_FREE_VIEW = 70.0  # [m] what the free camera over the junction shows, top to bottom of the frame
 
 
 class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
@@ -128,8 +135,14 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
             per step at N = 1000.
         label: compute ``info["label"]`` at reset (one counterfactual run, ~15 ms).
         collision_penalty: reward on a collision step, negated [1].
-        camera: name of the MJCF camera ``render`` uses (``top``, ``ego_chase``, ...).
-        width, height: rendered frame size [pixels], at most the model's offscreen buffer.
+        camera: name of the MJCF camera ``render`` uses (``top``, ``ego_chase``, ...), or
+            None (default): the scene's camera ``top`` if it has one, else a free camera
+            looking straight down at the junction (at the point of the ego's route nearest
+            the obstacle's start, the ego driving to the right of the frame, about 70 m
+            across). Checked only with ``render_mode="rgb_array"``: ValueError naming the
+            scene's cameras if the named one is not among them.
+        width, height: rendered frame size [pixels], at most the model's offscreen buffer
+            (checked only with ``render_mode="rgb_array"``).
         names: element names of the scene (default :class:`SceneNames`).
         normalized_actions: the action space is ``[-1, 1]^2`` instead, mapped affinely onto
             the actuator ranges (-1 = maximum braking / full right steer, +1 = maximum
@@ -142,7 +155,7 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
     def __init__(self, render_mode: str | None = None, scene: str | Path | Scene = DEFAULT_SCENE,
                  config: ScenarioConfig | None = None, cdf: CDFConfig | None = None,
                  posterior_in_observation: bool = False, run_filter: bool = True,
-                 label: bool = True, collision_penalty: float = 100.0, camera: str = "top",
+                 label: bool = True, collision_penalty: float = 100.0, camera: str | None = None,
                  width: int = 640, height: int = 480, names: SceneNames | None = None,
                  normalized_actions: bool = False) -> None:
         if render_mode not in (None, *self.metadata["render_modes"]):
@@ -164,14 +177,24 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         self.label = label
         self.collision_penalty = float(collision_penalty)
         m = self.scene.model
-        if mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, camera) < 0:
-            cams = ", ".join(m.camera(i).name for i in range(m.ncam)) or "none"
-            raise ValueError(f"camera {camera!r} is not in the scene; cameras: {cams}")
-        if not (0 < width <= m.vis.global_.offwidth and 0 < height <= m.vis.global_.offheight):
-            raise ValueError(f"width x height = {width} x {height} must be positive and at most "
-                             f"the scene's offscreen buffer {m.vis.global_.offwidth} x "
-                             f"{m.vis.global_.offheight}")
-        self.camera, self.width, self.height = camera, int(width), int(height)
+        self._camera_id = -1  # -1: the free camera over the junction
+        if render_mode is not None:  # no camera, no frame size needed when nothing is drawn
+            if camera is not None:
+                self._camera_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, camera)
+                if self._camera_id < 0:
+                    cams = ", ".join(m.camera(i).name for i in range(m.ncam)) or "none"
+                    raise ValueError(f"camera {camera!r} is not in the scene; cameras: {cams} "
+                                     "(camera=None looks down at the junction)")
+            else:
+                self._camera_id = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_CAMERA, _DEFAULT_CAMERA)
+            if not (0 < width <= m.vis.global_.offwidth and 0 < height <= m.vis.global_.offheight):
+                raise ValueError(f"width x height = {width} x {height} must be positive and at most "
+                                 f"the scene's offscreen buffer {m.vis.global_.offwidth} x "
+                                 f"{m.vis.global_.offheight}")
+        #: The camera frames come from: a camera of the scene, or "free" (over the junction).
+        self.camera = (m.camera(self._camera_id).name if self._camera_id >= 0 else "free") \
+            if render_mode is not None else camera
+        self.width, self.height = int(width), int(height)
         self._renderer: Offscreen | None = None  # made on the first render()
 
         ego = self.world.layout.ego
@@ -250,8 +273,10 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
             model = self.scene.model  # the model's own multisampling, as mujoco.Renderer has
             self._renderer = Offscreen(model, self.width, self.height,
                                        samples=int(model.vis.quality.offsamples))
-            self._renderer.use_camera(mujoco.mj_name2id(self.scene.model, mujoco.mjtObj.mjOBJ_CAMERA,
-                                                        self.camera))
+            if self._camera_id >= 0:
+                self._renderer.use_camera(self._camera_id)
+            else:
+                self._look_at_junction(self._renderer.camera)
         self.scene.sync()
         self._renderer.update(self.scene.data)
         return self._renderer.render().copy()
@@ -263,6 +288,22 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
             self._renderer = None
 
     # ------------------------------------------------------------------ helpers
+    def _look_at_junction(self, cam: mujoco.MjvCamera) -> None:
+        """A free camera straight above the junction: centred on the point of the ego's
+        route nearest the obstacle's start, the ego's direction to the right of the frame,
+        ``_FREE_VIEW`` metres across the frame's height."""
+        layout = self.world.layout
+        route = layout.route_ego
+        s = float(route.project(layout.obstacle_start[:2])[0])
+        centre = route.point_at(s)
+        ahead = route.point_at(s + 1.0) - centre
+        fovy = math.radians(float(self.scene.model.vis.global_.fovy))
+        cam.type = mujoco.mjtCamera.mjCAMERA_FREE
+        cam.lookat[:] = (float(centre[0]), float(centre[1]), 0.0)
+        cam.distance = 0.5 * _FREE_VIEW / math.tan(0.5 * fovy)
+        cam.azimuth = math.degrees(math.atan2(ahead[1], ahead[0])) + 90.0  # frame up = the ego's left
+        cam.elevation = -90.0
+
     def _observation_box(self) -> spaces.Box:
         """Finite bounds: no car can leave the box around the scene's routes and start
         sites that its top speed (the speed actuator's ``actrange``) covers in

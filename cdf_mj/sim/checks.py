@@ -1,8 +1,25 @@
-"""Validation of an MJCF scene against the names the code reads: one :class:`SceneError`
-that lists every problem at once.
+"""Validation of an MJCF scene: one :class:`SceneError` that lists every problem at once.
 
 :class:`cdf_mj.sim.scene.Scene` runs :func:`validate` when it is built, before it reads
-anything, so that a scene with several mistakes is fixed in one round. ::
+anything, so that a scene with several mistakes is fixed in one round. The checks go past
+the names to what the elements mean:
+
+- every element the code reads exists, with the right kind, shape and place;
+- the left route crosses into the ego's lane and the right one does not ("swapped?"),
+  the conflict point lies on the ego's route within its lane and ahead of the ego's
+  start, the obstacle's start site faces along its routes;
+- angles are radians: a file whose compiler reads degrees is refused (``Scene.load``
+  reads that from the file; a compiled model does not keep it), and what degrees give away
+  in a compiled model is refused too (a steering range beyond 90 degrees, a steering joint
+  range 57 times smaller than its actuator's);
+- an explicit integrator (Euler, RK4) gives a :class:`SceneWarning`: our car's tyre
+  dampers and speed servo diverge with it.
+
+A names file (``cdf-mj ... --names FILE``) is read by :func:`read_names`.
+
+Two more checks need more than the model: :func:`substeps` (the scenario tick must be a
+whole multiple of the timestep) and :func:`check_drive` (a test drive on a scratch
+``MjData``: each car must move when commanded). ::
 
     from cdf_mj.sim.checks import SceneError, validate
     validate(model, data, SceneNames(), source="my_scene.xml")   # SceneError or nothing
@@ -10,15 +27,28 @@ anything, so that a scene with several mistakes is fixed in one round. ::
 
 from __future__ import annotations
 
+import dataclasses
+import json
+import math
+import sys
+import warnings
 from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import mujoco
 import numpy as np
 
 from cdf_mj.config import SceneNames
-from cdf_mj.model.geometry import Polyline
+from cdf_mj.model.geometry import OrientedBox, Polyline
 
-__all__ = ["SceneError", "validate"]
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # Python 3.10: the same parser from PyPI (a dependency there)
+    import tomli as tomllib
+
+__all__ = ["SceneError", "SceneWarning", "check_drive", "read_names", "substeps", "validate"]
 
 # MuJoCo object types by the word the error messages use.
 _OBJ = {
@@ -29,37 +59,64 @@ _OBJ = {
     "geom": mujoco.mjtObj.mjOBJ_GEOM,
 }
 
+#: Integrators that integrate our car's velocity-dependent actuator forces (tyre dampers of
+#: 1e7 N s/m, the speed servo) implicitly; Euler and RK4 treat them explicitly and diverge.
+STABLE_INTEGRATORS = (mujoco.mjtIntegrator.mjINT_IMPLICIT, mujoco.mjtIntegrator.mjINT_IMPLICITFAST)
+
+_ROUTE_STEP = 0.2  # [m] spacing of the points at which routes are tested against the ego lane
+_HEADING_TOL = math.radians(20.0)  # [rad] obstacle start site vs its routes' first direction
+_DRIVE_TIME = 0.3  # [s] length of each phase of the test drive
+_FAR = (2000.0, -3000.0)  # [m] chassis-frame y of ego, obstacle in the test drive: apart, alone
+
 
 class SceneError(ValueError):
-    """A scene file that cannot be loaded or lacks an element the code needs."""
+    """A scene file that cannot be loaded or lacks an element the code needs, or whose
+    elements do not mean what the code reads them as."""
 
 
-def _required_elements(names: SceneNames) -> list[tuple[str, str]]:
-    """Every ``(kind, name)`` the code reads: the world's sites and route bodies, and each
-    car's bodies, hull, eye, actuators and joints (with its prefix)."""
-    n = names
+class SceneWarning(UserWarning):
+    """A scene that loads but may not simulate well (e.g. an explicit integrator)."""
+
+
+def _required_junction(n: SceneNames) -> list[tuple[str, str]]:
+    """Every ``(kind, name)`` of the junction: the world's sites and route bodies."""
     req = [("site", s) for s in (n.ego_start, n.obstacle_start, n.stop_line, n.ego_lane,
                                  n.conflict, n.commit)]
-    req += [("body", b) for b in (n.route_ego, n.route_left, n.route_right)]
+    return req + [("body", b) for b in (n.route_ego, n.route_left, n.route_right)]
+
+
+def _required_cars(n: SceneNames) -> list[tuple[str, str]]:
+    """Every ``(kind, name)`` of the two cars: bodies, hull, eye, actuators, joints."""
+    req: list[tuple[str, str]] = []
     for p in (n.ego_prefix, n.obstacle_prefix):
         req += [("body", p + n.chassis), ("body", p + n.front_axle), ("geom", p + n.hull),
                 ("site", p + n.eye), ("actuator", p + n.accel), ("actuator", p + n.steer)]
-        req += [("joint", p + j) for j in (*n.planar_joints, n.steer)]
+        req += [("joint", p + j) for j in (*n.planar_joints, n.steer_joint)]
     return req
 
 
-def validate(model: mujoco.MjModel, data: mujoco.MjData, names: SceneNames, source: str) -> None:
+def validate(model: mujoco.MjModel, data: mujoco.MjData, names: SceneNames, source: str, *,
+             cars: bool = True, compiler_degree: bool = False) -> None:
     """Raise one SceneError listing every missing element, then every element of the wrong
-    kind, shape or place (each checked only where it exists); return if there are none.
+    kind, shape, place or meaning (each checked only where it exists); return if there are
+    none. With ``cars``, warn (:class:`SceneWarning`) for an integrator other than
+    implicit/implicitfast.
 
     ``data`` must hold the model's reference configuration after ``mj_kinematics`` (world
     positions of sites, bodies and geoms); ``source`` names the scene in the message.
+    ``cars=False`` checks the junction only (for cars that are not ours: only observed).
+    ``compiler_degree``: the file's ``<compiler>`` reads angles in degrees (an ``MjModel``
+    does not keep this; :meth:`Scene.load` reads it from the file's ``MjSpec``).
     """
     m, n, d = model, names, data
-    required = _required_elements(n)
+    required = _required_junction(n) + (_required_cars(n) if cars else [])
     exists = {(kind, name): mujoco.mj_name2id(m, _OBJ[kind], name) >= 0 for kind, name in required}
     missing = [f"{kind} '{name}'" for (kind, name), ok in exists.items() if not ok]
     wrong: list[str] = []
+    if compiler_degree:
+        wrong.append("the compiler reads angles in degrees (MuJoCo's default when <compiler "
+                     "angle=...> is not given); put <compiler angle=\"radian\"/> in the file and "
+                     "write every angle in radians")
 
     def has(kind: str, name: str) -> bool:
         return exists[(kind, name)]
@@ -69,6 +126,7 @@ def validate(model: mujoco.MjModel, data: mujoco.MjData, names: SceneNames, sour
                   and not np.all(np.isfinite((d.site if kind == "site" else d.body)(name).xpos))]
     if not_finite:
         wrong.append(f"positions that are not finite numbers: {', '.join(not_finite)}")
+    routes: dict[str, Polyline] = {}
     for route in (n.route_ego, n.route_left, n.route_right):
         if not has("body", route):
             continue
@@ -77,19 +135,111 @@ def validate(model: mujoco.MjModel, data: mujoco.MjData, names: SceneNames, sour
             wrong.append(f"body '{route}' has fewer than 2 waypoint sites")
             continue
         try:  # the route as the drivers will use it: Polyline's own rules
-            Polyline(d.site_xpos[ids, :2])
+            routes[route] = Polyline(d.site_xpos[ids, :2].copy())
         except ValueError as exc:
             wrong.append(f"body '{route}': {str(exc).replace('a polyline', 'the route')}")
     for site in (n.stop_line, n.ego_lane):
         if has("site", site) and m.site(site).type[0] != mujoco.mjtGeom.mjGEOM_BOX:
             wrong.append(f"site '{site}' must be a box (its half sizes give the area)")
-    for p in (n.ego_prefix, n.obstacle_prefix):
-        wrong += _car_problems(m, n, p, has)
+    if not not_finite:
+        wrong += _meaning_problems(m, d, n, routes, has)
+    if cars:
+        for p in (n.ego_prefix, n.obstacle_prefix):
+            wrong += _car_problems(m, n, p, has)
     wrong += _building_problems(m, d, n)
     problems = ([f"lacks {', '.join(missing)}"] if missing else []) + wrong
     if problems:
         raise SceneError(f"scene {source}: {'; '.join(problems)} "
-                         "(docs/SCENES.md lists the names a scene must have)")
+                         "(docs/SCENES.md lists the names a scene must have and what they mean)")
+    if cars:  # only our cars care; the integrator of a scene whose cars are watched is the user's
+        _warn_integrator(m, source)
+
+
+def _warn_integrator(m: mujoco.MjModel, source: str) -> None:
+    integrator = int(m.opt.integrator)
+    if integrator not in STABLE_INTEGRATORS:
+        name = mujoco.mjtIntegrator(integrator).name.removeprefix("mjINT_")
+        warnings.warn(f"scene {source}: integrator {name} treats velocity-dependent actuator forces "
+                      "explicitly, and our car's tyre dampers (1e7 N s/m) and speed servo diverge "
+                      "with it (NaN within 0.03 s at timesteps of 5 ms and 1 ms); use "
+                      "<option integrator=\"implicitfast\"/> unless the cars are not ours",
+                      SceneWarning, stacklevel=3)
+
+
+def _site_box(m: mujoco.MjModel, d: mujoco.MjData, name: str) -> OrientedBox:
+    s = d.site(name)
+    return OrientedBox(np.array(s.xpos[:2]), math.atan2(s.xmat[3], s.xmat[0]),
+                       np.array(m.site(name).size[:2]))
+
+
+def _meaning_problems(m: mujoco.MjModel, d: mujoco.MjData, n: SceneNames, routes: dict[str, Polyline],
+                      has: Callable[[str, str], bool]) -> list[str]:
+    """What the junction's elements mean: which route crosses the ego's lane, where the
+    conflict point lies, where the obstacle's start site faces (elements that exist and are
+    well formed only)."""
+    wrong: list[str] = []
+    ego, left, right = (routes.get(r) for r in (n.route_ego, n.route_left, n.route_right))
+    lane = _site_box(m, d, n.ego_lane) if has("site", n.ego_lane) and \
+        m.site(n.ego_lane).type[0] == mujoco.mjtGeom.mjGEOM_BOX else None
+    if lane is not None and left is not None and right is not None:
+        def inside(route: Polyline) -> np.ndarray:
+            s = np.append(np.arange(0.0, route.length, _ROUTE_STEP), route.length)
+            pts = route.point_at(s)
+            return pts[lane.contains(pts)]
+
+        left_in, right_in = inside(left), inside(right)
+        if not len(left_in) and len(right_in):
+            wrong.append(f"body '{n.route_left}' never enters the ego's lane (site '{n.ego_lane}') "
+                         f"but body '{n.route_right}' does: routes swapped? The left route is the "
+                         "turn that crosses into the ego's lane (SceneNames.route_left), the right "
+                         "one turns away")
+        else:
+            if not len(left_in):
+                wrong.append(f"body '{n.route_left}' never enters the ego's lane (site "
+                             f"'{n.ego_lane}'): the left route must cross into it")
+            if len(right_in):
+                x, y = right_in[0]
+                wrong.append(f"body '{n.route_right}' enters the ego's lane (site '{n.ego_lane}') "
+                             f"at ({x:.2f}, {y:.2f}) m: the right route must turn away from it")
+        if len(left_in) and ego is not None:
+            # in the lane, the left-turner drives the ego's way (the end of its path there)
+            s_end = left.project(left_in[-1])[0]
+            s_ego = ego.project(left_in[-1])[0]
+            t_left = left.point_at(min(float(s_end), left.length)) - left.point_at(max(float(s_end) - 1.0, 0.0))
+            t_ego = ego.point_at(float(s_ego) + 0.5) - ego.point_at(float(s_ego) - 0.5)
+            if float(t_left @ t_ego) < 0.0:
+                wrong.append(f"body '{n.route_left}' runs against the ego's direction (body "
+                             f"'{n.route_ego}') in the ego's lane: is one of the routes reversed?")
+    if ego is not None and has("site", n.conflict):
+        conflict = np.array(d.site(n.conflict).xpos[:2])
+        s_c, lat = (float(v) for v in ego.project(conflict))
+        half = float(lane.half[1]) if lane is not None else math.inf
+        if abs(lat) > half:
+            wrong.append(f"site '{n.conflict}' is {abs(lat):.2f} m from the ego's route (body "
+                         f"'{n.route_ego}'); it must lie on that route within the ego's lane "
+                         f"(half width {half:.2f} m): on the wrong carriageway?")
+        elif lane is not None and not lane.contains(conflict):
+            wrong.append(f"site '{n.conflict}' lies outside the ego's lane (site '{n.ego_lane}'); "
+                         "it marks where a left-turner enters that lane")
+        if has("site", n.ego_start):
+            s_start = float(ego.project(np.array(d.site(n.ego_start).xpos[:2]))[0])
+            if s_c <= s_start:
+                wrong.append(f"site '{n.conflict}' is not ahead of site '{n.ego_start}' along body "
+                             f"'{n.route_ego}' ({s_c - s_start:.1f} m): is the ego's route reversed? "
+                             "Its waypoints go in the ego's direction of travel")
+    if has("site", n.obstacle_start):
+        heading = math.atan2(d.site(n.obstacle_start).xmat[3], d.site(n.obstacle_start).xmat[0])
+        for name, route in ((n.route_left, left), (n.route_right, right)):
+            if route is None:
+                continue
+            u = route.point_at(min(1.0, route.length)) - route.point_at(0.0)
+            off = abs(math.remainder(math.atan2(u[1], u[0]) - heading, 2 * math.pi))
+            if off > _HEADING_TOL:
+                wrong.append(f"site '{n.obstacle_start}' heads {math.degrees(heading):.1f} deg but "
+                             f"body '{name}' starts towards {math.degrees(math.atan2(u[1], u[0])):.1f} "
+                             "deg: turn the site's x axis along the route (euler=\"0 0 yaw\", yaw in "
+                             "radians)")
+    return wrong
 
 
 def _car_problems(m: mujoco.MjModel, n: SceneNames, p: str,
@@ -112,8 +262,9 @@ def _car_problems(m: mujoco.MjModel, n: SceneNames, p: str,
         if types != [mujoco.mjtJoint.mjJNT_SLIDE, mujoco.mjtJoint.mjJNT_SLIDE,
                      mujoco.mjtJoint.mjJNT_HINGE]:
             wrong.append(f"joints {', '.join(joints)} must be slide, slide, hinge")
-    if has("joint", p + n.steer) and m.joint(p + n.steer).type[0] != mujoco.mjtJoint.mjJNT_HINGE:
-        wrong.append(f"joint '{p}{n.steer}' must be a hinge")
+    if has("joint", p + n.steer_joint) and \
+            m.joint(p + n.steer_joint).type[0] != mujoco.mjtJoint.mjJNT_HINGE:
+        wrong.append(f"joint '{p}{n.steer_joint}' must be a hinge")
     if has("geom", p + n.hull) and m.geom(p + n.hull).type[0] != mujoco.mjtGeom.mjGEOM_BOX:
         wrong.append(f"geom '{p}{n.hull}' must be a box")
     if has("actuator", p + n.accel):
@@ -126,11 +277,22 @@ def _car_problems(m: mujoco.MjModel, n: SceneNames, p: str,
                          f"to accelerating (> 0) [m/s^2], has {acc.ctrlrange.tolist()}")
     if has("actuator", p + n.steer):
         steer = m.actuator(p + n.steer)
+        lo, hi = (float(v) for v in steer.ctrlrange)
         if not steer.ctrllimited[0]:
             wrong.append(f"actuator '{p}{n.steer}' must be ctrl-limited (steering range)")
-        elif not steer.ctrlrange[0] < 0.0 < steer.ctrlrange[1]:
+        elif not lo < 0.0 < hi:
             wrong.append(f"actuator '{p}{n.steer}' needs a ctrlrange from right (< 0) to "
-                         f"left (> 0) [rad], has {steer.ctrlrange.tolist()}")
+                         f"left (> 0) [rad], has {[lo, hi]}")
+        elif max(-lo, hi) > math.pi / 2:
+            wrong.append(f"actuator '{p}{n.steer}' has a ctrlrange of {[lo, hi]}, beyond 90 deg: "
+                         "angles in degrees? Steering angles are radians (0.6 rad = 34 deg)")
+        elif has("joint", p + n.steer_joint):
+            joint = m.joint(p + n.steer_joint)
+            jmax = float(np.max(np.abs(joint.range)))
+            if joint.limited[0] and jmax < min(-lo, hi) / 10.0:
+                wrong.append(f"joint '{p}{n.steer_joint}' has a range of +-{jmax:.4g} rad, less than a "
+                             f"tenth of its actuator's ctrlrange {[lo, hi]}: read from degrees? "
+                             "Use <compiler angle=\"radian\"/>")
     return wrong
 
 
@@ -152,3 +314,144 @@ def _building_problems(m: mujoco.MjModel, d: mujoco.MjData, n: SceneNames) -> li
     if tilted:
         wrong.append(f"building boxes must be upright (rotated about z only): {', '.join(tilted)}")
     return wrong
+
+
+# ---------------------------------------------------------------------- beyond the model
+def substeps(timestep: float, dt: float, source: str = "<model>") -> int:
+    """Physics steps per scenario tick, ``dt / timestep`` [s / s], which must be a whole
+    number: SceneError naming both otherwise (a 0.03 s timestep would make ticks of 0.09 s,
+    not 0.1 s)."""
+    ratio = dt / timestep
+    n = round(ratio)
+    if n < 1 or abs(ratio - n) > 1e-6 * max(1.0, ratio):
+        raise SceneError(f"scene {source}: the scenario tick dt={dt:g} s is not a whole multiple of "
+                         f"the timestep {timestep:g} s ({ratio:.4g} steps per tick); use a timestep "
+                         f"that divides it, e.g. {dt / max(n, 1):.4g} s or 0.005 s, or another dt")
+    return n
+
+
+def check_drive(model: mujoco.MjModel, names: SceneNames, source: str = "<model>") -> None:
+    """Test-drive both cars on a scratch ``MjData`` (the model is not changed): from rest,
+    full acceleration for 0.3 s, then half the left steering limit for 0.3 s, each car alone
+    and far from everything. SceneError listing every car that does not move forward, does
+    not speed up, does not steer, or turns the wrong way; or if the simulation diverges.
+
+    Run it once for a scene whose cars the code will drive (``Scene``, ``World``,
+    ``run_episode``), not for cars that are only observed. Expects a model that passed
+    :func:`validate` with its cars. About 0.6 s of simulated time.
+    """
+    m, n = model, names
+    d = mujoco.MjData(m)
+    cars = []
+    for p, far in zip((n.ego_prefix, n.obstacle_prefix), _FAR, strict=True):
+        x, y, yaw = (m.joint(p + j) for j in n.planar_joints)
+        d.qpos[y.qposadr[0]] = far  # alone: no building, ground marking or other car near it
+        cars.append(_TestCar(p, int(x.qposadr[0]), int(x.dofadr[0]), int(yaw.qposadr[0]),
+                             m.actuator(p + n.accel), m.actuator(p + n.steer),
+                             int(m.joint(p + n.steer_joint).qposadr[0])))
+    mujoco.mj_forward(m, d)
+    nstep = max(1, round(_DRIVE_TIME / m.opt.timestep))
+    t = nstep * m.opt.timestep
+
+    def run(phase: str) -> None:
+        mujoco.mj_step(m, d, nstep=nstep)
+        w = d.warning
+        if (w[mujoco.mjtWarning.mjWARN_BADQACC].number or w[mujoco.mjtWarning.mjWARN_BADQVEL].number
+                or w[mujoco.mjtWarning.mjWARN_BADQPOS].number or not np.all(np.isfinite(d.qpos))):
+            integrator = mujoco.mjtIntegrator(int(m.opt.integrator)).name.removeprefix("mjINT_")
+            raise SceneError(f"scene {source}: the simulation diverged in a test drive of the cars "
+                             f"({phase}; integrator {integrator}, timestep {m.opt.timestep:g} s): "
+                             "use <option integrator=\"implicitfast\"/>")
+
+    bad: list[str] = []
+    for c in cars:
+        d.ctrl[c.accel.id] = c.accel.ctrlrange[1]
+        d.ctrl[c.steer.id] = 0.0
+    run("full acceleration")
+    drives = {}
+    for c in cars:
+        a = float(c.accel.ctrlrange[1])
+        want_x, want_v = 0.5 * a * t * t, a * t
+        dx, v, yaw = float(d.qpos[c.qx]), float(d.qvel[c.vx]), float(d.qpos[c.qyaw])
+        drives[c.prefix] = dx > 0.5 * want_x and v > 0.5 * want_v and abs(yaw) < 0.05
+        if not drives[c.prefix]:
+            bad.append(f"car '{c.prefix}' does not drive forward when commanded: actuator "
+                       f"'{c.prefix}{n.accel}' at {a:g} m/s^2 for {t:g} s moved body "
+                       f"'{c.prefix}{n.chassis}' {dx:.3f} m at {v:.2f} m/s and turned it {yaw:.3f} rad "
+                       f"(expected about {want_x:.3f} m, {want_v:.2f} m/s, 0 rad); check the "
+                       "actuator's transmission (gear, site or joint) and gain")
+    yaw0 = {c.prefix: float(d.qpos[c.qyaw]) for c in cars}
+    for c in cars:
+        d.ctrl[c.steer.id] = 0.5 * c.steer.ctrlrange[1]
+    run("steering left")
+    for c in cars:
+        cmd = 0.5 * float(c.steer.ctrlrange[1])
+        angle, turned = float(d.qpos[c.steer_q]), float(d.qpos[c.qyaw]) - yaw0[c.prefix]
+        if angle < 0.5 * cmd:
+            bad.append(f"car '{c.prefix}' does not steer when commanded: actuator "
+                       f"'{c.prefix}{n.steer}' at {cmd:.3g} rad for {t:g} s turned joint "
+                       f"'{c.prefix}{n.steer_joint}' to {angle:.3g} rad; it must be a position servo "
+                       "on that joint")
+        elif drives[c.prefix] and turned <= 0.0:
+            bad.append(f"car '{c.prefix}' turns right ({turned:.3f} rad) when steered left: a "
+                       f"positive angle of joint '{c.prefix}{n.steer_joint}' must turn the car left")
+    if bad:
+        raise SceneError(f"scene {source}: {'; '.join(bad)}")
+
+
+@dataclass(frozen=True)
+class _TestCar:
+    """Addresses of one car in the test drive."""
+
+    prefix: str
+    qx: int  # qpos address of the chassis x slide
+    vx: int  # dof address of the chassis x slide
+    qyaw: int  # qpos address of the yaw hinge
+    accel: Any  # the accel actuator's view (model.actuator)
+    steer: Any  # the steering actuator's view
+    steer_q: int  # qpos address of the steering hinge
+
+
+# ---------------------------------------------------------------------- a names file
+def read_names(path: str | Path) -> SceneNames:
+    """The :class:`SceneNames` of a JSON (``.json``) or TOML (``.toml``) file holding one
+    object (table) whose keys are SceneNames fields and whose values are strings; fields
+    not given keep their defaults. SceneError, one line naming the file, for a file that
+    cannot be read, malformed JSON or TOML (with its line and column), an unknown key (with
+    the valid ones), a value that is not a string, or names SceneNames refuses.
+    """
+    path = Path(path)
+    fields = [f.name for f in dataclasses.fields(SceneNames)]
+    kind = path.suffix.lower()
+    if kind not in (".json", ".toml"):
+        raise SceneError(f"names file {path}: expected a .json or .toml file, got {path.suffix or 'no suffix'!r}")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise SceneError(f"names file {path} does not exist") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SceneError(f"names file {path} cannot be read: {exc}") from None
+    data: Any
+    if kind == ".json":
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise SceneError(f"names file {path}: not valid JSON at line {exc.lineno}, column "
+                             f"{exc.colno}: {exc.msg}") from None
+    else:
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as exc:
+            raise SceneError(f"names file {path}: not valid TOML: {' '.join(str(exc).split())}") from None
+    if not isinstance(data, dict):
+        raise SceneError(f"names file {path}: expected an object of SceneNames fields, e.g. "
+                         f'{{"route_ego": "my_path"}}, got a {type(data).__name__}')
+    for key, value in data.items():
+        if key not in fields:
+            raise SceneError(f"names file {path}: unknown key {key!r}; valid keys: {', '.join(fields)}")
+        if not isinstance(value, str):
+            raise SceneError(f"names file {path}: {key} must be a string (an element name), got {value!r}")
+    try:
+        return SceneNames(**data)
+    except ValueError as exc:
+        raise SceneError(f"names file {path}: {exc}") from None

@@ -31,9 +31,10 @@ from cdf_mj.model.layout import Layout
 from cdf_mj.model.occlusion import Occluders
 from cdf_mj.model.vehicle import CarGeometry
 from cdf_mj.sim.assets import DEFAULT_SCENE
-from cdf_mj.sim.checks import SceneError, validate
+from cdf_mj.sim.checks import SceneError, check_drive, substeps, validate
 
-__all__ = ["DEFAULT_SCENE", "Car", "Scene", "SceneError", "SimulationDivergedError"]
+__all__ = ["DEFAULT_SCENE", "Car", "Scene", "SceneError", "SimulationDivergedError", "car_geometry",
+           "read_layout"]
 
 
 class SimulationDivergedError(FloatingPointError):
@@ -43,6 +44,105 @@ class SimulationDivergedError(FloatingPointError):
 def _yaw(mat9: np.ndarray) -> float:
     """Heading [rad] of a frame's x axis projected on the ground, from a row-major 3x3."""
     return math.atan2(mat9[3], mat9[0])
+
+
+def _exists(m: mujoco.MjModel, kind: mujoco.mjtObj, name: str) -> bool:
+    return mujoco.mj_name2id(m, kind, name) >= 0
+
+
+def car_geometry(model: mujoco.MjModel, names: SceneNames, prefix: str,
+                 source: str = "<model>") -> CarGeometry:
+    """A car's dimensions read from the model: wheelbase = x offset of body ``front_axle``
+    in the chassis frame, the collision box = geom ``hull``, the eye = site ``eye``, the
+    ranges = ctrlranges of actuators ``accel`` and ``steer`` (all with ``prefix``).
+
+    These are our car's conventions (origin on the rear axle); for any other car give a
+    :class:`CarGeometry` instead. SceneError naming every missing element, or a bad value.
+    """
+    m, n = model, names
+    wanted = ((mujoco.mjtObj.mjOBJ_BODY, "body", n.front_axle), (mujoco.mjtObj.mjOBJ_GEOM, "geom", n.hull),
+              (mujoco.mjtObj.mjOBJ_SITE, "site", n.eye), (mujoco.mjtObj.mjOBJ_ACTUATOR, "actuator", n.accel),
+              (mujoco.mjtObj.mjOBJ_ACTUATOR, "actuator", n.steer))
+    missing = [f"{word} '{prefix}{name}'" for kind, word, name in wanted
+               if not _exists(m, kind, prefix + name)]
+    if missing:
+        raise SceneError(f"scene {source}: car '{prefix}' lacks {', '.join(missing)}, from which "
+                         "its dimensions are read; name them (SceneNames) or give the car's "
+                         "CarGeometry")
+    hull = m.geom(prefix + n.hull)
+    accel, steer = m.actuator(prefix + n.accel), m.actuator(prefix + n.steer)
+    try:
+        return CarGeometry(
+            wheelbase=float(m.body(prefix + n.front_axle).pos[0]),
+            hull_offset=np.array(hull.pos[:2], dtype=float),
+            hull_half=np.array(hull.size[:2], dtype=float),
+            hull_height=float(hull.pos[2] + hull.size[2]),
+            eye_offset=np.array(m.site(prefix + n.eye).pos, dtype=float),
+            accel_range=(float(accel.ctrlrange[0]), float(accel.ctrlrange[1])),
+            steer_range=(float(steer.ctrlrange[0]), float(steer.ctrlrange[1])))
+    except ValueError as exc:
+        raise SceneError(f"scene {source}: car '{prefix}': {exc}") from None
+
+
+def _junction(m: mujoco.MjModel, d: mujoco.MjData, n: SceneNames, buildings: np.ndarray,
+              ego: CarGeometry, obstacle: CarGeometry) -> Layout:
+    """The layout from ``d``, the model at its reference configuration (names checked)."""
+
+    def site_pose(name: str) -> np.ndarray:
+        s = d.site(name)
+        return np.array([s.xpos[0], s.xpos[1], _yaw(s.xmat), 0.0])
+
+    def site_box(name: str) -> OrientedBox:
+        s = d.site(name)
+        return OrientedBox(np.array(s.xpos[:2]), _yaw(s.xmat), np.array(m.site(name).size[:2]))
+
+    def route(body: str) -> Polyline:
+        ids = np.flatnonzero(m.site_bodyid == m.body(body).id)
+        return Polyline(d.site_xpos[ids, :2].copy())
+
+    ids = buildings
+    xmat = d.geom_xmat[ids].reshape(-1, 3, 3)
+    size = m.geom_size[ids]
+    z = d.geom_xpos[ids, 2]
+    occluders = Occluders(names=tuple(m.geom(int(i)).name for i in ids),
+                          center=d.geom_xpos[ids, :2].copy(),
+                          heading=np.arctan2(xmat[:, 1, 0], xmat[:, 0, 0]),
+                          half=size[:, :2].copy(), bottom=z - size[:, 2], top=z + size[:, 2])
+    return Layout(route_ego=route(n.route_ego), route_left=route(n.route_left),
+                  route_right=route(n.route_right),
+                  conflict=np.array(d.site(n.conflict).xpos[:2], dtype=float),
+                  commit=np.array(d.site(n.commit).xpos[:2], dtype=float),
+                  stop_line=site_box(n.stop_line), ego_lane=site_box(n.ego_lane),
+                  ego_start=site_pose(n.ego_start), obstacle_start=site_pose(n.obstacle_start),
+                  occluders=occluders, ego=ego, obstacle=obstacle)
+
+
+def read_layout(model: mujoco.MjModel, names: SceneNames | None = None, *,
+                ego: CarGeometry | None = None, obstacle: CarGeometry | None = None,
+                source: str = "<model>") -> Layout:
+    """The junction's :class:`Layout` from any model, whatever its cars: routes, sites and
+    buildings by ``names`` at the model's reference configuration (``qpos0``), and the two
+    cars' dimensions, ``ego`` and ``obstacle``, as given (default: read from the model's
+    elements by :func:`car_geometry`, i.e. our car's conventions).
+
+    Nothing of a car is read when its geometry is given, so a user's own cars (free joint,
+    mocap, other structure) are fine. SceneError listing every problem of the junction
+    (:func:`cdf_mj.sim.checks.validate` with ``cars=False``), then a car's missing elements.
+    """
+    m, n = model, names or SceneNames()
+    reference = mujoco.MjData(m)
+    mujoco.mj_kinematics(m, reference)
+    validate(m, reference, n, source, cars=False)
+    if ego is None:
+        ego = car_geometry(m, n, n.ego_prefix, source)
+    if obstacle is None:
+        obstacle = car_geometry(m, n, n.obstacle_prefix, source)
+    buildings = np.array([i for i in range(m.ngeom)
+                          if (m.geom(i).name or "").startswith(n.building_prefix)], dtype=int)
+    try:
+        return _junction(m, reference, n, buildings, ego, obstacle)
+    except ValueError as exc:
+        raise SceneError(f"scene {source}: {' '.join(str(exc).split())}") from None
 
 
 @dataclass(frozen=True, eq=False)
@@ -72,6 +172,11 @@ class Scene:
         source: where the model came from, for error messages.
         data: the ``MjData`` to read poses from and step (default: a new one). Pass your
             own to watch a simulation that you step yourself (:meth:`from_model`).
+        drive: test-drive both cars once on a scratch ``MjData`` (about 2 ms): SceneError
+            if one does not move or steer when commanded (:func:`cdf_mj.sim.checks.check_drive`).
+            False for cars that are only observed.
+        compiler_degree: the source file's compiler reads angles in degrees, which is
+            refused (:meth:`load` reads it from the file; an ``MjModel`` does not keep it).
 
     The static geometry (:meth:`layout`) is read once, from the model at its reference
     configuration; poses are read from ``data`` on demand. SceneError lists every missing
@@ -79,13 +184,16 @@ class Scene:
     """
 
     def __init__(self, model: mujoco.MjModel, names: SceneNames | None = None,
-                 source: str = "<model>", data: mujoco.MjData | None = None) -> None:
+                 source: str = "<model>", data: mujoco.MjData | None = None, *,
+                 drive: bool = True, compiler_degree: bool = False) -> None:
         self.model = model
         self.names = n = names or SceneNames()
         self.source = source
         reference = mujoco.MjData(model)  # static geometry at qpos0
         mujoco.mj_kinematics(model, reference)
-        validate(model, reference, n, source)
+        validate(model, reference, n, source, compiler_degree=compiler_degree)
+        if drive:  # the code will drive these cars: each must move when commanded
+            check_drive(model, n, source)
         self.ego = self._car(n.ego_prefix)
         self.obstacle = self._car(n.obstacle_prefix)
         self.cars = {"ego": self.ego, "obstacle": self.obstacle}
@@ -118,24 +226,33 @@ class Scene:
         path = Path(path)
         if not path.is_file():
             raise SceneError(f"scene file not found: {path}")
-        try:
-            model = mujoco.MjModel.from_xml_path(str(path))
+        try:  # through MjSpec: the model does not keep the compiler's angle unit, the spec does
+            spec = mujoco.MjSpec.from_file(str(path))
+            model = spec.compile()
         except ValueError as exc:  # MuJoCo reports parse and compile errors as ValueError
             msg = " ".join(str(exc).split())
             raise SceneError(f"cannot load scene {path}: {msg}") from None
-        return cls(model, names, source=str(path))
+        return cls(model, names, source=str(path), compiler_degree=bool(spec.compiler.degree))
 
     @classmethod
     def from_model(cls, model: mujoco.MjModel, data: mujoco.MjData | None = None,
-                   names: SceneNames | None = None, source: str = "<model>") -> Scene:
+                   names: SceneNames | None = None, source: str = "<model>", *,
+                   drive: bool = True) -> Scene:
         """A scene over a model you compiled yourself (for example from an ``MjSpec`` with
         cars placed by :func:`cdf_mj.sim.spec.add_car`), reading poses from your ``data``.
 
         ``names`` says which elements are the cars, routes, lanes and sites
         (:class:`cdf_mj.config.SceneNames`; docs/SCENES.md lists them). SceneError lists
-        every missing or wrong element at once.
+        every missing or wrong element at once. ``drive=False`` skips the test drive of
+        the cars (:func:`cdf_mj.sim.checks.check_drive`) for a scene whose cars you only
+        observe, never drive through this scene.
         """
-        return cls(model, names, source=source, data=data)
+        return cls(model, names, source=source, data=data, drive=drive)
+
+    def substeps(self, dt: float) -> int:
+        """Physics steps per scenario tick of ``dt`` [s]: SceneError naming both numbers if
+        ``dt`` is not a whole multiple of the model's timestep."""
+        return substeps(float(self.model.opt.timestep), dt, self.source)
 
     def layout(self) -> Layout:
         """The junction's static geometry (routes, points, lanes, start poses, buildings,
@@ -145,57 +262,19 @@ class Scene:
 
     def _read_layout(self, d: mujoco.MjData) -> Layout:
         """The layout from ``d``, the model at its reference configuration."""
-        m, n = self.model, self.names
-
-        def site_pose(name: str) -> np.ndarray:
-            s = d.site(name)
-            return np.array([s.xpos[0], s.xpos[1], _yaw(s.xmat), 0.0])
-
-        def site_box(name: str) -> OrientedBox:
-            s = d.site(name)
-            return OrientedBox(np.array(s.xpos[:2]), _yaw(s.xmat), np.array(m.site(name).size[:2]))
-
-        def route(body: str) -> Polyline:
-            ids = np.flatnonzero(m.site_bodyid == m.body(body).id)
-            return Polyline(d.site_xpos[ids, :2].copy())
-
-        ids = self.buildings
-        xmat = d.geom_xmat[ids].reshape(-1, 3, 3)
-        size = m.geom_size[ids]
-        z = d.geom_xpos[ids, 2]
-        occluders = Occluders(names=tuple(m.geom(int(i)).name for i in ids),
-                              center=d.geom_xpos[ids, :2].copy(),
-                              heading=np.arctan2(xmat[:, 1, 0], xmat[:, 0, 0]),
-                              half=size[:, :2].copy(), bottom=z - size[:, 2], top=z + size[:, 2])
-        return Layout(route_ego=route(n.route_ego), route_left=route(n.route_left),
-                      route_right=route(n.route_right),
-                      conflict=np.array(d.site(n.conflict).xpos[:2], dtype=float),
-                      commit=np.array(d.site(n.commit).xpos[:2], dtype=float),
-                      stop_line=site_box(n.stop_line), ego_lane=site_box(n.ego_lane),
-                      ego_start=site_pose(n.ego_start), obstacle_start=site_pose(n.obstacle_start),
-                      occluders=occluders, ego=self.ego.geometry, obstacle=self.obstacle.geometry)
+        return _junction(self.model, d, self.names, self.buildings, self.ego.geometry,
+                         self.obstacle.geometry)
 
     def _car(self, prefix: str) -> Car:
         m, n = self.model, self.names
         body = m.body(prefix + n.chassis)
         joints = [m.joint(prefix + j) for j in n.planar_joints]
-        steer_joint = m.joint(prefix + n.steer)
+        steer_joint = m.joint(prefix + n.steer_joint)
         accel = m.actuator(prefix + n.accel)
         steer = m.actuator(prefix + n.steer)
-        hull = m.geom(prefix + n.hull)
         quat = body.quat
         frame_yaw = 2.0 * math.atan2(quat[3], quat[0])  # the chassis frame is level
-        try:
-            geometry = CarGeometry(
-                wheelbase=float(m.body(prefix + n.front_axle).pos[0]),
-                hull_offset=np.array(hull.pos[:2], dtype=float),
-                hull_half=np.array(hull.size[:2], dtype=float),
-                hull_height=float(hull.pos[2] + hull.size[2]),
-                eye_offset=np.array(m.site(prefix + n.eye).pos, dtype=float),
-                accel_range=(float(accel.ctrlrange[0]), float(accel.ctrlrange[1])),
-                steer_range=(float(steer.ctrlrange[0]), float(steer.ctrlrange[1])))
-        except ValueError as exc:
-            raise SceneError(f"scene {self.source}: car '{prefix}': {exc}") from None
+        geometry = car_geometry(m, n, prefix, self.source)
         return Car(
             prefix=prefix,
             body=body.id,
