@@ -95,6 +95,8 @@ def _spec_from_scratch(names: SceneNames = MY_NAMES, cars: bool = True) -> mujoc
     """A T-junction written with the MjSpec API only: 3.5 m lanes, one house, no XML."""
     spec = mujoco.MjSpec()
     spec.modelname = "from_scratch"
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST  # what our cars need
+    spec.option.timestep = 0.005
     world = spec.worldbody
     world.add_geom(name="ground", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[100, 100, 0.1],
                    contype=0, conaffinity=0)
@@ -130,11 +132,9 @@ def test_scene_from_scratch_gets_two_cars_and_the_filter():
     spec = _spec_from_scratch()
     model = spec.compile()
     data = mujoco.MjData(model)
-    assert model.opt.integrator == mujoco.mjtIntegrator.mjINT_IMPLICITFAST  # set by add_car
     monitor = attach(model, data, MY_NAMES, rng=0)
     # At rest where add_car put them: the poses the monitor reads are the placement poses.
-    mujoco.mj_forward(model, data)
-    np.testing.assert_allclose(monitor.scene.poses(),
+    np.testing.assert_allclose(monitor.step().poses,
                                [[-40, -1.75, 0, 0], [-1.75, 8.15, -math.pi / 2, 0]], atol=1e-9)
 
     # Our scenario drives both cars in the user's data (a cut-off seed found by search);
@@ -234,7 +234,7 @@ def test_bad_numbers_in_a_scene_are_listed_too():
     spec.actuator("av/accel").ctrlrange = [1.0, 3.0]  # cannot brake
     model = spec.compile()
     with pytest.raises(SceneError) as err:
-        attach(model, mujoco.MjData(model), MY_NAMES)
+        Scene.from_model(model, names=MY_NAMES)
     msg = str(err.value)
     for fragment in ("not finite numbers: site 'av_home'",
                      "body 'other_path_left': the route has two consecutive waypoints at the same place",

@@ -16,7 +16,8 @@ the x axis; poses ``[x, y, theta, v]`` of the rear axle with speed [m/s]. ::
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import dataclasses
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -55,8 +56,9 @@ class Layout:
         ego_start: ``(4,)`` the ego's nominal start pose (speed 0).
         obstacle_start: ``(4,)`` the obstacle's start pose (speed 0).
         occluders: the buildings that block sight lines.
-        ego: the ego car's dimensions and actuator limits.
-        obstacle: the obstacle car's dimensions and actuator limits.
+        ego: the ego car's dimensions and actuator limits (default: our car,
+            :meth:`CarGeometry.ours`).
+        obstacle: the obstacle car's dimensions and actuator limits (default: our car).
 
     Point and pose arrays are stored read-only; ValueError (one message listing every bad
     field) if one is not finite numbers of its shape or a field has the wrong type.
@@ -72,8 +74,8 @@ class Layout:
     ego_start: np.ndarray
     obstacle_start: np.ndarray
     occluders: Occluders
-    ego: CarGeometry
-    obstacle: CarGeometry
+    ego: CarGeometry = field(default_factory=CarGeometry.ours)
+    obstacle: CarGeometry = field(default_factory=CarGeometry.ours)
 
     def __post_init__(self) -> None:
         problems: list[str] = []
@@ -88,6 +90,12 @@ class Layout:
                                     f"got {type(getattr(self, name)).__name__}")
         if problems:
             raise ValueError(f"Layout: {'; '.join(problems)}")
+
+    def with_cars(self, ego: CarGeometry | None = None,
+                  obstacle: CarGeometry | None = None) -> Layout:
+        """This junction with other cars (``None`` keeps a car's geometry)."""
+        return dataclasses.replace(self, ego=ego if ego is not None else self.ego,
+                                   obstacle=obstacle if obstacle is not None else self.obstacle)
 
     @property
     def obstacle_routes(self) -> tuple[Polyline, Polyline]:

@@ -110,6 +110,40 @@ class CarGeometry:
         if bad:
             raise ValueError(f"CarGeometry: {'; '.join(bad)}")
 
+    @classmethod
+    def ours(cls) -> CarGeometry:
+        """Our car, ``models/xml/car.xml``, without reading it: 2.7 m wheelbase, a 4.6 m x
+        1.8 m x 1.45 m collision box from 0.95 m behind the rear axle, the eye 1.2 m ahead,
+        0.35 m left and 1.2 m up, braking 4.877 m/s^2 (16 ft/s^2), acceleration 3 m/s^2,
+        steering +-0.6 rad (tests/test_user_cars.py checks it against the file)."""
+        return cls(wheelbase=2.7, hull_offset=np.array([1.35, 0.0]), hull_half=np.array([2.3, 0.9]),
+                   hull_height=1.45, eye_offset=np.array([1.2, 0.35, 1.2]),
+                   accel_range=(-4.877, 3.0), steer_range=(-0.6, 0.6))
+
+    def to_dict(self) -> dict[str, float | list[float]]:
+        """JSON-serialisable view (lists of floats); :meth:`from_dict` reads it back."""
+        return {"wheelbase": self.wheelbase, "hull_offset": self.hull_offset.tolist(),
+                "hull_half": self.hull_half.tolist(), "hull_height": self.hull_height,
+                "eye_offset": self.eye_offset.tolist(), "accel_range": list(self.accel_range),
+                "steer_range": list(self.steer_range)}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, object]) -> CarGeometry:
+        """The geometry of a :meth:`to_dict` dict; ValueError naming a missing or unknown key,
+        or (from the constructor) every bad value."""
+        keys = ("wheelbase", "hull_offset", "hull_half", "hull_height", "eye_offset",
+                "accel_range", "steer_range")
+        if not isinstance(data, dict):
+            raise ValueError(f"CarGeometry: expected an object with keys {', '.join(keys)}, "
+                             f"got {type(data).__name__}")
+        missing = [k for k in keys if k not in data]
+        unknown = sorted(set(data) - set(keys))
+        if missing or unknown:
+            raise ValueError(f"CarGeometry: {'missing ' + ', '.join(missing) if missing else ''}"
+                             f"{'; ' if missing and unknown else ''}"
+                             f"{'unknown ' + ', '.join(unknown) if unknown else ''}")
+        return cls(**data)  # type: ignore[arg-type]  # the constructor checks every value
+
     @property
     def max_brake(self) -> float:
         """Maximum braking deceleration [m/s^2], positive."""

@@ -6,7 +6,15 @@
     spec = mujoco.MjSpec.from_file("my_junction.xml")   # roads, routes, sites, buildings
     add_car(spec, "ego_", pos=(-40.0, -1.85), yaw=0.0)
     add_car(spec, "obstacle_", pos=(-1.85, 8.35), yaw=-1.5708)
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST   # your choice: see below
     model = spec.compile()
+
+:func:`add_car` never changes the spec's options (``spec.option``): they are the whole
+model's. Our car needs what ``models/xml/scene.xml`` sets: the ``implicitfast`` (or
+``implicit``) integrator, because its speed servo and tyre dampers (gains 1e7 against
+1500 kg) are stiff for explicit Euler at the 5 ms timestep (models/xml/README.md), and a timestep
+that divides the 0.1 s tick (0.005 s in our scenes). Set them yourself if your model does
+not have them; the scene checks (:mod:`cdf_mj.sim.checks`) warn about the integrator.
 """
 
 from __future__ import annotations
@@ -32,16 +40,15 @@ _CAR_ELEMENT_KINDS = (("body", "bodies"), ("geom", "geoms"), ("site", "sites"), 
 
 def add_car(spec: mujoco.MjSpec, prefix: str, pos: tuple[float, float] = (0.0, 0.0),
             yaw: float = 0.0, paint: tuple[float, float, float, float] = (0.8, 0.8, 0.8, 1.0),
-            car_file: str | Path = CAR_XML, set_options: bool = True) -> mujoco.MjsBody:
+            car_file: str | Path = CAR_XML) -> mujoco.MjsBody:
     """Place our car (``models/xml/car.xml``) in your ``MjSpec`` and return its chassis.
 
     The car is attached to the worldbody at rear-axle position ``pos`` [m] (world x, y;
     z = 0 is the ground) with heading ``yaw`` [rad] from the world x axis, and every name
     in it gets ``prefix`` (``chassis`` becomes ``<prefix>chassis``, and so on; see
     :class:`cdf_mj.config.SceneNames`). A material ``<prefix>paint`` of colour ``paint``
-    (RGBA) is added unless the spec has one. With ``set_options`` the spec's integrator
-    becomes ``implicitfast`` and its timestep at most 0.005 s, which the car's stiff speed
-    servo and tyre dampers need to stay stable.
+    (RGBA) is added unless the spec has one. The spec's options (integrator, timestep) are
+    left as they are: our car needs ``implicitfast`` or ``implicit`` (module docstring).
 
     SceneError, before anything is added to ``spec``, if the car file cannot be read or has
     no ``chassis`` body, or if any prefixed name of the car is already in the spec;
@@ -75,8 +82,4 @@ def add_car(spec: mujoco.MjSpec, prefix: str, pos: tuple[float, float] = (0.0, 0
         spec.add_material(name=prefix + "paint", rgba=list(paint))
     frame = spec.worldbody.add_frame(pos=[x, y, 0.0],
                                      quat=[math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
-    body = frame.attach_body(car.body(chassis), prefix, "")
-    if set_options:
-        spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
-        spec.option.timestep = min(spec.option.timestep, 0.005)
-    return body
+    return frame.attach_body(car.body(chassis), prefix, "")
