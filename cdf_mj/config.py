@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["MAX_BRAKE", "CDFConfig", "ScenarioConfig", "SceneNames"]
+__all__ = ["MAX_BRAKE", "CDFConfig", "DriverPrior", "ScenarioConfig", "SceneNames"]
 
 #: Maximum braking of a passenger car on a moderate-friction road, 16 ft/s^2 [m/s^2].
 MAX_BRAKE = 16 * 0.3048
@@ -33,6 +33,17 @@ def _finite(*values: float) -> bool:
     return all(math.isfinite(v) for v in values)
 
 
+def _pair_ok(pair: Any, low: float, positive: bool = False) -> bool:
+    """Whether ``pair`` is a finite ``(lo, hi)`` of numbers with ``low <= lo <= hi``
+    (``lo > low`` where ``positive``)."""
+    try:
+        first, second = pair
+        lo, hi = float(first), float(second)
+    except (TypeError, ValueError):
+        return False
+    return _finite(lo, hi) and (lo > low if positive else lo >= low) and lo <= hi
+
+
 @dataclass(frozen=True)
 class SceneNames:
     """Names of the MJCF elements that the code reads. The only place Python spells them.
@@ -41,19 +52,26 @@ class SceneNames:
     Give your own to read a scene with other names, e.g.
     ``SceneNames(ego_prefix="av/", route_ego="av_path")``; docs/SCENES.md says what each
     element is used for. ValueError on an empty name or equal car prefixes.
+
+    What is read of a car depends on the use: a :class:`cdf_mj.sim.scene.Scene` (which
+    drives the cars) reads every car field; :func:`cdf_mj.scenario.monitor.attach` (which
+    only watches them) reads the ``chassis`` body's pose, plus ``front_axle``, ``hull``,
+    ``eye``, ``accel`` and ``steer`` for the car's dimensions only when no
+    :class:`cdf_mj.model.vehicle.CarGeometry` is given for it.
     """
 
     ego_prefix: str = "ego_"
     obstacle_prefix: str = "obstacle_"
-    chassis: str = "chassis"  # body, origin on the rear axle
-    front_axle: str = "front_axle"  # body; its x offset is the wheelbase
+    chassis: str = "chassis"  # body whose pose is the car's (origin on the rear axle in our car)
+    front_axle: str = "front_axle"  # body; its x offset is the wheelbase (not read with a CarGeometry)
     joint_x: str = "x"  # slide joint of the chassis along its frame's x [m]
     joint_y: str = "y"  # slide joint of the chassis along its frame's y [m]
     joint_yaw: str = "yaw"  # hinge joint of the chassis about z [rad]
-    hull: str = "hull"  # collision box of a car
-    eye: str = "eye"  # site: the driver's eye point
+    hull: str = "hull"  # geom: collision box of a car (not read with a CarGeometry)
+    eye: str = "eye"  # site: the driver's eye point (not read with a CarGeometry)
     accel: str = "accel"  # actuator [m/s^2]
-    steer: str = "steer"  # actuator [rad]
+    steer: str = "steer"  # actuator: steering command [rad]
+    steer_joint: str = "steer"  # hinge joint: the steering angle [rad] (reset by Scene)
     ego_start: str = "ego_start"  # site: rear-axle start pose of the ego
     obstacle_start: str = "obstacle_start"  # site: rear-axle start pose of the obstacle
     stop_line: str = "stop_line"  # site (box)
@@ -117,6 +135,22 @@ class ScenarioConfig:
     # minor road (HCM gives 6-7 s); any ego seen in this scenario is inside it.
     critical_gap: float = 5.0  # [s]
     passed_margin: float = 3.0  # [m] believed ego beyond the conflict point by this = gone
+    # Clearance in space: a believed ego nearer than this to the conflict point (and not
+    # past it by passed_margin) is never clear, whatever its speed. About two car lengths
+    # measured at the ego's rear axle: its 3.65 m nose plus the width the left-turner
+    # sweeps in the ego lane, with a margin. Without it a stopped ego a few metres before
+    # the conflict point has a time to arrive of ahead / 0.1 m/s = 45-65 s and looks clear.
+    clear_distance: float = 10.0  # [m]
+    # Dwell at the stop line: uniform (low, high) [s], drawn once per episode. t = 0 is
+    # the end of the obstacle's full stop in the paper's scenario (it pulls out at once;
+    # the calibration of the commit point and of the ego's start assumes it), so the
+    # default is (0, 0); a driver at a stop sign typically waits 0.5-2 s after stopping
+    # (the stop-and-wait preset).
+    stop_dwell: tuple[float, float] = (0.0, 0.0)
+    # P(the driver looks once more, on the tick it would leave the line, and sees the ego
+    # if it is in its line of sight), on top of the beta draw. 0 keeps the paper's
+    # observation process (beta alone); a careful driver at a stop sign: about 0.5.
+    departure_look: float = 0.0
     lookahead: float = 3.0  # [m] pure-pursuit look-ahead at standstill
     lookahead_gain: float = 0.3  # [s] look-ahead grows with speed: L = lookahead + gain * v
 
@@ -144,6 +178,12 @@ class ScenarioConfig:
         lo, hi = self.ego_start_spread
         _check(_finite(lo, hi) and lo <= hi, "ego_start_spread", self.ego_start_spread,
                "a finite (low, high) pair with low <= high [m]")
+        _check(_pair_ok(self.stop_dwell, 0.0), "stop_dwell", self.stop_dwell,
+               "a finite (low, high) pair with 0 <= low <= high [s]")
+        _check(_finite(self.departure_look) and 0.0 <= self.departure_look <= 1.0,
+               "departure_look", self.departure_look, "in [0, 1]")
+        _check(_finite(self.clear_distance) and self.clear_distance >= 0, "clear_distance",
+               self.clear_distance, ">= 0 [m]")
 
     @property
     def n_ticks(self) -> int:
@@ -156,6 +196,46 @@ class ScenarioConfig:
 
     def to_dict(self) -> dict:
         """JSON-serialisable view, for records and result directories."""
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True)
+class DriverPrior:
+    """The CDF filter's own model of the other driver: priors, not the world's values.
+
+    Each particle draws its own parameters at reset (uniform on ``(low, high)``; the
+    departure hazard log-uniform), so the filter covers plausible drivers and survives a
+    world whose driver differs from its defaults. A pair with ``low == high`` fixes a
+    value. ValueError on a range that is not a finite ``(low, high)`` with
+    ``low <= high`` inside the field's domain.
+    """
+
+    p_left: float = 0.75  # prior P(intent = left), the paper's 0.75
+    beta: tuple[float, float] = (0.03, 0.07)  # [1/tick] P(observes a visible ego); paper 0.05
+    critical_gap: tuple[float, float] = (4.0, 7.0)  # [s] accepted gap (HCM: 6-7 s for a left turn)
+    accel: tuple[float, float] = (1.5, 3.0)  # [m/s^2] pulling-out acceleration (car limit 3.0)
+    turn_speed: tuple[float, float] = (6.0, 10.0)  # [m/s] cruise speed through the turn
+    yield_brake: tuple[float, float] = (3.0, 5.0)  # [m/s^2] braking when it yields
+    clear_distance: tuple[float, float] = (7.0, 13.0)  # [m] a nearer ego is never clear
+    # Departure hazard [1/s]: a driver waiting at the line whose belief says clear leaves
+    # with this rate (memoryless; per tick 1 - exp(-h dt)), so a standing car stays
+    # explained by "still waiting" and the going and right-turn hypotheses live on. Mean
+    # dwell 1/h: 0.25 s (pulls out at once) to 2.5 s (waits); log-uniform.
+    departure_hazard: tuple[float, float] = (0.4, 4.0)
+
+    def __post_init__(self) -> None:
+        _check(_finite(self.p_left) and 0.0 <= self.p_left <= 1.0, "DriverPrior.p_left",
+               self.p_left, "in [0, 1]")
+        _check(_pair_ok(self.beta, 0.0) and self.beta[1] <= 1.0, "DriverPrior.beta", self.beta,
+               "a (low, high) pair with 0 <= low <= high <= 1")
+        for name in ("critical_gap", "accel", "turn_speed", "yield_brake", "departure_hazard"):
+            _check(_pair_ok(getattr(self, name), 0.0, positive=True), f"DriverPrior.{name}",
+                   getattr(self, name), "a finite (low, high) pair with 0 < low <= high")
+        _check(_pair_ok(self.clear_distance, 0.0), "DriverPrior.clear_distance",
+               self.clear_distance, "a finite (low, high) pair with 0 <= low <= high [m]")
+
+    def to_dict(self) -> dict:
+        """JSON-serialisable view."""
         return dataclasses.asdict(self)
 
 
@@ -189,8 +269,50 @@ class CDFConfig:
     reinit_mahalanobis: float = 12.0
     # Filter process noise = this factor x the scenario's (a little wider than the truth).
     process_noise_scale: float = 1.5
+    # The filter's own driver model (priors of its parameters), not the world's.
+    prior: DriverPrior = field(default_factory=lambda: DriverPrior())
+    # Rejuvenation of the discrete state, so that no hypothesis dies for good:
+    # per tick, a driver that is not committed jumps with this probability: held back
+    # (waiting, yielding) -> going, disregarding what it saw; going -> yielding (one tick).
+    mode_jump: float = 0.005  # [1/tick]
+    # After each resampling this fraction of the particles still held back (waiting,
+    # yielding) redraw their intent from the prior, so that while the car stands
+    # P(right) and P(left) stay above a floor of about this fraction x prior.
+    intent_floor: float = 0.02
+    # When every likelihood vanishes, redraw the discrete state (intent, mode, seen) and
+    # the driver parameters from the prior around the measurement (True), or keep the
+    # particles' discrete hypotheses and move their poses only (False, the old filter).
+    reinit_redraw: bool = True
+    # After each resampling the particles' continuous driver parameters move by a Gaussian
+    # of std = this fraction of each prior range (kept inside it), so that they do not
+    # collapse onto one ancestor's values (seen: every particle's turn speed 9.1 m/s
+    # against the world's 8, 3 m ahead after 7 s, then a re-initialisation).
+    param_jitter: float = 0.02
+    # The ego's braking [m/s^2] and reaction latency [s] in the filter's prediction: a
+    # going left-turner's looks count only until the ego's last chance to stop short of
+    # its path. None: the layout's ego car (actuator `accel`'s lower bound). Latency 0:
+    # here a decision brakes within the same 0.1 s tick.
+    ego_brake: float | None = None
+    ego_latency: float = 0.0
 
     def __post_init__(self) -> None:
+        if isinstance(self.prior, dict):  # read back from JSON (settings.json): lists -> pairs
+            raw: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in self.prior.items()}
+            object.__setattr__(self, "prior", DriverPrior(**raw))
+        _check(isinstance(self.prior, DriverPrior), "prior", self.prior, "a DriverPrior")
+        _check(_finite(self.mode_jump) and 0.0 <= self.mode_jump <= 0.5, "mode_jump",
+               self.mode_jump, "in [0, 0.5] [1/tick]")
+        _check(_finite(self.intent_floor) and 0.0 <= self.intent_floor <= 1.0, "intent_floor",
+               self.intent_floor, "in [0, 1]")
+        _check(isinstance(self.reinit_redraw, bool), "reinit_redraw", self.reinit_redraw,
+               "True or False")
+        _check(_finite(self.param_jitter) and 0.0 <= self.param_jitter <= 1.0, "param_jitter",
+               self.param_jitter, "in [0, 1] (a fraction of each prior range)")
+        _check(self.ego_brake is None or (isinstance(self.ego_brake, (int, float))
+                                          and _finite(self.ego_brake) and self.ego_brake > 0),
+               "ego_brake", self.ego_brake, "None (the ego car's) or > 0 [m/s^2]")
+        _check(_finite(self.ego_latency) and self.ego_latency >= 0, "ego_latency",
+               self.ego_latency, ">= 0 [s]")
         _check(isinstance(self.n_particles, int) and not isinstance(self.n_particles, bool)
                and self.n_particles >= 1, "n_particles",
                self.n_particles, "an integer >= 1")

@@ -10,21 +10,27 @@ dead-reckoned at the believed speed.
 Modes (``Mode``):
 
 ========== ===========================================================================
-WAITING    at the stop line; goes as soon as its belief says the road is clear
+WAITING    at the stop line; goes once its stop is over (``may_go``: the world's dwell
+           has elapsed, or the filter's departure-hazard draw) and its belief says clear
 GOING      pulling out along its route; yields if its belief says not clear
 YIELDING   braking (then stopped); goes again once its belief says clear
 COMMITTED  past the commit point: keeps going whatever it believes
 ========== ===========================================================================
 
-"Clear" for a left-turner: no belief, or the believed ego is past the conflict point,
-or the believed ego needs more than the critical gap [s] to reach it. A right-turner
+"Clear" for a left-turner: no belief, or the believed ego is past the conflict point
+(by ``passed_margin``), or the believed ego is further than ``clear_distance`` [m] from
+the conflict point *and* needs more than the critical gap [s] to reach it. A right-turner
 does not cross the ego's lane and is always clear.
+
+The behaviour of a driver is a :class:`DriverParams`: floats for the simulated obstacle
+(``DriverParams.from_config``), ``(N,)`` arrays for the filter's particles, each of which
+draws its own from the filter's prior (:class:`cdf_mj.config.DriverPrior`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from enum import IntEnum
 
 import numpy as np
@@ -36,6 +42,7 @@ from cdf_mj.model.vehicle import CarGeometry
 
 __all__ = [
     "DriverModel",
+    "DriverParams",
     "Intent",
     "Mode",
     "bicycle_step",
@@ -78,6 +85,11 @@ class DriverModel:
     max_accel: float  # [m/s^2]
     config: ScenarioConfig
 
+    @property
+    def params(self) -> DriverParams:
+        """The scenario's driver behaviour (floats), the default of the driver functions."""
+        return DriverParams.from_config(self.config)
+
     @classmethod
     def from_layout(cls, layout: Layout, config: ScenarioConfig) -> DriverModel:
         """The drivers of a junction: routes, conflict and commit points of ``layout``,
@@ -88,6 +100,38 @@ class DriverModel:
         return cls(routes=routes, route_ego=layout.route_ego, s_commit=s_commit,
                    conflict=layout.conflict, wheelbase=car.wheelbase, max_steer=car.max_steer,
                    max_brake=car.max_brake, max_accel=car.max_accel, config=config)
+
+
+@dataclass(frozen=True)
+class DriverParams:
+    """A driver's behaviour: floats (one driver) or ``(N,)`` arrays (one per particle)."""
+
+    accel: float | np.ndarray  # [m/s^2] pulling-out acceleration
+    turn_speed: float | np.ndarray  # [m/s] cruise speed through and after the turn
+    yield_brake: float | np.ndarray  # [m/s^2] braking when it yields, positive
+    critical_gap: float | np.ndarray  # [s] the believed ego's time to arrive must exceed it
+    clear_distance: float | np.ndarray  # [m] a believed ego nearer the conflict point is never clear
+
+    @classmethod
+    def from_config(cls, config: ScenarioConfig) -> DriverParams:
+        """The simulated obstacle's behaviour: the scenario's values."""
+        return cls(accel=config.obstacle_accel, turn_speed=config.obstacle_turn_speed,
+                   yield_brake=config.obstacle_yield_brake, critical_gap=config.critical_gap,
+                   clear_distance=config.clear_distance)
+
+    def take(self, rows: np.ndarray) -> DriverParams:
+        """The parameters of the particles ``rows`` (arrays only; floats are shared)."""
+        return DriverParams(**{f.name: (v[rows] if isinstance(v := getattr(self, f.name), np.ndarray) else v)
+                               for f in fields(self)})
+
+    def put(self, rows: np.ndarray, other: DriverParams) -> DriverParams:
+        """A copy whose ``rows`` take ``other``'s values (arrays of ``len(rows)``)."""
+        out = {}
+        for f in fields(self):
+            v = np.array(getattr(self, f.name), dtype=float, copy=True)
+            v[rows] = getattr(other, f.name)
+            out[f.name] = v
+        return DriverParams(**out)
 
 
 def bicycle_step(x: np.ndarray, u: np.ndarray, dt: float, wheelbase: float) -> np.ndarray:
@@ -147,20 +191,27 @@ def _project_by_intent(model: DriverModel, xy: np.ndarray, intent: np.ndarray) -
 
 
 def road_clear(model: DriverModel, belief: np.ndarray, has_belief: np.ndarray,
-               intent: np.ndarray) -> np.ndarray:
-    """Whether each driver believes it may pull out (see the module docstring)."""
-    cfg = model.config
+               intent: np.ndarray, params: DriverParams | None = None) -> np.ndarray:
+    """Whether each driver believes it may pull out (see the module docstring).
+
+    ``params`` gives the critical gap [s] and clear distance [m] (float or ``(N,)``);
+    default: the model's scenario. An ego nearer than the clear distance is never clear,
+    so a slow or stopped ego near the conflict point (time to arrive ``ahead / v`` long)
+    is not taken for a gap.
+    """
+    p = params or model.params
     dx = model.conflict[0] - belief[..., 0]
     dy = model.conflict[1] - belief[..., 1]
     ahead = dx * np.cos(belief[..., 2]) + dy * np.sin(belief[..., 2])  # [m] to the conflict
-    passed = ahead < -cfg.passed_margin
-    tta = ahead / np.maximum(belief[..., 3], 0.1)  # [s] believed time to arrive
-    clear: np.ndarray = (~has_belief) | passed | (tta > cfg.critical_gap) | (intent == _RIGHT)
+    passed = ahead < -model.config.passed_margin
+    far = (ahead > p.clear_distance) & (ahead > p.critical_gap * np.maximum(belief[..., 3], 0.0))
+    clear: np.ndarray = (~has_belief) | passed | far | (intent == _RIGHT)
     return clear
 
 
 def obstacle_control(model: DriverModel, pose: np.ndarray, mode: np.ndarray, belief: np.ndarray,
-                     has_belief: np.ndarray, intent: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                     has_belief: np.ndarray, intent: np.ndarray, params: DriverParams | None = None,
+                     may_go: np.ndarray | bool = True) -> tuple[np.ndarray, np.ndarray]:
     """The obstacle driver ``h(x1, B, I)`` for ``N`` samples at once.
 
     Args:
@@ -169,19 +220,23 @@ def obstacle_control(model: DriverModel, pose: np.ndarray, mode: np.ndarray, bel
         belief: ``(N, 4)`` believed ego pose (ignored where ``has_belief`` is false).
         has_belief: ``(N,)`` whether the driver has ever seen the ego.
         intent: ``(N,)`` :class:`Intent`.
+        params: behaviour, floats or ``(N,)`` arrays (default: the model's scenario).
+        may_go: ``(N,)`` or one bool: whether a WAITING driver's stop is over on this tick
+            (it then goes if its belief says clear); yielding drivers go again when clear.
 
     Returns:
         ``u`` ``(N, 2)`` = [acceleration m/s^2, steering rad] without process noise, and the
         new mode ``(N,)``.
     """
     cfg = model.config
+    p = params or model.params
     s = _project_by_intent(model, pose[:, :2], intent)
-    clear = road_clear(model, belief, has_belief, intent)
+    clear = road_clear(model, belief, has_belief, intent, p)
     past_commit = s >= model.s_commit[intent]
 
     new = mode.copy()
     going = mode == _GOING
-    new[((mode == _WAITING) | (mode == _YIELDING)) & clear] = _GOING
+    new[(((mode == _WAITING) & may_go) | (mode == _YIELDING)) & clear] = _GOING
     new[(new == _GOING) & past_commit] = _COMMITTED  # before yielding: past it, no yield
     new[going & ~clear & ~past_commit] = _YIELDING
 
@@ -189,8 +244,11 @@ def obstacle_control(model: DriverModel, pose: np.ndarray, mode: np.ndarray, bel
     u = np.empty((len(v), 2))
     accel = u[:, 0]
     # Moving (going or committed): towards the turn speed within the car's limits.
-    np.clip((cfg.obstacle_turn_speed - v) / cfg.dt, -model.max_brake, cfg.obstacle_accel, out=accel)
-    accel[new == _YIELDING] = -cfg.obstacle_yield_brake
+    np.clip((p.turn_speed - v) / cfg.dt, -model.max_brake, p.accel, out=accel)
+    yielding = new == _YIELDING
+    if yielding.any():
+        brake = p.yield_brake
+        accel[yielding] = -(brake[yielding] if isinstance(brake, np.ndarray) else brake)
     accel[new == _WAITING] = -model.max_brake
 
     lookahead = cfg.lookahead + cfg.lookahead_gain * v

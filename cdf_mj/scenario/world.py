@@ -21,7 +21,7 @@ import numpy as np
 import shapely
 
 from cdf_mj.config import ScenarioConfig
-from cdf_mj.model.driver import DriverModel, Intent, Mode, obstacle_control, update_belief
+from cdf_mj.model.driver import DriverModel, Intent, Mode, obstacle_control, road_clear, update_belief
 from cdf_mj.sim.scene import Scene, SimulationDivergedError
 from cdf_mj.sim.visibility import ego_visible
 
@@ -29,6 +29,7 @@ __all__ = ["Measurement", "NonFiniteStateError", "Tick", "World"]
 
 
 _HELD_BACK = frozenset((int(Mode.YIELDING), int(Mode.WAITING)))  # plain ints: a cheap test per tick
+_MOVING = frozenset((int(Mode.GOING), int(Mode.COMMITTED)))
 
 
 class NonFiniteStateError(FloatingPointError):
@@ -64,7 +65,9 @@ class Tick:
 
 def _streams(seed: int) -> dict[str, np.random.Generator]:
     ss = np.random.SeedSequence(seed)
-    names = ("scenario", "obstacle", "ego", "planner")
+    # Children of a SeedSequence depend on their index only: "departure" (added later) leaves
+    # the first four streams, and so every earlier seed's draws, as they were.
+    names = ("scenario", "obstacle", "ego", "planner", "departure")
     return {n: np.random.Generator(np.random.PCG64(s)) for n, s in zip(names, ss.spawn(len(names)), strict=True)}
 
 
@@ -86,10 +89,16 @@ class World:
     machine gives its controls; both cars' controls get the scenario's process noise;
     MuJoCo steps ``dt / timestep`` physics steps, stopping at the ego's first contact.
 
+    Stop line: the obstacle starts at rest at its stop line and waits ``dwell`` [s]
+    (drawn per episode from ``config.stop_dwell``) before it may go; on the tick it would
+    leave, it looks once more with probability ``config.departure_look`` (and sees the ego
+    if it is in its line of sight), on top of the beta draw.
+
     Randomness: ``reset(seed)`` splits the seed into independent streams (``rng``:
-    ``scenario``, ``obstacle``, ``ego``, ``planner``), each drawn the same way whatever
-    the ego does (common random numbers). The ``planner`` stream is not used here; it is
-    for the ego's decision maker.
+    ``scenario``, ``obstacle``, ``ego``, ``planner``, ``departure``), each drawn the same
+    way whatever the ego does (common random numbers). The ``planner`` stream is not used
+    here; it is for the ego's decision maker. The dwell is drawn from ``scenario`` after
+    the intent and the ego's start, so these stay the same per seed whatever the dwell.
 
     Args:
         scene: the loaded scene (its model is not changed; its data is).
@@ -99,8 +108,9 @@ class World:
     Attributes: ``scene``, ``config``, ``layout`` (``scene.layout()``), ``driver`` (the
     obstacle's :class:`~cdf_mj.model.driver.DriverModel`). After :meth:`reset` (updated by
     :meth:`step`): ``seed``, ``intent`` (:class:`cdf_mj.model.driver.Intent`),
-    ``ego_start_offset`` [m], ``first_seen`` [s], ``yielded``, ``entered_lane`` [s], ``min_gap`` [m], ``collision``
-    (``"obstacle"``/``"building"``/``None``), ``collision_time`` [s], ``done`` and
+    ``ego_start_offset`` [m], ``dwell`` [s], ``departed`` [s] (when it left the line,
+    else ``None``), ``first_seen`` [s], ``yielded``, ``entered_lane`` [s], ``min_gap`` [m],
+    ``collision`` (``"obstacle"``/``"building"``/``None``), ``collision_time`` [s], ``done`` and
     ``end_reason`` (``None`` while running, then ``"collision"``, ``"passed"``: the ego's
     rear axle 20 m past the conflict point, or ``"duration"``).
     """
@@ -131,6 +141,8 @@ class World:
         self.ego_start_offset = offset = float(rng["scenario"].uniform(*config.ego_start_spread))
         route = layout.route_ego
         xy0 = route.point_at(self._s0 + offset)
+        # Drawn after the draws above, so that intent and ego start stay the same per seed.
+        self.dwell = float(rng["scenario"].uniform(*config.stop_dwell))
         ahead = route.point_at(self._s0 + offset + 1.0)
         heading0 = math.atan2(ahead[1] - xy0[1], ahead[0] - xy0[0])
         scene.reset(ego=np.array([xy0[0], xy0[1], heading0, config.ego_speed]),
@@ -140,6 +152,7 @@ class World:
         self._has_belief = np.zeros(1, dtype=bool)
         self._intents = np.array([int(self.intent)])
         self.first_seen: float | None = None
+        self.departed: float | None = None
         self.yielded = False
         self.entered_lane: float | None = None
         self.min_gap = math.inf
@@ -205,19 +218,33 @@ class World:
         noise = rng["obstacle"].standard_normal(4) * self._obs_std
         nu1 = rng["obstacle"].standard_normal(2) * self._nu_std
         nu2 = rng["ego"].standard_normal(2) * self._nu_std
+        u_depart = rng["departure"].random()
         observed = bool(u_look < config.beta) and ego_visible(scene, obs, ego)
         self._belief, self._has_belief = update_belief(
             self._belief, self._has_belief, np.array([observed]), (ego + noise)[None], dt,
             layout.obstacle.wheelbase)
+        may_go = t >= self.dwell - 1e-9
+        if (not observed and may_go and u_depart < config.departure_look
+                and int(self._mode[0]) == Mode.WAITING
+                and road_clear(self.driver, self._belief, self._has_belief, self._intents)[0]
+                and ego_visible(scene, obs, ego)):
+            # It would leave now: it looks once more, and sees the ego.
+            observed = True
+            self._belief, self._has_belief = update_belief(
+                self._belief, self._has_belief, np.array([True]), (ego + noise)[None], dt,
+                layout.obstacle.wheelbase)
         if observed and self.first_seen is None:
             self.first_seen = t
 
         # The obstacle decides.
         u1, self._mode = obstacle_control(self.driver, obs[None], self._mode, self._belief,
-                                          self._has_belief, self._intents)
+                                          self._has_belief, self._intents, may_go=may_go)
         mode = int(self._mode[0])
-        # Held back by what it believes: braking to yield, or still waiting after its first look.
-        self.yielded |= mode in _HELD_BACK
+        if mode in _MOVING and self.departed is None:
+            self.departed = t
+        # Held back by what it believes: braking to yield, or still waiting once its dwell
+        # is over (waiting out the dwell itself is not yielding).
+        self.yielded |= mode in _HELD_BACK and (may_go or mode != Mode.WAITING)
         if m.obstacle_in_lane and self.entered_lane is None:
             self.entered_lane = t
         hulls = shapely.polygons(np.stack([layout.ego.footprint(ego), self._hull]))  # one call for both
