@@ -46,8 +46,10 @@ from cdf_mj.experiments.runner import WorkerDiedError
 from cdf_mj.experiments.store import json_default, locked
 from cdf_mj.extras import install_hint
 from cdf_mj.planners.base import PLANNERS
+from cdf_mj.presets import preset_names, read_preset
 from cdf_mj.records import RECORDS_FILE
 from cdf_mj.scenario.episode import run_episode
+from cdf_mj.sim.checks import read_names
 from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
 
 __all__ = ["CLIError", "add_scenario_arguments", "build_parser", "config_from_args", "main", "parse_overrides",
@@ -99,9 +101,18 @@ def _non_negative_int(text: str) -> int:
 
 
 def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
-    """Add ``--scene PATH`` and repeatable ``--set key=value`` (read by the helpers below)."""
+    """Add ``--scene PATH``, ``--preset NAME`` and repeatable ``--set key=value`` (read by
+    the helpers below)."""
     parser.add_argument("--scene", metavar="PATH", default=DEFAULT_SCENE,
                         help="MJCF scene file (default: models/xml/scene.xml)")
+    parser.add_argument("--names", metavar="FILE", default=None,
+                        help="the scene's element names: a .json or .toml object whose keys are "
+                             "SceneNames fields, e.g. {\"ego_prefix\": \"av/\", \"route_ego\": "
+                             "\"av_path\"}; fields not given keep their defaults (docs/SCENES.md)")
+    parser.add_argument("--preset", metavar="NAME", default=None,
+                        help="start from a scenario preset (cdf-mj presets lists them: "
+                             f"{', '.join(preset_names())}) or a .toml file of your own; "
+                             "--set applies after it")
     parser.add_argument("--set", dest="overrides", metavar="KEY=VALUE", action="append",
                         default=[],
                         help="override a ScenarioConfig field, e.g. beta=0.1 or "
@@ -155,8 +166,14 @@ def parse_overrides(items: Iterable[str]) -> dict[str, Any]:
 
 
 def config_from_args(args: argparse.Namespace) -> ScenarioConfig:
-    """The default ScenarioConfig with the ``--set`` overrides applied (validated)."""
-    return ScenarioConfig(**parse_overrides(args.overrides))  # ValueError names field and range
+    """The ScenarioConfig of ``--preset`` (default: the defaults) with the ``--set``
+    overrides applied after it (validated), and the scene names of ``--names FILE``."""
+    preset = getattr(args, "preset", None)
+    base = read_preset(preset).config() if preset else ScenarioConfig()  # PresetError: one line
+    names_file = getattr(args, "names", None)
+    if names_file is not None:
+        base = base.replace(names=read_names(names_file))  # SceneError: one line naming the file
+    return base.replace(**parse_overrides(args.overrides))  # ValueError names field and range
 
 
 def scene_from_args(args: argparse.Namespace, config: ScenarioConfig) -> Scene:
@@ -406,9 +423,29 @@ def _add_sweep(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_cmd_sweep)
 
 
+def _cmd_render_trace(args: argparse.Namespace) -> int:
+    from cdf_mj.viz.trace import render_trace
+
+    unused = [flag for flag, given in (("--set", args.overrides), ("--preset", args.preset),
+                                       ("--camera", args.camera != "top")) if given]
+    if unused:
+        raise CLIError(f"{', '.join(unused)}: not used with --trace (the trace holds the "
+                       "episode; the camera is the scene's 'top' or one added over the junction)")
+    names = read_names(args.names) if args.names is not None else None
+    result = render_trace(args.trace, args.scene, args.out, names=names, width=args.width,
+                          height=args.height, fps=args.fps, frame_time=args.frame)
+    what = (f"{result.n_frames} frames, {result.duration:.2f} s of the trace at "
+            f"{result.frames_per_second:g} fps" if result.n_frames > 1
+            else f"the frame at {result.duration:.2f} s")
+    print(f"wrote {result.path}: {what} ({result.backend}); brake {result.brake_time}")
+    return 0
+
+
 def _cmd_render(args: argparse.Namespace) -> int:
     from cdf_mj.viz.render import render_episode
 
+    if args.trace is not None:
+        return _cmd_render_trace(args)
     config = config_from_args(args)
     scene = scene_from_args(args, config)
     cdf = cdf_from_args(args)
@@ -434,10 +471,17 @@ def _add_render(subparsers: argparse._SubParsersAction) -> None:
                     "osmesa) at a constant frame rate in simulated time, with the obstacle's "
                     "isovist, the CDF's particles, the braking moment and P(left), P(seen), "
                     "P(cutoff) drawn in. The suffix of --out chooses MP4, GIF or PNG (--frame). "
+                    "With --trace FILE it draws your own episode instead: a trace that "
+                    "CDFMonitor.save_trace wrote, over --scene (your junction's MJCF; --names "
+                    "for its names, default those in the trace), both cars' boxes and the "
+                    "posterior panel; --seed, --planner and the CDF options are then not used. "
                     f"Needs imageio and Pillow ({install_hint('viz')}).")
     p.add_argument("--seed", type=_non_negative_int, default=7, help="episode seed (default 7)")
     p.add_argument("--planner", choices=sorted(PLANNERS), default="cdf", help="ego planner (default cdf)")
     p.add_argument("--out", required=True, help="output file: .mp4, .gif, or .png with --frame")
+    p.add_argument("--trace", metavar="FILE", default=None,
+                   help="draw a monitor trace (CDFMonitor.save_trace, JSON lines) over --scene "
+                        "instead of running an episode; --frame T is seconds from its first tick")
     p.add_argument("--camera", default="top",
                    help="camera of the scene: top, ego_chase or obstacle_chase (default top)")
     p.add_argument("--width", type=int, default=640, help="image width [px], even (default 640)")
@@ -553,10 +597,42 @@ def _add_bench(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_cmd_bench)
 
 
+def _cmd_presets(args: argparse.Namespace) -> int:
+    if args.name is None:
+        names = preset_names()
+        width = max(map(len, names))
+        for name in names:
+            print(f"{name:<{width}}  {read_preset(name).summary}")
+        print(f"\n'{PROG} presets NAME' shows the settings of one; "
+              f"'{PROG} experiment --preset NAME' runs it.")
+        return 0
+    preset = read_preset(args.name)  # PresetError: one line
+    preset.config()  # values in range
+    print(f"{preset.name}: {preset.description}\nsource: {preset.source}")
+    changes = preset.changes()
+    if not changes:
+        print("the default ScenarioConfig: no field changed")
+    for key, (default, value) in changes.items():
+        print(f"  {key} = {json.dumps(value)}  (default {json.dumps(default)})")
+    return 0
+
+
+def _add_presets(subparsers: argparse._SubParsersAction) -> None:
+    p = _command(
+        subparsers, "presets", summary="list the scenario presets (--preset NAME), or show one",
+        description="List the named scenario presets that --preset takes, each a driver (or "
+                    "ego) that differs from the defaults in one trait; with NAME (or a .toml "
+                    "file of your own), print the ScenarioConfig fields it changes. The CDF "
+                    "keeps its own defaults under every preset.")
+    p.add_argument("name", nargs="?", default=None, metavar="NAME",
+                   help="a preset name or the path of a .toml preset file")
+    p.set_defaults(func=_cmd_presets)
+
+
 #: In the order of the list of commands: a newcomer's first steps first.
 _SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [_add_reproduce, _add_episode, _add_experiment,
-                                                                    _add_sweep, _add_render, _add_report,
-                                                                    _add_bench]
+                                                                    _add_presets, _add_sweep, _add_render,
+                                                                    _add_report, _add_bench]
 
 
 # ----------------------------------------------------------------- entry point

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from cli_helpers import assert_one_line_error, run_cli
 
 from cdf_mj import cli
 from cdf_mj.extras import install_hint
@@ -18,23 +19,6 @@ from cdf_mj.records import EpisodeRecord
 
 REPO = Path(__file__).resolve().parent.parent
 RECORD_KEYS = {f.name for f in dataclasses.fields(EpisodeRecord)}
-
-
-def run_cli(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, str, str]:
-    status = cli.main(list(argv))
-    out, err = capsys.readouterr()
-    return status, out, err
-
-
-def assert_one_line_error(status: int, out: str, err: str, *needles: str) -> None:
-    assert status == 2
-    assert out == ""
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    assert lines[0].startswith("cdf-mj: error: ")
-    assert "Traceback" not in err
-    for needle in needles:
-        assert needle in lines[0], (needle, lines[0])
 
 
 def test_episode_prints_record_as_json(capsys):
@@ -105,7 +89,7 @@ def test_no_command_lists_every_command_on_one_line(capsys):
     status, out, err = run_cli(capsys)
     assert status == 0 and err == ""
     commands = [line.split()[0] for line in out.split("commands:\n")[1].split("\n\n")[0].splitlines()]
-    assert commands == ["reproduce", "episode", "experiment", "sweep", "render", "report", "bench"]
+    assert commands == ["reproduce", "episode", "experiment", "presets", "sweep", "render", "report", "bench"]
     assert "cdf-mj COMMAND --help" in out
     # the same list with --debug alone: a flag is not a command
     assert run_cli(capsys, "--debug")[1] == out

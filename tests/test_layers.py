@@ -25,7 +25,7 @@ import cdf_mj
 
 PACKAGE = Path(cdf_mj.__file__).resolve().parent
 LAYERS: list[set[str]] = [
-    {"config", "records", "extras"},
+    {"config", "records", "extras", "presets"},
     {"model"},
     {"sim"},
     {"inference"},

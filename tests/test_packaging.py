@@ -98,6 +98,8 @@ def test_the_wheel_holds_the_package_the_mjcf_files_and_the_licence(wheel):
     assert {"cdf_mj/assets/README.md", "cdf_mj/py.typed", "cdf_mj/__main__.py",
             f"{dist_info}/licenses/LICENSE"} <= names
     assert len(MJCF) >= 5  # car, intersection, scene and the four-way pair
+    presets = {path.relative_to(REPO).as_posix() for path in (REPO / "cdf_mj" / "presets").glob("*.toml")}
+    assert len(presets) >= 5 and presets - names == set(), "preset files missing from the wheel"
     assert not any(n.startswith(("tests/", "scripts/", "docs/", "models/")) for n in names)
     assert "License-Expression: Apache-2.0" in metadata
     assert "cdf-mj = cdf_mj.cli:main" in entry_points
@@ -118,6 +120,14 @@ def test_the_installed_command_runs_an_episode_like_the_checkout(venv, elsewhere
     assert record["seed"] == 1 and record["label"] in {"Cutoff", "Yield", "Right"}
     checkout = _run([sys.executable, "-m", "cdf_mj", "episode", "--seed", "1"], cwd=REPO)
     assert installed.stdout == checkout.stdout
+
+
+def test_the_installed_command_reads_its_own_presets(venv, elsewhere):
+    shown = _run([venv / "bin" / "cdf-mj", "presets", "fast-ego"], cwd=elsewhere)
+    assert "source: fast-ego" in shown.stdout and "ego_speed = 17.9" in shown.stdout
+    listing = _run([venv / "bin" / "cdf-mj", "presets"], cwd=elsewhere)
+    shipped = sorted(p.stem for p in (REPO / "cdf_mj" / "presets").glob("*.toml"))
+    assert [line.split()[0] for line in listing.stdout.splitlines()[:len(shipped)]] == shipped
 
 
 def test_python_m_cdf_mj(venv, elsewhere):
