@@ -151,6 +151,15 @@ class ScenarioConfig:
     # if it is in its line of sight), on top of the beta draw. 0 keeps the paper's
     # observation process (beta alone); a careful driver at a stop sign: about 0.5.
     departure_look: float = 0.0
+    # A driver who hesitates: with probability `hesitation` per episode, once it has left
+    # the line it stops again after `hesitation_creep` [m] (nosing out to see, within the
+    # 1.45 m to the commit point of models/xml; a longer creep would be past it), stands a
+    # pause drawn uniformly from `hesitation_pause` [s], then goes on as its belief says
+    # (looking again with `departure_look`). The filter's model has no such stop: it is a
+    # test of model mismatch (the hesitant preset). 0 by default: the paper's driver.
+    hesitation: float = 0.0
+    hesitation_creep: float = 0.7  # [m] travelled from the line before the stop
+    hesitation_pause: tuple[float, float] = (0.5, 1.5)  # [s] uniform
     lookahead: float = 3.0  # [m] pure-pursuit look-ahead at standstill
     lookahead_gain: float = 0.3  # [s] look-ahead grows with speed: L = lookahead + gain * v
 
@@ -184,6 +193,12 @@ class ScenarioConfig:
                "departure_look", self.departure_look, "in [0, 1]")
         _check(_finite(self.clear_distance) and self.clear_distance >= 0, "clear_distance",
                self.clear_distance, ">= 0 [m]")
+        _check(_finite(self.hesitation) and 0.0 <= self.hesitation <= 1.0,
+               "hesitation", self.hesitation, "in [0, 1]")
+        _check(_finite(self.hesitation_creep) and self.hesitation_creep > 0, "hesitation_creep",
+               self.hesitation_creep, "> 0 [m]")
+        _check(_pair_ok(self.hesitation_pause, 0.0), "hesitation_pause", self.hesitation_pause,
+               "a finite (low, high) pair with 0 <= low <= high [s]")
 
     @property
     def n_ticks(self) -> int:

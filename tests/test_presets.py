@@ -109,7 +109,7 @@ def test_a_users_own_file_is_a_preset(tmp_path, capsys):
 def test_an_unknown_name_lists_the_shipped_ones(capsys):
     status, out, err = run_cli(capsys, "episode", "--preset", "stop-and-go")
     assert_one_line_error(status, out, err, "unknown preset 'stop-and-go'", *preset_names())
-    with pytest.raises(PresetError, match="choose from default"):
+    with pytest.raises(PresetError, match=f"choose from {preset_names()[0]}"):
         load_preset("stop-and-go")
 
 

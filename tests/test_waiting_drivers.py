@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from junctions import junction_scene
 
 from cdf_mj.config import CDFConfig, DriverPrior, ScenarioConfig
 from cdf_mj.inference.particle_filter import THETA, ParticleFilter
@@ -23,7 +24,6 @@ from cdf_mj.planners import CDFPlanner
 from cdf_mj.scenario.episode import run_episode
 from cdf_mj.scenario.world import World
 from cdf_mj.sim.scene import Scene
-from tests.junctions import junction_scene
 
 N = 300
 TAU = CDFConfig().tau
@@ -120,6 +120,35 @@ def test_world_waits_its_dwell_with_the_same_intent_and_start(scene):
     tick = world.step(np.zeros(2))
     assert tick.mode == Mode.GOING and world.departed == pytest.approx(1.2)
     assert not world.yielded
+
+
+def test_a_hesitating_driver_noses_out_stops_and_goes_on(scene):
+    """hesitation = 1: the driver leaves after its dwell, stops again once 0.7 m out (before
+    the commit point), stands its pause without counting as yielding, then goes on; the
+    intent, ego start and dwell are those of the same seed without hesitation (CRN)."""
+    base = ScenarioConfig(beta=0.0, p_left=1.0, stop_dwell=(0.5, 0.5))
+    world = World(scene, base)
+    world.reset(3)
+    draws = (world.intent, world.ego_start_offset, world.dwell)
+    world = World(scene, base.replace(hesitation=1.0, hesitation_pause=(1.0, 1.0)))
+    world.reset(3)
+    assert (world.intent, world.ego_start_offset, world.dwell) == draws
+    speeds, modes, where = [], [], []
+    while not world.done and world.t < 5.0:
+        tick = world.step(np.zeros(2))
+        speeds.append(tick.poses[1, 3])
+        modes.append(tick.mode)
+        where.append(tick.poses[1, :2])
+    assert world.departed == pytest.approx(0.5)
+    assert world.hesitated is not None and world.hesitated > world.departed
+    k_stop, k_go = round(world.hesitated / 0.1), round((world.hesitated + 1.0) / 0.1)
+    assert all(m == Mode.WAITING for m in modes[k_stop:k_go])
+    assert min(speeds[k_stop:k_go]) < 0.05  # it came to a stop
+    assert modes[k_go] in _MOVING and not world.yielded
+    s = world.driver.routes[int(Intent.LEFT)].project(np.array(where))[0]
+    assert s[k_stop] - s[0] == pytest.approx(0.7, abs=0.25)  # nosed out 0.7 m
+    assert s[k_go] < world.driver.s_commit[int(Intent.LEFT)]  # and stood before the commit point
+    assert s[-1] > s[k_go] + 5.0  # then went on
 
 
 def test_departure_look_sees_the_ego_when_it_would_leave(scene):

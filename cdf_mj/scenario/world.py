@@ -92,7 +92,10 @@ class World:
     Stop line: the obstacle starts at rest at its stop line and waits ``dwell`` [s]
     (drawn per episode from ``config.stop_dwell``) before it may go; on the tick it would
     leave, it looks once more with probability ``config.departure_look`` (and sees the ego
-    if it is in its line of sight), on top of the beta draw.
+    if it is in its line of sight), on top of the beta draw. A hesitating driver
+    (probability ``config.hesitation``) stops again once it has moved
+    ``hesitation_creep`` [m] from the line, stands ``hesitation_pause`` [s], and goes on
+    as its belief says (with another departure look).
 
     Randomness: ``reset(seed)`` splits the seed into independent streams (``rng``:
     ``scenario``, ``obstacle``, ``ego``, ``planner``, ``departure``), each drawn the same
@@ -109,7 +112,8 @@ class World:
     obstacle's :class:`~cdf_mj.model.driver.DriverModel`). After :meth:`reset` (updated by
     :meth:`step`): ``seed``, ``intent`` (:class:`cdf_mj.model.driver.Intent`),
     ``ego_start_offset`` [m], ``dwell`` [s], ``departed`` [s] (when it left the line,
-    else ``None``), ``first_seen`` [s], ``yielded``, ``entered_lane`` [s], ``min_gap`` [m],
+    else ``None``), ``hesitates``, ``hesitation_pause`` [s], ``hesitated`` [s] (when it
+    stopped again, else ``None``), ``first_seen`` [s], ``yielded``, ``entered_lane`` [s], ``min_gap`` [m],
     ``collision`` (``"obstacle"``/``"building"``/``None``), ``collision_time`` [s], ``done`` and
     ``end_reason`` (``None`` while running, then ``"collision"``, ``"passed"``: the ego's
     rear axle 20 m past the conflict point, or ``"duration"``).
@@ -143,6 +147,14 @@ class World:
         xy0 = route.point_at(self._s0 + offset)
         # Drawn after the draws above, so that intent and ego start stay the same per seed.
         self.dwell = float(rng["scenario"].uniform(*config.stop_dwell))
+        # Drawn whatever config.hesitation is, after the dwell: the same per seed (CRN).
+        u_hesitate = rng["scenario"].random()
+        pause = float(rng["scenario"].uniform(*config.hesitation_pause))
+        self.hesitates = bool(u_hesitate < config.hesitation)
+        self.hesitation_pause = pause if self.hesitates else 0.0
+        self.hesitated: float | None = None
+        self._go_after = self.dwell  # [s] a WAITING driver may leave from then on
+        self._line = layout.obstacle_start[:2].copy()  # where it stood
         ahead = route.point_at(self._s0 + offset + 1.0)
         heading0 = math.atan2(ahead[1] - xy0[1], ahead[0] - xy0[0])
         scene.reset(ego=np.array([xy0[0], xy0[1], heading0, config.ego_speed]),
@@ -223,7 +235,13 @@ class World:
         self._belief, self._has_belief = update_belief(
             self._belief, self._has_belief, np.array([observed]), (ego + noise)[None], dt,
             layout.obstacle.wheelbase)
-        may_go = t >= self.dwell - 1e-9
+        if (self.hesitates and self.hesitated is None and int(self._mode[0]) == Mode.GOING
+                and math.dist(obs[:2], self._line) >= config.hesitation_creep):
+            # It has nosed out and stops again: it stands its pause, then may go on.
+            self.hesitated = t
+            self._mode[0] = Mode.WAITING
+            self._go_after = t + self.hesitation_pause
+        may_go = t >= self._go_after - 1e-9
         if (not observed and may_go and u_depart < config.departure_look
                 and int(self._mode[0]) == Mode.WAITING
                 and road_clear(self.driver, self._belief, self._has_belief, self._intents)[0]
