@@ -14,16 +14,7 @@ import numpy as np
 import pytest
 
 from cdf_mj.sim import gl
-from cdf_mj.sim.gl import Offscreen, RenderError, gl_backend
-
-
-@pytest.fixture(scope="module")
-def backend() -> str:
-    """The OpenGL backend's name; skips the test when no backend can be created."""
-    try:
-        return gl_backend()[0]
-    except RenderError as exc:
-        pytest.skip(f"no OpenGL backend can be created here: {exc}")
+from cdf_mj.sim.gl import Offscreen, RenderError, gl_backend, project_points
 
 
 # ----------------------------------------------------------------- choosing the backend
@@ -89,3 +80,36 @@ def test_a_frame_larger_than_the_models_buffer(backend, scene) -> None:
         renderer.update(scene.data)
         assert renderer.render().shape == (48, before[0] + 64, 3)
     assert (vis.offwidth, vis.offheight, scene.model.vis.quality.offsamples) == before
+
+
+@pytest.mark.parametrize("orthographic", [False, True])
+def test_projected_points_are_where_the_pixels_are(backend, scene, orthographic) -> None:
+    """A small emissive marker drawn at a known point lands on project_points' pixel."""
+    cam = mujoco.MjvCamera()
+    cam.type, cam.distance, cam.azimuth, cam.elevation = mujoco.mjtCamera.mjCAMERA_FREE, 45.0, 150.0, -60.0
+    cam.lookat[:] = (-5.0, 2.0, 0.0)
+    cam.orthographic = orthographic
+
+    class View:
+        def apply(self, camera):
+            for name in ("type", "distance", "azimuth", "elevation", "orthographic"):
+                setattr(camera, name, getattr(cam, name))
+            camera.lookat[:] = cam.lookat
+
+    point = np.array([-12.0, -1.85, 1.0])
+    with Offscreen(scene.model, 160, 120, max_geom=scene.model.ngeom + 4) as gl:
+        gl.use_view(View())
+        gl.update(scene.data)
+        bare = gl.render().copy()
+        g = gl.scene.geoms[gl.scene.ngeom]
+        mujoco.mjv_initGeom(g, mujoco.mjtGeom.mjGEOM_SPHERE, np.array([0.4, 0, 0]), point, np.eye(3).ravel(),
+                            np.array([0, 1, 0, 1], dtype=np.float32))
+        gl.scene.ngeom += 1
+        marked = gl.render().copy()
+        expected = gl.project(point)
+    rows, cols = np.nonzero(np.abs(marked.astype(int) - bare.astype(int)).sum(axis=2) > 30)
+    assert len(rows) > 0
+    np.testing.assert_allclose([cols.mean() + 0.5, rows.mean() + 0.5], expected, atol=1.0)
+    glcam = gl.scene.camera[0]
+    behind = np.asarray(glcam.pos) - 5.0 * np.asarray(glcam.forward)
+    assert np.all(np.isnan(project_points(gl.scene, behind, 160, 120))) != orthographic  # NaN behind

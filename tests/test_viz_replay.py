@@ -6,10 +6,12 @@ import dataclasses
 import math
 
 import numpy as np
+import pytest
 
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.scenario.episode import run_episode
-from cdf_mj.viz.replay import record_episode
+from cdf_mj.sim.gl import RenderError
+from cdf_mj.viz.replay import check_frame_time, record_episode
 
 TWO_SECONDS = ScenarioConfig(duration=2.0)
 
@@ -29,12 +31,33 @@ def test_recorded_episode_is_the_plain_episode(scene) -> None:
 
 def test_particle_snapshots_are_distinct_and_heaviest_first(scene) -> None:
     rep = record_episode(1, "cdf", TWO_SECONDS, scene, label=False)
-    for xy, code, weight in rep.particles:
-        assert xy.dtype == np.float32 and xy.shape == (len(code), 2)
+    for xy, code, weight, heading in rep.particles:
+        assert xy.dtype == np.float32 and xy.shape == (len(code), 2) and heading.shape == code.shape
+        assert heading.dtype == np.float32 and np.all(np.abs(heading) <= math.pi + 1e-6)
         assert set(np.unique(code)) <= {0, 1, 2, 3}  # 2 * intent + seen
         assert np.all(np.diff(weight) <= 0) and math.isclose(weight.sum(), 1.0, rel_tol=1e-4)
         keys = {(round(x * 100), round(y * 100), c) for (x, y), c in zip(xy.tolist(), code.tolist(), strict=True)}
         assert len(keys) == len(code)  # merged to 1 cm
+
+
+def test_particle_headings_are_the_weighted_circular_mean(scene) -> None:
+    from cdf_mj.viz.replay import _distinct_particles
+
+    xy = np.zeros((3, 2))
+    merged = _distinct_particles(xy, np.zeros(3, int), np.zeros(3, bool), np.array([0.25, 0.25, 0.5]),
+                                 np.array([math.pi - 0.1, -math.pi + 0.1, math.pi]))
+    assert len(merged.code) == 1 and abs(abs(merged.heading[0]) - math.pi) < 1e-6  # not 0: across +-pi
+    rep = record_episode(1, "cdf", TWO_SECONDS, scene, label=False)
+    start = scene.layout().obstacle_start[2]
+    first = rep.particles[0]
+    assert np.all(np.abs(np.remainder(first.heading - start + math.pi, 2 * math.pi) - math.pi) < 0.05)
+
+
+def test_a_frame_past_the_end_is_refused_in_one_line() -> None:
+    assert check_frame_time(5.3000001, 5.3) == 5.3 and check_frame_time(1.5, 5.3) == 1.5
+    for bad in (20.0, -1.0, float("nan")):
+        with pytest.raises(RenderError, match=r"^--frame .*: outside the episode, which runs from 0 s to 5.30 s"):
+            check_frame_time(bad, 5.3)
 
 
 def test_a_baseline_keeps_its_own_probabilities_and_threshold(scene) -> None:

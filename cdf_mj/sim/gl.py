@@ -30,7 +30,7 @@ import numpy as np
 if TYPE_CHECKING:
     from typing_extensions import Self
 
-__all__ = ["Offscreen", "RenderError", "gl_backend"]
+__all__ = ["Offscreen", "RenderError", "gl_backend", "project_points"]
 
 
 class RenderError(ValueError):
@@ -110,6 +110,28 @@ def gl_backend() -> tuple[str, Any]:
         "MUJOCO_GL to a backend that works here (egl, osmesa or glfw)")
 
 
+def project_points(scene: mujoco.MjvScene, points: np.ndarray, width: int,
+                   height: int) -> np.ndarray:
+    """Pixel coordinates ``(..., 2)`` (column, row from the top-left corner, [px]) of world
+    points ``(..., 3)`` [m] as :meth:`Offscreen.render` draws them: the projection of
+    ``scene``'s camera (set by ``mjv_updateScene``) into a ``width`` x ``height`` image, as
+    ``mjr_render`` sets it up (perspective or orthographic). Points behind the camera give
+    NaN."""
+    cam = mujoco.mjv_averageCamera(scene.camera[0], scene.camera[1])
+    pos, fwd, up = (np.asarray(a, dtype=float) for a in (cam.pos, cam.forward, cam.up))
+    right = np.cross(fwd, up)
+    d = np.asarray(points, dtype=float) - pos
+    x, y, depth = d @ right, d @ up, d @ fwd
+    near, top, bottom = cam.frustum_near, cam.frustum_top, cam.frustum_bottom
+    half_w = cam.frustum_width or 0.5 * width / height * (top - bottom)
+    if not cam.orthographic:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x, y = np.where(depth > 0, x * near / depth, np.nan), np.where(depth > 0, y * near / depth, np.nan)
+    col = (x - (cam.frustum_center - half_w)) / (2.0 * half_w) * width
+    row = (top - y) / (top - bottom) * height
+    return np.stack([col, row], axis=-1)
+
+
 class Offscreen:
     """MuJoCo's OpenGL renderer in an offscreen context of the backend :func:`gl_backend`
     chooses: the calls of ``mujoco.Renderer``. Use with ``with`` (or call :meth:`close`).
@@ -169,6 +191,17 @@ class Offscreen:
         """Look through the model's fixed camera ``camera_id``."""
         self.camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
         self.camera.fixedcamid = camera_id
+
+    def use_view(self, view: Any) -> None:
+        """Look through a free camera: ``view.apply(camera)`` (such as
+        :class:`cdf_mj.viz.camera.CameraView`), for the next :meth:`update`."""
+        view.apply(self.camera)
+
+    def project(self, points: np.ndarray) -> np.ndarray:
+        """Pixel coordinates ``(..., 2)`` (column, row) of world points ``(..., 3)`` [m] in
+        the image :meth:`render` draws after the last :meth:`update`
+        (:func:`project_points`)."""
+        return project_points(self.scene, points, self.width, self.height)
 
     def update(self, data: mujoco.MjData) -> None:
         """The model's geoms at ``data``'s positions into :attr:`scene` (replacing all)."""

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, cast
+from typing import TYPE_CHECKING, NamedTuple, cast
 
 import numpy as np
 
@@ -26,21 +26,26 @@ from cdf_mj.inference.particle_filter import ParticleFilter
 from cdf_mj.planners import CDFPlanner, Planner, make_planner
 from cdf_mj.records import EpisodeRecord
 from cdf_mj.scenario.episode import episode_label, run_episode
+from cdf_mj.sim.gl import RenderError
 from cdf_mj.sim.scene import Scene
 
 if TYPE_CHECKING:
     from cdf_mj.model.layout import Layout
 
-__all__ = ["POSTERIOR_KEYS", "Particles", "Replay", "record_episode"]
+__all__ = ["POSTERIOR_KEYS", "Particles", "Replay", "check_frame_time", "record_episode"]
 
 #: The probabilities a planner's ``history`` may hold that a replay keeps, in panel order
 #: (``cdf``: p_left, p_seen, p_cutoff; ``imm``: p_left, p_conflict).
 POSTERIOR_KEYS = ("p_left", "p_seen", "p_cutoff", "p_conflict")
 
-#: One tick's distinct particles, heaviest first: obstacle rear-axle positions ``(M, 2)``
-#: float32 [m] (world frame, to 1 cm), codes ``(M,)`` uint8 (``2 * intent + seen``, intent
-#: as :class:`cdf_mj.model.driver.Intent`), summed weights ``(M,)`` float32.
-Particles = tuple[np.ndarray, np.ndarray, np.ndarray]
+class Particles(NamedTuple):
+    """One tick's distinct particles, heaviest first (world frame): merged by position (to
+    1 cm), intent and seen; unpacks as ``xy, code, weight, heading``."""
+
+    xy: np.ndarray  # (M, 2) float32 obstacle rear-axle positions [m], to 1 cm
+    code: np.ndarray  # (M,) uint8 2 * intent + seen (intent as cdf_mj.model.driver.Intent)
+    weight: np.ndarray  # (M,) float32 summed weights
+    heading: np.ndarray  # (M,) float32 [rad] the weighted circular mean heading of the merged
 
 
 class _RecordingFilter(ParticleFilter):
@@ -50,7 +55,7 @@ class _RecordingFilter(ParticleFilter):
 
     def predict(self, system_pose: np.ndarray | None = None) -> None:
         self.snapshots.append(_distinct_particles(self.pose[:, :2], self.intent, self.has_belief,
-                                                  self.weights))
+                                                  self.weights, self.pose[:, 2]))
         super().predict(system_pose)
 
 
@@ -68,15 +73,36 @@ class _RecordingCDFPlanner(CDFPlanner):
 
 
 def _distinct_particles(xy: np.ndarray, intent: np.ndarray, seen: np.ndarray,
-                        weights: np.ndarray) -> Particles:
-    """The particles merged by (position to 1 cm, intent, seen), heaviest first."""
+                        weights: np.ndarray, heading: np.ndarray | None = None) -> Particles:
+    """The particles merged by (position to 1 cm, intent, seen), heaviest first; the heading
+    [rad] of each merged one is the weighted circular mean of its members' (0 if none given)."""
     code = (2 * np.asarray(intent) + np.asarray(seen)).astype(np.int64)
     key = np.column_stack([np.round(xy * 100.0).astype(np.int64), code])
     uniq, inverse = np.unique(key, axis=0, return_inverse=True)
-    mass = np.bincount(inverse.ravel(), weights=weights, minlength=len(uniq))
+    inverse = inverse.ravel()
+    mass = np.bincount(inverse, weights=weights, minlength=len(uniq))
+    th = np.zeros(len(xy)) if heading is None else np.asarray(heading, dtype=float)
+    w = np.asarray(weights, dtype=float) + 1e-300  # a zero-weight group keeps its heading
+    mean = np.arctan2(np.bincount(inverse, weights=w * np.sin(th), minlength=len(uniq)),
+                      np.bincount(inverse, weights=w * np.cos(th), minlength=len(uniq)))
     order = np.argsort(-mass, kind="stable")
-    uniq, mass = uniq[order], mass[order]
-    return (uniq[:, :2] / 100.0).astype(np.float32), uniq[:, 2].astype(np.uint8), mass.astype(np.float32)
+    uniq, mass, mean = uniq[order], mass[order], mean[order]
+    return Particles((uniq[:, :2] / 100.0).astype(np.float32), uniq[:, 2].astype(np.uint8),
+                     mass.astype(np.float32), mean.astype(np.float32))
+
+
+def check_frame_time(frame_time: float, end_time: float, start: float = 0.0) -> float:
+    """``frame_time`` [s] of a one-frame render, checked against the episode's span
+    ``[start, end_time]`` [s] (a small rounding past the end is clipped to it).
+
+    Raises:
+        RenderError: ``frame_time`` is past the end (or before the start), in one line
+            naming ``--frame`` and the times to choose from.
+    """
+    if not math.isfinite(frame_time) or frame_time < start - 1e-9 or frame_time > end_time + 1e-6:
+        raise RenderError(f"--frame {frame_time:g}: outside the episode, which runs from "
+                          f"{start:g} s to {end_time:.2f} s; choose a time in that range")
+    return min(max(frame_time, start), end_time)
 
 
 @dataclass

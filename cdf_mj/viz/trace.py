@@ -12,8 +12,11 @@ interpolated between ticks), the braking stripe, and the posterior panel of
     render_trace("episode.jsonl", "my_junction.xml", "episode.mp4")
     render_trace("episode.jsonl", "my_junction.xml", "frame.png", frame_time=1.5)
 
-The camera is the scene's ``top`` if it has one, else a camera added 70 m above the
-conflict point, looking down (x to the right, y up in the image).
+The default view is :class:`cdf_mj.viz.camera.FollowCamera`: straight down, the ego
+driving left to right, framing both cars and the conflict zone and zooming as they
+converge. ``camera="top"`` (or any camera of the scene) looks through that camera instead;
+a scene without a ``top`` camera gets one 70 m above the conflict point, looking down
+(x to the right, y up in the image).
 """
 
 from __future__ import annotations
@@ -34,11 +37,12 @@ from cdf_mj.scenario.monitor import MonitorTrace, read_trace
 from cdf_mj.sim.checks import SceneError
 from cdf_mj.sim.gl import Offscreen, gl_backend
 from cdf_mj.sim.scene import read_layout
+from cdf_mj.viz.camera import FollowCamera
 from cdf_mj.viz.encoding import FrameWriter
 from cdf_mj.viz.overlays import draw_braking
 from cdf_mj.viz.panel import Panel
 from cdf_mj.viz.render import check_request, frame_times
-from cdf_mj.viz.replay import Replay
+from cdf_mj.viz.replay import Replay, check_frame_time
 
 __all__ = ["CAR_COLORS", "TraceRenderResult", "render_trace"]
 
@@ -136,46 +140,53 @@ def _replay(trace: MonitorTrace) -> Replay:
 
 def render_trace(trace: str | Path, scene: str | Path, out: str | Path, *,
                  names: SceneNames | None = None, width: int = 640, height: int = 480,
-                 fps: float | None = None, frame_time: float | None = None) -> TraceRenderResult:
+                 fps: float | None = None, frame_time: float | None = None,
+                 camera: str | None = None) -> TraceRenderResult:
     """Render a monitor trace over its scene to ``out`` (``.mp4``, ``.gif``, or ``.png``
-    with ``frame_time`` [s] from the trace's first tick).
+    with ``frame_time`` [s] from the trace's first tick, at most the trace's span).
 
     ``names`` picks the junction's elements in ``scene`` (default: the names in the
-    trace's header). Raises TraceError (``file:line``) for a damaged trace, SceneError for
-    a scene that cannot be read, RenderError for a bad request or no OpenGL, all before
+    trace's header); ``camera`` a camera of the scene (default ``None``: the follow view,
+    :class:`~cdf_mj.viz.camera.FollowCamera`). Raises TraceError (``file:line``) for a
+    damaged trace, SceneError for a scene that cannot be read, RenderError for a bad
+    request (a ``frame_time`` past the trace's end included) or no OpenGL, all before
     drawing; the file appears only once complete.
     """
     tr = read_trace(trace)
     names = names or tr.names
-    model, camera_id = _scene_model(scene, names)
+    model, _ = _scene_model(scene, names)
     layout = read_layout(model, names, ego=tr.ego, obstacle=tr.obstacle, source=str(scene))
-    req = check_request(out, model, _TOP, width, height, fps, frame_time)
-    backend, _ = gl_backend()
-    replay = _replay(tr)
+    req = check_request(out, model, camera or _TOP, width, height, fps, frame_time)
     t0 = float(tr.times[0])
     end = float(tr.times[-1]) - t0
-    rel = frame_times(end, req.fps) if req.frame_time is None else np.array([min(req.frame_time, end)])
+    rel = (frame_times(end, req.fps) if req.frame_time is None
+           else np.array([check_frame_time(req.frame_time, end)]))
+    backend, _ = gl_backend()
+    replay = _replay(tr)
+    follow = None if camera is not None else FollowCamera(
+        layout, tr.times, tr.poses, req.width, req.height, fovy=float(model.vis.global_.fovy))
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
     brake_time = tr.brake_time
     brake_pose = replay.pose_at(brake_time)[0] if brake_time is not None else None
-    lane_half = float(layout.ego_lane.half[1])
     z = max(tr.ego.hull_height, tr.obstacle.hull_height) + 1.0
     start = time.perf_counter()
     with FrameWriter(req.out, req.fps) as writer, \
             Offscreen(model, req.width, req.height, max_geom=model.ngeom + 64) as gl:
-        gl.use_camera(camera_id)
+        gl.use_camera(req.camera_id)
         panel = _TracePanel(replay, gl.width, gl.height, f"trace {tr.path.name}  monitor")
         for rt in rel:
             t = t0 + float(rt)
             poses = replay.pose_at(t)
+            if follow is not None:
+                gl.use_view(follow.at(t))
             gl.update(data)
             scn = gl.scene
             scn.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = False
             _add_box(scn, tr.ego, poses[0], CAR_COLORS["ego"])
             _add_box(scn, tr.obstacle, poses[1], CAR_COLORS["obstacle"])
             if brake_pose is not None and replay.braking(t):
-                draw_braking(scn, tr.ego, lane_half, brake_pose, poses[0], z)
+                draw_braking(scn, tr.ego, layout.ego_lane, brake_pose, poses[0], z)
             writer.append(panel.draw(gl.render().copy(), t))
     return TraceRenderResult(path=req.out, n_frames=len(rel), frames_per_second=req.fps,
                              duration=float(rel[-1]), render_seconds=time.perf_counter() - start,
