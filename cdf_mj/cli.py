@@ -427,13 +427,15 @@ def _cmd_render_trace(args: argparse.Namespace) -> int:
     from cdf_mj.viz.trace import render_trace
 
     unused = [flag for flag, given in (("--set", args.overrides), ("--preset", args.preset),
-                                       ("--camera", args.camera != "top")) if given]
+                                       ("--compare", args.compare), ("--layout", args.layout != "overlay"),
+                                       ("--seed", args.seed is not None), ("--planner", args.planner))
+              if given]
     if unused:
-        raise CLIError(f"{', '.join(unused)}: not used with --trace (the trace holds the "
-                       "episode; the camera is the scene's 'top' or one added over the junction)")
+        raise CLIError(f"{', '.join(unused)}: not used with --trace (the trace holds the episode "
+                       "and is drawn with the panel over the view)")
     names = read_names(args.names) if args.names is not None else None
     result = render_trace(args.trace, args.scene, args.out, names=names, width=args.width,
-                          height=args.height, fps=args.fps, frame_time=args.frame)
+                          height=args.height, fps=args.fps, frame_time=args.frame, camera=args.camera)
     what = (f"{result.n_frames} frames, {result.duration:.2f} s of the trace at "
             f"{result.frames_per_second:g} fps" if result.n_frames > 1
             else f"the frame at {result.duration:.2f} s")
@@ -441,17 +443,41 @@ def _cmd_render_trace(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_render_compare(args: argparse.Namespace, config: ScenarioConfig, scene: Scene,
+                        cdf: CDFConfig) -> int:
+    from cdf_mj.viz.render import parse_planners, render_compare, tile_caption
+
+    if args.planner is not None:
+        raise CLIError("--planner: not used with --compare (it names the planners)")
+    result = render_compare(args.out, seed=args.seed, planners=parse_planners(args.compare),
+                            config=config, cdf=cdf, scene=scene, camera=args.camera, width=args.width,
+                            height=args.height, fps=args.fps, frame_time=args.frame,
+                            layout=args.layout, max_particles=args.max_particles,
+                            shadows=args.shadows, antialias=args.antialias)
+    rate = result.n_frames / max(result.render_seconds, 1e-9)
+    what = (f"{result.n_frames} frames of {len(result.records)} tiles, {result.duration:.2f} s at "
+            f"{result.frames_per_second:g} fps; rendered at {rate:.1f} frames/s" if result.n_frames > 1
+            else f"the frame at {result.duration:.2f} s of {len(result.records)} tiles")
+    print(f"wrote {result.path}: {what} ({result.backend}); label {result.label}; "
+          + "; ".join(tile_caption(r) for r in result.records))
+    return 0
+
+
 def _cmd_render(args: argparse.Namespace) -> int:
-    from cdf_mj.viz.render import render_episode
+    from cdf_mj.viz.render import DEFAULT_SEED, render_episode
 
     if args.trace is not None:
         return _cmd_render_trace(args)
     config = config_from_args(args)
     scene = scene_from_args(args, config)
     cdf = cdf_from_args(args)
-    result = render_episode(args.out, seed=args.seed, planner=args.planner, config=config, cdf=cdf,
-                            scene=scene, camera=args.camera, width=args.width, height=args.height,
-                            fps=args.fps, frame_time=args.frame, max_particles=args.max_particles,
+    args.seed = DEFAULT_SEED if args.seed is None else args.seed
+    if args.compare is not None:
+        return _cmd_render_compare(args, config, scene, cdf)
+    result = render_episode(args.out, seed=args.seed, planner=args.planner or "cdf", config=config,
+                            cdf=cdf, scene=scene, camera=args.camera, width=args.width,
+                            height=args.height, fps=args.fps, frame_time=args.frame,
+                            layout=args.layout, max_particles=args.max_particles,
                             shadows=args.shadows, antialias=args.antialias)
     if result.n_frames > 1:
         rate = result.n_frames / max(result.render_seconds, 1e-9)
@@ -471,25 +497,45 @@ def _add_render(subparsers: argparse._SubParsersAction) -> None:
                     "osmesa) at a constant frame rate in simulated time, with the obstacle's "
                     "isovist, the CDF's particles, the braking moment and P(left), P(seen), "
                     "P(cutoff) drawn in. The suffix of --out chooses MP4, GIF or PNG (--frame). "
+                    "--layout side puts charts of the probabilities and both cars' speeds over "
+                    "time beside the view; --compare cdf,imm,reactive draws the same seed under "
+                    "each planner, tiles side by side. "
                     "With --trace FILE it draws your own episode instead: a trace that "
                     "CDFMonitor.save_trace wrote, over --scene (your junction's MJCF; --names "
                     "for its names, default those in the trace), both cars' boxes and the "
-                    "posterior panel; --seed, --planner and the CDF options are then not used. "
+                    "posterior panel; --seed, --planner, --compare and --layout are then refused and "
+                    "the CDF options not used. "
                     f"Needs imageio and Pillow ({install_hint('viz')}).")
-    p.add_argument("--seed", type=_non_negative_int, default=7, help="episode seed (default 7)")
-    p.add_argument("--planner", choices=sorted(PLANNERS), default="cdf", help="ego planner (default cdf)")
+    p.add_argument("--seed", type=_non_negative_int, default=None,
+                   help="episode seed (default 1: a cut-off the CDF brakes for, so the default "
+                        "video shows a decision; `episode` defaults to seed 0, reactive, a "
+                        "record rather than a picture)")
+    p.add_argument("--planner", choices=sorted(PLANNERS), default=None,
+                   help="ego planner (default cdf: the planner whose belief is drawn)")
+    p.add_argument("--compare", metavar="P1,P2,...", default=None,
+                   help="render the seed under each of these planners (2 to 6, e.g. "
+                        "cdf,imm,reactive), tiles side by side, each the size of one render and "
+                        "captioned with its planner and brake time; a shorter episode holds "
+                        "its last frame")
+    p.add_argument("--layout", choices=("overlay", "side"), default="overlay",
+                   help="overlay (default): the posterior panel over the view's top-left; side: "
+                        "charts of the probabilities with tau, both cars' speeds, the brake "
+                        "decision and the obstacle's lane entry beside the view (adds 3/4 of "
+                        "--height to the width; --height >= 160)")
     p.add_argument("--out", required=True, help="output file: .mp4, .gif, or .png with --frame")
     p.add_argument("--trace", metavar="FILE", default=None,
                    help="draw a monitor trace (CDFMonitor.save_trace, JSON lines) over --scene "
                         "instead of running an episode; --frame T is seconds from its first tick")
-    p.add_argument("--camera", default="top",
-                   help="camera of the scene: top, ego_chase or obstacle_chase (default top)")
+    p.add_argument("--camera", default=None,
+                   help="a camera of the scene, e.g. top, ego_chase or obstacle_chase (default: "
+                        "a view that follows both cars and the conflict zone)")
     p.add_argument("--width", type=int, default=640, help="image width [px], even (default 640)")
     p.add_argument("--height", type=int, default=480, help="image height [px], even (default 480)")
     p.add_argument("--fps", type=float, default=None,
                    help="frames per simulated second (default 30 for MP4, 25 for GIF)")
     p.add_argument("--frame", type=float, default=None, metavar="T",
-                   help="render the one frame at T seconds to a .png")
+                   help="render the one frame at T seconds to a .png (T from 0 to the episode's "
+                        "end; past it is an error naming the end)")
     add_cdf_arguments(p)
     p.add_argument("--max-particles", type=_non_negative_int, default=100,
                    help="most distinct particles drawn per frame (default 100)")

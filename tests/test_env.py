@@ -194,18 +194,8 @@ def test_make_vec_with_worker_processes():
         envs.close()
 
 
-@pytest.fixture(scope="module")
-def gl() -> str:
-    """The OpenGL backend's name; skips the test when no backend can be created."""
-    from cdf_mj.viz.render import RenderError, gl_backend
 
-    try:
-        return gl_backend()[0]
-    except RenderError as exc:
-        pytest.skip(f"no OpenGL backend can be created here: {exc}")
-
-
-def test_two_envs_render_their_own_cameras_in_turn(gl):
+def test_two_envs_render_their_own_cameras_in_turn(backend):
     a = gym.make(cdf_mj.ENV_ID, render_mode="rgb_array", label=False, run_filter=False,
                  width=160, height=120, camera="top")
     b = gym.make(cdf_mj.ENV_ID, render_mode="rgb_array", label=False, run_filter=False,
@@ -223,7 +213,7 @@ def test_two_envs_render_their_own_cameras_in_turn(gl):
         b.close()
 
 
-def test_a_scene_without_cameras_renders_the_junction_from_above(gl):
+def test_a_scene_without_cameras_renders_the_junction_from_above(backend):
     """The free camera over the junction: the frame shows the junction the same way up
     whatever the junction's rotation (the ego drives to the right of the frame)."""
     frames = []
@@ -239,7 +229,7 @@ def test_a_scene_without_cameras_renders_the_junction_from_above(gl):
     assert np.abs(frames[0] - frames[1]).mean() < 2.0  # the same picture, up to rasterisation
 
 
-def test_render_check_env_and_example_script_in_a_subprocess(tmp_path, gl):
+def test_render_check_env_and_example_script_in_a_subprocess(tmp_path, backend):
     """Headless without MUJOCO_GL (the env picks EGL or OSMesa itself, as `cdf-mj render`
     does): check_env including its render checks, and the example script driving the env
     with its own policy into a video."""
