@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import shutil
 
+import numpy as np
 import pytest
 
 from cdf_mj.analysis.metrics import planner_metrics
@@ -12,7 +13,11 @@ from cdf_mj.analysis.tables import experiment_tables, format_rate
 from cdf_mj.cli import main
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.experiments.experiment import run_experiment
-from cdf_mj.viz.report import FIGURES, ReportError, load_experiment, write_report
+from cdf_mj.planners.cdf import CDFPlanner
+from cdf_mj.scenario.episode import run_episode
+from cdf_mj.sim.scene import Scene
+from cdf_mj.viz.report import FIGURES, ReportError, load_experiment, scene_extent, trajectories_figure, write_report
+from tests.junctions import build_junction
 
 pytest.importorskip("matplotlib", reason="the viz extra (matplotlib) is not installed")
 
@@ -125,3 +130,46 @@ def test_the_page_holds_the_tables_of_the_metrics(experiment, tmp_path) -> None:
     for m in metrics.values():
         assert f"| {m.planner} | {m.imminent} | {m.collisions} | {format_rate(m.avoided)} |" in page
     assert metrics["cdf"].avoided.n == 1  # seed 1 is the one Cutoff
+
+
+def test_trajectory_axes_come_from_a_rotated_scene_and_the_legend_stays_outside(tmp_path) -> None:
+    """A mirrored junction turned by 2.3 rad about (30, -12), written to a file: the axes hold
+    every point of the re-simulated paths and the junction, at equal scale, and the legend
+    box lies outside the axes box."""
+    xml = tmp_path / "rotated.xml"
+    xml.write_text(build_junction(rotation=2.3, mirror=True, center=(30.0, -12.0)).to_xml())
+    cdf = CDFConfig(n_particles=200)
+    run_experiment(tmp_path / "exp", range(4), ("cdf",), ScenarioConfig(), cdf, scene=xml,
+                   progress=False, workers=1, backend="serial")
+    seeds = [0, 1, 3]
+    fig = trajectories_figure(load_experiment(tmp_path / "exp"), "cdf", seeds)
+    ax = fig.axes[0]
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    scene = Scene.load(xml)
+    layout = scene.layout()
+    points = [layout.conflict, layout.ego_start[:2], layout.obstacle_start[:2]]
+    for seed in seeds:
+        trace = run_episode(ScenarioConfig(), seed, CDFPlanner(cdf), scene, trace=True).trace
+        points += list(np.asarray(trace["poses"])[:, :, :2].reshape(-1, 2))
+    pts = np.array(points)
+    assert pts[:, 0].min() > x0 and pts[:, 0].max() < x1
+    assert pts[:, 1].min() > y0 and pts[:, 1].max() < y1
+    assert pts[:, 1].max() - pts[:, 1].min() > 40  # the turned junction spans y, unlike the T's fixed 36 m
+    fig.canvas.draw()
+    box = ax.get_window_extent()
+    assert (x1 - x0) / box.width == pytest.approx((y1 - y0) / box.height, rel=1e-3)  # equal aspect
+    assert len(fig.legends) == 1 and ax.get_legend() is None
+    legend = fig.legends[0].get_window_extent()
+    assert not legend.overlaps(box), (legend, box)
+    assert len(fig.legends[0].get_texts()) == 1 + 2 * len(seeds)  # routes, then ego and obstacle per seed
+
+
+def test_scene_extent_cuts_long_routes_and_keeps_the_junction() -> None:
+    layout = Scene.load().layout()
+    x0, x1, y0, y1 = scene_extent(layout, margin=2.0)
+    assert x0 < layout.ego_start[0] - 2.0 + 1e-9 and x1 < 60.0  # the 150 m route ends are cut
+    assert y0 < layout.ego_lane.corners()[:, 1].min() and y1 > layout.obstacle_start[1]
+    far = np.array([[80.0, -1.85]])  # a path that leaves the junction widens it
+    assert scene_extent(layout, far, margin=2.0)[1] == pytest.approx(82.0)
+    with pytest.raises(ValueError, match="finite"):
+        scene_extent(layout, np.array([[np.nan, 0.0]]))

@@ -3,14 +3,18 @@
 Reads ``DIR/settings.json`` and ``DIR/episodes.jsonl`` (as written by
 ``cdf-mj experiment --out DIR``) and writes, into ``DIR`` or ``out``:
 
-==================  ==========================================================================
-``confusion.png``   the CDF's confusion matrix (scenario label x prediction) beside the paper's
-``avoidance.png``   per planner: imminent collisions avoided and false alarms, 95 % Wilson intervals
-``trajectories.png`` top-down paths of both cars for a few seeds over the road layout of the MJCF
-``posterior.png``   P(left), P(seen), P(cutoff) over time for the same seeds (CDF)
-``lead_times.png``  distribution of braking lead times, entered_lane_time - brake_time [s]
-``report.md``       the tables of :func:`cdf_mj.analysis.tables.experiment_tables`, every figure
-==================  ==========================================================================
+====================  ======================================================================
+``confusion.png``     the CDF's confusion matrix (scenario label x prediction) beside the paper's
+``avoidance.png``     per planner: imminent collisions avoided and false alarms, 95 % Wilson
+                      intervals
+``trajectories.png``  top-down paths of both cars for a few seeds over the road layout of the
+                      run's scene, axes from the scene's extent (:func:`scene_extent`)
+``posterior.png``     P(left), P(seen), P(cutoff) over time for the same seeds (CDF)
+``lead_times.png``    distribution of braking lead times, entered_lane_time - brake_time [s]
+``report.md``         the tables of :func:`cdf_mj.analysis.tables.experiment_tables`, every figure
+====================  ======================================================================
+
+Legends lie outside the axes (beside, above or below), never over the data.
 
 A figure whose data are absent (no CDF records, no braking before a lane entry) is left
 out and the page says why. The records file is read with
@@ -44,13 +48,16 @@ from cdf_mj.analysis.metrics import Rate, confusion_matrix, planner_metrics
 from cdf_mj.analysis.tables import PAPER_CONFUSION, PAPER_PLANNERS, experiment_tables
 from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames
 from cdf_mj.extras import require
+from cdf_mj.model.geometry import box_corners
+from cdf_mj.model.layout import Layout
 from cdf_mj.planners.base import Planner, make_planner
 from cdf_mj.planners.cdf import CDFPlanner
 from cdf_mj.records import FAILED, LABELS, RECORDS_FILE, Label, lead_time, paper_avoided, prediction, read_records
 from cdf_mj.scenario.episode import run_episode
 from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
 
-__all__ = ["FIGURES", "Experiment", "ReportError", "ReportResult", "load_experiment", "write_report"]
+__all__ = ["FIGURES", "Experiment", "ReportError", "ReportResult", "load_experiment", "scene_extent",
+           "trajectories_figure", "write_report"]
 
 #: Figure file names and what each shows.
 FIGURES = {
@@ -272,8 +279,65 @@ def _pick_seeds(exp: Experiment, planner: str, count: int = 3) -> list[int]:
     return seeds[:count]
 
 
+def _outline(box_center: np.ndarray, heading: float, half: np.ndarray, step: float) -> np.ndarray:
+    """Points ``(P, 2)`` every ``step`` metres or closer along a rectangle's edges [m]."""
+    corners = box_corners(np.asarray(box_center, dtype=float), heading, np.asarray(half, dtype=float))
+    edges = []
+    for a, b in zip(corners, np.roll(corners, -1, axis=0), strict=True):
+        n = max(int(np.ceil(np.linalg.norm(b - a) / step)), 1)
+        edges.append(a + np.linspace(0.0, 1.0, n, endpoint=False)[:, None] * (b - a))
+    return np.concatenate(edges)
+
+
+def scene_extent(layout: Layout, points: np.ndarray | None = None, margin: float = 4.0,
+                 step: float = 0.5) -> tuple[float, float, float, float]:
+    """The part of a junction an episode uses, as axis limits ``(xmin, xmax, ymin, ymax)`` [m],
+    world frame (x east, y north), for any scene: rotated, mirrored, of any size.
+
+    The episode's area is the disc about the layout's conflict point that holds both start
+    poses, the commit point, the stop line and every one of ``points`` (the cars' paths,
+    ``(..., 2)`` [m]); the extent is the bounding box of those and of every part of the
+    routes, the ego's lane and the buildings that lies in that disc (sampled every ``step``
+    metres), widened by ``margin`` [m] on each side. Routes and lanes that run on for 150 m
+    are thus cut where the episode ends, and the corners of the buildings that hide the
+    cars from each other are kept. ValueError if ``points`` are not finite.
+    """
+    key = [layout.ego_start[None, :2], layout.obstacle_start[None, :2], layout.conflict[None],
+           layout.commit[None], layout.stop_line.corners()]
+    if points is not None:
+        pts = np.asarray(points, dtype=float).reshape(-1, 2)
+        if not np.all(np.isfinite(pts)):
+            raise ValueError("scene_extent: points must be finite [m]; a path holds NaN or inf")
+        key.append(pts)
+    must = np.concatenate(key)
+    radius = float(np.max(np.linalg.norm(must - layout.conflict, axis=1)))
+    occ = layout.occluders
+    parts = [r.point_at(np.append(np.arange(0.0, r.length, step), r.length))
+             for r in (layout.route_ego, layout.route_left, layout.route_right)]
+    parts += [_outline(b.center, b.heading, b.half, step) for b in (layout.ego_lane, layout.stop_line)]
+    parts += [_outline(occ.center[i], float(occ.heading[i]), occ.half[i], step) for i in range(len(occ.names))]
+    near = np.concatenate(parts)
+    near = near[np.linalg.norm(near - layout.conflict, axis=1) <= radius]
+    every = np.concatenate([must, near])
+    lo, hi = every.min(axis=0) - margin, every.max(axis=0) + margin
+    return float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1])
+
+
 def _trajectories(exp: Experiment, planner: str, seeds: Sequence[int], path: Path,
                   notes: list[str]) -> Path | str:
+    made = trajectories_figure(exp, planner, seeds, notes)
+    return made if isinstance(made, str) else _save(made, path)
+
+
+def trajectories_figure(exp: Experiment, planner: str, seeds: Sequence[int],
+                        notes: list[str] | None = None) -> Any:
+    """The top-down paths of both cars for ``seeds`` of ``planner``, re-simulated from the
+    experiment's settings over the road layout of its scene: a matplotlib ``Figure`` (one
+    axes, world frame x east / y north [m], equal aspect), or a string saying why none can
+    be drawn. The axes span :func:`scene_extent` of the scene's layout and the paths; the
+    legend lies below the axes, outside the data. Notes (a scene not found, a re-run that
+    differs from the record) are appended to ``notes``."""
+    notes = [] if notes is None else notes
     if not seeds:
         return f"no records of planner {planner}"
     config, cdf = _scenario(exp.settings), _cdf(exp.settings)
@@ -286,19 +350,27 @@ def _trajectories(exp: Experiment, planner: str, seeds: Sequence[int], path: Pat
         notes.append(f"The scene {scene_path} of the settings was not found; the default scene was used.")
         scene_path = DEFAULT_SCENE
     scene = Scene.load(scene_path, names=config.names)
+    layout = scene.layout()
     stored = {int(r["seed"]): r for r in exp.by_planner(planner)}
-    fig = _figure(8.0, 4.6)
-    ax = fig.subplots()
-    _draw_layout(ax, scene)
-    for i, seed in enumerate(seeds):
+    runs = []
+    for seed in seeds:
         rec = run_episode(config, seed, _planner(planner, cdf), scene, label=False, trace=True)
         old = stored.get(seed)
         if old is not None and old.get("brake_time") != rec.brake_time:
             notes.append(f"Seed {seed} re-simulated with brake time {rec.brake_time} against "
                          f"{old.get('brake_time')} stored: the code changed since the experiment.")
-        trace = rec.trace
-        assert trace is not None, "run_episode(trace=True) records a trace"
-        poses = np.asarray(trace["poses"], dtype=np.float64)  # (K, 2, 4)
+        assert rec.trace is not None, "run_episode(trace=True) records a trace"
+        poses = np.asarray(rec.trace["poses"], dtype=np.float64)  # (K, 2, 4)
+        runs.append((seed, rec, poses, np.asarray(rec.trace["t"], dtype=np.float64), old))
+    x0, x1, y0, y1 = scene_extent(layout, np.concatenate([p[:, :, :2] for _, _, p, _, _ in runs]))
+    width = 8.0
+    axes_h = min(max((width - 1.0) * (y1 - y0) / (x1 - x0), 2.4), 7.0)
+    fig = _figure(width, axes_h + 1.2 + 0.18 * len(seeds))
+    ax = fig.subplots()
+    _draw_layout(ax, scene)
+    for route, name in ((layout.route_left, "obstacle routes (left, right)"), (layout.route_right, "_")):
+        ax.plot(route.points[:, 0], route.points[:, 1], color="#bbbbbb", lw=1.0, ls=":", zorder=2, label=name)
+    for i, (seed, rec, poses, times, old) in enumerate(runs):
         color = _PLANNER_COLORS[i % len(_PLANNER_COLORS)]
         lab = old.get("label") if old else None
         name = f"seed {seed}" + (f" ({lab})" if lab else "")
@@ -307,21 +379,21 @@ def _trajectories(exp: Experiment, planner: str, seeds: Sequence[int], path: Pat
         ax.plot(poses[:, 1, 0], poses[:, 1, 1], color=color, lw=lw, ls="--", zorder=3,
                 label=f"{name}: obstacle")
         if rec.brake_time is not None:
-            k = int(np.argmin(np.abs(np.asarray(trace["t"]) - rec.brake_time)))
+            k = int(np.argmin(np.abs(times - rec.brake_time)))
             ax.scatter(poses[k, 0, 0], poses[k, 0, 1], marker="X", s=90, color=color, edgecolor="black",
                        zorder=4)
         if rec.collision:
             ax.scatter(poses[-1, 0, 0], poses[-1, 0, 1], marker="*", s=160, color="yellow",
                        edgecolor="black", zorder=4)
-    ax.set_xlim(-55, 35)
-    ax.set_ylim(-14, 22)
-    ax.set_aspect("equal")
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
+    ax.set_aspect("equal", adjustable="box")  # the limits stay; the axes box takes their shape
     ax.set_xlabel("x east [m]")
     ax.set_ylabel("y north [m]")
     ax.set_title(f"{planner}: paths (ego solid, obstacle dashed; X brake decision, * collision)",
                  fontsize=10)
-    ax.legend(fontsize=7, loc="upper left", ncol=1, framealpha=0.85)
-    return _save(fig, path)
+    fig.legend(loc="outside lower center", ncol=3, fontsize=7, frameon=False)
+    return fig
 
 
 def _posterior(exp: Experiment, seeds: Sequence[int], path: Path) -> Path | str:
@@ -347,8 +419,13 @@ def _posterior(exp: Experiment, seeds: Sequence[int], path: Path) -> Path | str:
         ax.set_ylim(-0.03, 1.03)
         ax.set_ylabel("probability")
         ax.set_title(f"seed {seed}: label {rec.get('label')}, prediction {prediction(rec)}", fontsize=9)
-    axes[0].legend(fontsize=7, loc="center right", ncol=2)
     axes[-1].set_xlabel("time [s]")
+    legend: dict[str, Any] = {}  # every curve and marker of any panel, once, above the panels
+    for ax in axes:
+        for handle, name in zip(*ax.get_legend_handles_labels(), strict=True):
+            legend.setdefault(name, handle)
+    fig.legend(list(legend.values()), list(legend), loc="outside upper center", ncol=3, fontsize=7,
+               frameon=False)
     return _save(fig, path)
 
 
@@ -373,7 +450,7 @@ def _lead_times(exp: Experiment, path: Path) -> Path | str:
     ax.axvline(0.0, color="black", lw=0.8)
     ax.set_xlabel("lead time = obstacle enters the ego lane - brake decision [s]")
     ax.set_ylabel("Cutoff episodes")
-    ax.legend(fontsize=8)
+    fig.legend(loc="outside right upper", fontsize=8, frameon=False)
     return _save(fig, path)
 
 
