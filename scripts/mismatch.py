@@ -33,7 +33,7 @@ from pathlib import Path
 from statistics import median
 from typing import Any, NoReturn
 
-from cdf_mj.analysis.metrics import PlannerMetrics, paired_counts, planner_metrics
+from cdf_mj.analysis.metrics import PlannerMetrics, mcnemar_exact, paired_counts, planner_metrics
 from cdf_mj.analysis.tables import format_number, format_rate
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
@@ -46,16 +46,6 @@ PLANNERS_DEFAULT = ("cdf", "reactive", "cv", "imm")
 #: The issue's targets for the CDF on every preset.
 TARGET_AVOIDED = 0.97  # the paper's formula, (imminent - collisions) / imminent, at least
 TARGET_FALSE_ALARMS = 0.03  # of all episodes, at most
-
-
-def mcnemar_exact(b: int, c: int) -> float:
-    """Two-sided exact McNemar p-value for ``b`` and ``c`` discordant pairs: the binomial
-    test of ``min(b, c)`` successes in ``b + c`` trials at 1/2 (1.0 without discordant pairs)."""
-    n = b + c
-    if n == 0:
-        return 1.0
-    tail = sum(math.comb(n, i) for i in range(min(b, c) + 1)) / 2**n
-    return min(1.0, 2 * tail)
 
 
 @dataclass(frozen=True)

@@ -169,15 +169,6 @@ def _script():
     return module
 
 
-def test_mcnemar_exact_is_the_two_sided_binomial_test():
-    mcnemar = _script().mcnemar_exact
-    assert mcnemar(0, 0) == 1.0
-    assert mcnemar(3, 3) == 1.0
-    assert mcnemar(0, 5) == pytest.approx(2 / 32)  # 2 * P(X = 0), X ~ Bin(5, 1/2)
-    assert mcnemar(9, 1) == pytest.approx(2 * 11 / 1024) == mcnemar(1, 9)  # 2 * P(X <= 1), X ~ Bin(10, 1/2)
-    assert mcnemar(0, 30) < 1e-8
-
-
 def test_mismatch_refuses_a_broken_preset_before_running(tmp_path):
     proc = subprocess.run([sys.executable, str(SCRIPT), "--presets", "default,nope", "--out", str(tmp_path / "r"),
                            "--doc", str(tmp_path / "M.md")], capture_output=True, text=True, timeout=120)

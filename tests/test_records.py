@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from cdf_mj.analysis.metrics import paired_counts, planner_metrics, scenario_summary, tau_curve
+from cdf_mj.analysis.metrics import mcnemar_exact, paired_counts, planner_metrics, scenario_summary, tau_curve
 from cdf_mj.records import (
     FAILED,
     OK,
@@ -179,3 +179,13 @@ def test_paired_counts_and_the_tau_curve_use_the_same_rules():
     assert curve[0.5]["false_alarms_k"] == 1 and curve[0.5]["detected_k"] == 1  # braked at 0.1 s, entry 0.25 s
     assert curve[0.96]["detected_k"] == 0 and curve[0.97]["false_alarms_k"] == 1
     assert curve[0.98]["false_alarms_k"] == 0 and curve[0.98]["episodes"] == 3
+
+
+def test_mcnemar_exact_is_the_two_sided_binomial_test():
+    assert mcnemar_exact(0, 0) == 1.0
+    assert mcnemar_exact(3, 3) == 1.0
+    assert mcnemar_exact(0, 5) == pytest.approx(2 / 32)  # 2 * P(X = 0), X ~ Bin(5, 1/2)
+    assert mcnemar_exact(9, 1) == pytest.approx(2 * 11 / 1024) == mcnemar_exact(1, 9)  # 2 P(X <= 1), n = 10
+    assert mcnemar_exact(0, 30) < 1e-8
+    with pytest.raises(ValueError, match="counts must be >= 0"):
+        mcnemar_exact(-1, 2)

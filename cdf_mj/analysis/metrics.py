@@ -58,6 +58,7 @@ __all__ = [
     "confusion_matrix",
     "cutoff_recall",
     "decision_time",
+    "mcnemar_exact",
     "paired_counts",
     "planner_metrics",
     "prior_brier",
@@ -344,6 +345,20 @@ def paired_counts(records: Iterable[RecordLike], first: str, second: str) -> Pai
             counts[3] += alarm_b and not alarm_a
             counts[4] += alarm_a and alarm_b
     return PairedCounts(first, second, len(seeds), *counts)
+
+
+def mcnemar_exact(b: int, c: int) -> float:
+    """Two-sided exact McNemar p-value for ``b`` and ``c`` discordant pairs (for example
+    :class:`PairedCounts`' ``collides_only_first`` and ``collides_only_second``): the
+    binomial test of ``min(b, c)`` successes in ``b + c`` trials at 1/2; 1.0 without
+    discordant pairs. ValueError for a negative count."""
+    if b < 0 or c < 0:
+        raise ValueError(f"mcnemar_exact: counts must be >= 0, got {b} and {c}")
+    n = b + c
+    if n == 0:
+        return 1.0
+    tail = sum(math.comb(n, i) for i in range(min(b, c) + 1)) / 2**n
+    return min(1.0, 2 * tail)
 
 
 # ----------------------------------------------------------------- the braking threshold
