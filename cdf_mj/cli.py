@@ -529,8 +529,8 @@ def _add_render(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--camera", default=None,
                    help="a camera of the scene, e.g. top, ego_chase or obstacle_chase (default: "
                         "a view that follows both cars and the conflict zone)")
-    p.add_argument("--width", type=int, default=640, help="image width [px], even (default 640)")
-    p.add_argument("--height", type=int, default=480, help="image height [px], even (default 480)")
+    p.add_argument("--width", type=int, default=640, help="image width [px], even for MP4 (default 640)")
+    p.add_argument("--height", type=int, default=480, help="image height [px], even for MP4 (default 480)")
     p.add_argument("--fps", type=float, default=None,
                    help="frames per simulated second (default 30 for MP4, 25 for GIF)")
     p.add_argument("--frame", type=float, default=None, metavar="T",

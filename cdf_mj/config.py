@@ -288,7 +288,8 @@ class CDFConfig:
     prior: DriverPrior = field(default_factory=lambda: DriverPrior())
     # Rejuvenation of the discrete state, so that no hypothesis dies for good:
     # per tick, a driver that is not committed jumps with this probability: held back
-    # (waiting, yielding) -> going, disregarding what it saw; going -> yielding (one tick).
+    # (waiting, yielding) -> going, disregarding what it saw (it forgets its belief, so it
+    # no longer counts in P(seen)); going -> yielding (one tick).
     mode_jump: float = 0.005  # [1/tick]
     # After each resampling this fraction of the particles still held back (waiting,
     # yielding) redraw their intent from the prior, so that while the car stands

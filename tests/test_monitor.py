@@ -153,9 +153,17 @@ def test_waiting_drivers_warned_when_they_cut_across_and_not_when_they_turn_away
 
 
 # ------------------------------------------------------------------ the trace file
+def _edit(line: str, **changes: object) -> str:
+    """One JSON line of a trace with some keys replaced (NaN written as JSON's NaN)."""
+    return json.dumps({**json.loads(line), **changes})
+
+
 def test_trace_round_trip_and_damaged_files(tmp_path: Path):
     _, _, monitor = _wait_and_go(SceneNames(), 0.5, "left", seed=0)
     path = monitor.save_trace(tmp_path / "episode.jsonl")
+    umask = os.umask(0)
+    os.umask(umask)
+    assert path.stat().st_mode & 0o777 == 0o666 & ~umask  # an ordinary file, readable by others
     trace = read_trace(path)
     assert len(trace.times) == len(monitor.trace) and trace.names == SceneNames()
     np.testing.assert_allclose(trace.poses[3], [monitor.trace[3]["ego"], monitor.trace[3]["obstacle"]])
@@ -170,6 +178,16 @@ def test_trace_round_trip_and_damaged_files(tmp_path: Path):
         ("\n".join([lines[0], lines[2], lines[1]]), "bad.jsonl:3: time 0 s does not follow 0.1 s"),
         (json.dumps({"format": "other"}), "bad.jsonl:1: not a monitor trace"),
         ("", "bad.jsonl:1: empty file"),
+        ("\n".join([_edit(lines[0], tau=float("nan")), lines[1]]),
+         r"bad.jsonl:1: the header's 'tau' must be in \(0, 1\]"),
+        ("\n".join([_edit(lines[0], tau=-5), lines[1]]), r"bad.jsonl:1: the header's 'tau' must be in \(0, 1\]"),
+        ("\n".join([_edit(lines[0], names={"nosuch": "x"}), lines[1]]),
+         "bad.jsonl:1: the header's 'names' has unknown key.s. nosuch; valid: ego_prefix"),
+        ("\n".join([lines[0], _edit(lines[1], posterior={**json.loads(lines[1])["posterior"], "p_left": 7.0})]),
+         "bad.jsonl:2: 'posterior' has p_left out of range"),
+        ("\n".join([lines[0], _edit(lines[1], posterior={**json.loads(lines[1])["posterior"],
+                                                          "p_cutoff": float("nan")})]),
+         "bad.jsonl:2: 'posterior' has p_cutoff out of range"),
     ):
         bad.write_text(text)
         with pytest.raises(TraceError, match=fragment):

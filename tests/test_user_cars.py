@@ -162,3 +162,28 @@ def test_a_mocap_car_is_observed_with_its_speed():
         mujoco.mj_step(model, data, nstep=20)
     assert speeds[0] == 0.0  # no earlier read to difference against
     np.testing.assert_allclose(speeds[1:], 3.0, atol=1e-6)
+
+
+@pytest.mark.parametrize(("ipos", "qvel"), [
+    ((0.0, 1.0, 0.0), (5.0, 0.0, 0.0, 0.0, 0.0, 1.0)),   # centre of mass to the side, turning
+    ((0.0, 0.0, 0.5), (5.0, 0.0, 0.0, 0.0, 1.0, 0.0)),   # centre of mass high, pitching
+])
+def test_speed_is_the_rear_axles_whatever_the_centre_of_mass(ipos, qvel):
+    """The rear axle's velocity is taken at the body's origin, not at its centre of mass:
+    a free body whose origin moves at 5 m/s along its heading reads 5 m/s however its
+    mass is placed and however it turns or pitches (the rear axle on the body's x axis)."""
+    from cdf_mj.scenario.monitor import _BodySource
+
+    spec = mujoco.MjSpec()
+    body = spec.worldbody.add_body(name="chassis", pos=[0.0, 0.0, 0.5])
+    body.add_freejoint()
+    body.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[2.0, 0.9, 0.5])
+    body.explicitinertial = True
+    body.mass, body.ipos, body.inertia = 1000.0, list(ipos), [500.0, 1500.0, 1800.0]
+    model = spec.compile()
+    data = mujoco.MjData(model)
+    data.qvel[:] = qvel
+    source = _BodySource(model, data, [model.body("chassis").id] * 2, [TrackedCar(body="chassis",
+                                                                                   rear_axle=(-1.35, 0.0))] * 2)
+    _, poses = source.read()
+    assert poses[0, 3] == pytest.approx(5.0, abs=1e-9)

@@ -6,9 +6,11 @@ seen the ego and what it believes, its intent, its state-machine mode, and its b
 critical gap, clear distance, acceleration, turn speed, yield braking and departure
 hazard, drawn at reset from the filter's own prior (``CDFConfig.prior``, a
 :class:`cdf_mj.config.DriverPrior`), not copied from the world. The filter reads from the
-:class:`ScenarioConfig` only the tick ``dt``, the observation and process noise and the
-route-following look-ahead. The ego's pose is known to the ego and is shared by all
-particles (it is the measured one).
+:class:`ScenarioConfig` only the tick ``dt``, the observation and process noise, the
+route-following look-ahead and ``passed_margin`` (a believed ego this far past the
+conflict point is gone: a geometric margin of the junction, not a trait of the driver).
+The ego's pose is known to the ego and is shared by all particles (it is the measured
+one).
 
 One tick (``dt``), as in the simulation (:mod:`cdf_mj.scenario.episode`):
 

@@ -253,6 +253,9 @@ class CDFMonitor:
         try:
             with os.fdopen(fd, "w", encoding="utf-8") as f:
                 f.write("\n".join(lines) + "\n")
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o666 & ~umask)  # an ordinary file's mode (mkstemp's is 0600)
             os.replace(tmp, path)
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
@@ -367,7 +370,7 @@ class _BodySource:
             yaw = math.atan2(fwd[1], fwd[0])
             heading = np.array([math.cos(yaw), math.sin(yaw), 0.0])
             if self.moved[i]:
-                mj.mj_objectVelocity(m, s, mj.mjtObj.mjOBJ_BODY, body, vel, 0)  # [rot, lin], world axes
+                mj.mj_objectVelocity(m, s, mj.mjtObj.mjOBJ_XBODY, body, vel, 0)  # [rot, lin] at xpos, world axes
                 speed = float((vel[3:] + np.cross(vel[:3], arm)) @ heading)
             elif self._last is not None and t > self._last[0]:
                 speed = float((points[i] - self._last[1][i]) @ heading / (t - self._last[0]))
@@ -490,6 +493,13 @@ def read_trace(path: str | Path) -> MonitorTrace:
     if header.get("format") != TRACE_FORMAT:
         raise TraceError(f"{path}:{no}: not a monitor trace: the header's format is "
                          f"{header.get('format')!r}, expected {TRACE_FORMAT!r}")
+    valid = [f.name for f in dataclasses.fields(SceneNames)]
+    unknown = sorted(set(header.get("names") or {}) - set(valid)) if isinstance(header.get("names"), dict) else []
+    if "names" in header and not isinstance(header["names"], dict):
+        raise TraceError(f"{path}:{no}: the header's 'names' must be an object of SceneNames fields")
+    if unknown:
+        raise TraceError(f"{path}:{no}: the header's 'names' has unknown key(s) {', '.join(unknown)}; "
+                         f"valid: {', '.join(valid)}")
     try:
         names = SceneNames(**header["names"])
         ego = CarGeometry.from_dict(header["ego"])
@@ -499,6 +509,8 @@ def read_trace(path: str | Path) -> MonitorTrace:
         raise TraceError(f"{path}:{no}: the header lacks {exc.args[0]!r}") from None
     except (TypeError, ValueError) as exc:
         raise TraceError(f"{path}:{no}: bad header: {' '.join(str(exc).split())}") from None
+    if not (math.isfinite(tau) and 0.0 < tau <= 1.0):
+        raise TraceError(f"{path}:{no}: the header's 'tau' must be in (0, 1], got {header['tau']!r}")
     if len(rows) < 2:
         raise TraceError(f"{path}:{no}: the trace has no observation after its header")
     times: list[float] = []
@@ -523,6 +535,11 @@ def read_trace(path: str | Path) -> MonitorTrace:
             raise TraceError(f"{path}:{no}: time {t:g} s does not follow {times[-1]:g} s")
         if not isinstance(b, bool):
             raise TraceError(f"{path}:{no}: 'brake' must be true or false, got {b!r}")
+        bad = [k for k, v in zip(_POSTERIOR_KEYS, values, strict=True)
+               if not math.isfinite(v) or (v < 0.0 if k == "ess" else not 0.0 <= v <= 1.0)]
+        if bad:
+            raise TraceError(f"{path}:{no}: 'posterior' has {', '.join(bad)} out of range "
+                             "(probabilities in [0, 1], ess a finite number >= 0)")
         times.append(t)
         poses.append(pose)
         brake.append(b)
