@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 
 import pytest
 
@@ -23,6 +24,7 @@ from cdf_mj.records import (
     paper_avoided,
     prediction,
     read_records,
+    read_settings,
 )
 from cdf_mj.scenario.episode import run_episode
 
@@ -53,10 +55,19 @@ def test_from_dict_round_trips_real_records(scene, planner):
 
 @pytest.mark.parametrize(("change", "message"), [
     ({"label": ...}, "field 'label' is missing"),
-    ({"min_gap": "2.0"}, "field 'min_gap' must be a number, got str '2.0'"),
-    ({"min_gap": None}, "field 'min_gap' must be a number, got null"),
+    ({"min_gap": "2.0"}, "field 'min_gap' must be a finite number, got str '2.0'"),
+    ({"min_gap": None}, "field 'min_gap' must be a finite number, got null"),
     ({"seed": True}, "field 'seed' must be an integer, got bool True"),
-    ({"brake_time": "0.9"}, "field 'brake_time' must be a number or null"),
+    ({"seed": 1.7}, "field 'seed' must be an integer, got float 1.7"),
+    ({"seed": "3"}, "field 'seed' must be an integer, got str '3'"),
+    ({"seed": None}, "field 'seed' must be an integer, got null"),
+    ({"seed": math.inf}, "field 'seed' must be an integer, got float inf"),
+    ({"seed": -2}, "field 'seed' must be a non-negative integer, got -2"),
+    ({"planner": ["cdf"]}, "field 'planner' must be a string, got list"),
+    ({"brake_time": "0.9"}, "field 'brake_time' must be a finite number or null"),
+    ({"brake_time": math.nan}, "field 'brake_time' must be a finite number or null, got float nan"),
+    ({"time_lost": -math.inf}, "field 'time_lost' must be a finite number, got float -inf"),
+    ({"planner_info": "{}"}, "field 'planner_info' must be an object"),
     ({"yielded": 1}, "field 'yielded' must be true or false"),
     ({"planner_info": []}, "field 'planner_info' must be an object"),
     ({"intent": "up"}, "field 'intent' must be one of 'left', 'right', got 'up'"),
@@ -116,6 +127,74 @@ def test_the_reader_leaves_out_a_half_written_last_line_without_changing_the_fil
     assert load_records(tmp_path) == found.records
     path.write_text(lines)
     assert not read_records(path).partial
+
+
+@pytest.mark.parametrize(("line", "reason"), [
+    ('{"seed": 1e400, "planner": "cdf", "status": "failed"}', "field 'seed' of a failed record must be an integer"),
+    ('{"seed": -1, "planner": "cdf", "status": "failed"}', "field 'seed' must be a non-negative integer"),
+    ("[" * 100_000 + "]" * 100_000, r"not JSON \(nested too deeply\)"),
+    ('"\xff"', "not JSON"),
+    ("7", "an episode record is a JSON object, got int"),
+])
+def test_the_reader_refuses_odd_json_naming_the_line(tmp_path, line, reason):
+    path = tmp_path / "episodes.jsonl"
+    path.write_bytes(json.dumps(episode(0, "cdf", "Right")).encode() + b"\n" + line.encode("latin-1") + b"\n")
+    with pytest.raises(ValueError, match=rf"^{path}:2 is not an episode record: {reason}"):
+        read_records(path)
+
+
+def test_the_reader_refuses_records_of_another_run_and_duplicates(tmp_path):
+    path = tmp_path / "episodes.jsonl"
+
+    def lines(*recs: dict) -> None:
+        path.write_text("".join(json.dumps(r) + "\n" for r in recs))
+
+    lines(episode(3, "cdf", "Right"), episode(3, "reactive", "Right"), episode(3, "cdf", "Right"))
+    with pytest.raises(ValueError, match=rf"^{path}:3 is not a record of this run: seed 3 of planner 'cdf' is "
+                                         r"recorded twice \(first on line 1\)"):
+        read_records(path)  # twice is wrong in any run
+    lines(episode(3, "cdf", "Right"), {"seed": 3, "planner": "cdf", "status": FAILED})
+    with pytest.raises(ValueError, match="recorded twice"):
+        read_records(path)  # a failed and a completed record of one episode too
+    lines(episode(3, "cdf", "Right"), episode(9, "cdf", "Right"))
+    assert len(read_records(path).records) == 2
+    with pytest.raises(ValueError, match=rf"^{path}:2 is not a record of this run: seed 9 is outside the run's "
+                                         "seeds 0-4"):
+        read_records(path, seeds=range(5))
+    with pytest.raises(ValueError, match=r":1 is not a record of this run: planner 'cdf' is not one of the "
+                                         r"run's planners \(reactive\)"):
+        read_records(path, planners=["reactive"])
+    assert len(read_records(path, seeds=range(10), planners=["cdf"]).records) == 2
+
+
+def test_the_reader_refuses_what_is_not_a_regular_file(tmp_path):
+    fifo = tmp_path / "episodes.jsonl"
+    os.mkfifo(fifo)
+    with pytest.raises(ValueError, match="is not a regular file"):
+        read_records(fifo)  # and does not block
+    with pytest.raises(ValueError, match="is not a regular file"):
+        read_records(tmp_path)
+
+
+@pytest.mark.parametrize(("change", "key"), [
+    ({"planners": 7}, "planners"), ({"planners": "cdf"}, "planners"), ({"planners": ["cdf", "cdf"]}, "planners"),
+    ({"seeds": [0, 1.5]}, "seeds"), ({"seeds": [-1, 3]}, "seeds"), ({"seeds": None}, "seeds"),
+    ({"seeds": [5, 2]}, "seeds"), ({"scenario": []}, "scenario"), ({"cdf": "x"}, "cdf"),
+    ({"scenario": {"names": "abc"}}, "scenario.names"), ({"scene": 3}, "scene"),
+    ({"scene_files": []}, "scene_files"), ({"version": 1}, "version"),
+])
+def test_settings_are_checked_naming_the_file_and_the_key(tmp_path, change, key):
+    good = {"seeds": [0, 4], "planners": ["cdf", "reactive"], "scenario": {}, "cdf": {}, "scene": "s.xml"}
+    path = tmp_path / "settings.json"
+    path.write_text(json.dumps(good))
+    assert read_settings(path) == good
+    path.write_text(json.dumps({**good, **change}))
+    with pytest.raises(ValueError, match=rf"^{path}: key '{key}' must be"):
+        read_settings(path)
+    for text, reason in (("[1, 2]", "settings are a JSON object, got list"), ("{", "not JSON")):
+        path.write_text(text)
+        with pytest.raises(ValueError, match=rf"^{path}: {reason}"):
+            read_settings(path)
 
 
 # ----------------------------------------------------------------- rules of one record

@@ -27,10 +27,14 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 @pytest.fixture(scope="module")
 def experiment(tmp_path_factory):
     """Seeds 0-3 (Right, Cutoff, Right, Yield) with cdf and reactive, plus a failed
-    episode, a record of another planner and a line cut short by a kill (or still being written)."""
+    episode of seed 4, a record of a third planner and a line cut short by a kill (or still
+    being written); the settings say seeds 0-4 and the three planners."""
     out = tmp_path_factory.mktemp("exp")
     run_experiment(out, range(4), ("cdf", "reactive"), ScenarioConfig(), CDFConfig(n_particles=300),
                    progress=False, workers=1, backend="serial")
+    settings = json.loads((out / "settings.json").read_text())
+    settings.update(seeds=[0, 5], planners=["cdf", "reactive", "baseline_x"])
+    (out / "settings.json").write_text(json.dumps(settings))
     lines = (out / "episodes.jsonl").read_text().splitlines()
     other = json.loads(next(line for line in lines if json.loads(line)["planner"] == "reactive"))
     other["planner"] = "baseline_x"
@@ -111,7 +115,8 @@ def test_cli_report(experiment, tmp_path, capsys) -> None:
 def test_unregistered_planner_is_reported_without_trajectories(experiment, tmp_path) -> None:
     d = tmp_path / "plugin"
     d.mkdir()
-    shutil.copy(experiment / "settings.json", d)
+    settings = json.loads((experiment / "settings.json").read_text())
+    (d / "settings.json").write_text(json.dumps({**settings, "planners": ["plugin_only"]}))
     lines = [line.replace('"planner": "reactive"', '"planner": "plugin_only"')
              for line in (experiment / "episodes.jsonl").read_text().splitlines()
              if '"planner": "reactive"' in line]
@@ -173,3 +178,73 @@ def test_scene_extent_cuts_long_routes_and_keeps_the_junction() -> None:
     assert scene_extent(layout, far, margin=2.0)[1] == pytest.approx(82.0)
     with pytest.raises(ValueError, match="finite"):
         scene_extent(layout, np.array([[np.nan, 0.0]]))
+
+
+@pytest.mark.parametrize(("settings_change", "record_change", "named"), [
+    (lambda s: [s], None, r"settings\.json: settings are a JSON object, got list"),
+    (lambda s: {**s, "scenario": [1]}, None, "key 'scenario' must be an object"),
+    (lambda s: {**s, "scenario": {**s["scenario"], "names": "abc"}}, None, "key 'scenario.names'"),
+    (lambda s: {**s, "planners": 7}, None, "key 'planners' must be"),
+    (lambda s: {**s, "scenario": {**s["scenario"], "dt": "fast"}}, None, "scenario settings this version"),
+    (None, lambda r: r.pop("min_gap"), r"episodes\.jsonl:1 is not an episode record: field 'min_gap' is missing"),
+    (None, lambda r: r.update(seed=None), r"episodes\.jsonl:1 .*field 'seed' must be an integer, got null"),
+    (None, lambda r: r.update(planner=["cdf"]), r"episodes\.jsonl:1 .*field 'planner' must be a string"),
+    (None, lambda r: r.update(planner_info="x"), r"episodes\.jsonl:1 .*field 'planner_info' must be an object"),
+    (None, lambda r: r.update(seed=40), r"episodes\.jsonl:1 is not a record of this run: seed 40 is outside"),
+])
+def test_odd_json_is_one_line_naming_the_file_and_the_key(experiment, tmp_path, capsys, settings_change,
+                                                          record_change, named) -> None:
+    d = tmp_path / "odd"
+    d.mkdir()
+    settings = json.loads((experiment / "settings.json").read_text())
+    lines = (experiment / "episodes.jsonl").read_text().splitlines()[:-1]  # whole lines
+    if settings_change is not None:
+        settings = settings_change(settings)
+    if record_change is not None:
+        first = json.loads(lines[0])
+        record_change(first)
+        lines[0] = json.dumps(first)
+    (d / "settings.json").write_text(json.dumps(settings))
+    (d / "episodes.jsonl").write_text("\n".join(lines) + "\n")
+    with pytest.raises(ReportError, match=named):
+        write_report(d, out=tmp_path / "page")
+    assert main(["report", str(d)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("cdf-mj: error: ") and err.count("\n") == 1 and "Traceback" not in err
+
+
+@pytest.mark.parametrize(("history", "named"), [
+    ([1, 2], "history' must be an object of per-tick lists"),
+    ({"t": [0.0, "x"], "p_left": [1.0, 1.0]}, "history.t' must be a list of finite numbers"),
+    ({"t": [0.0, 0.1], "p_left": [1.0]}, "history.p_left' must hold one probability in"),
+    ({"t": [0.0], "p_cutoff": [1.5]}, "history.p_cutoff' must hold one probability in"),
+])
+def test_an_odd_posterior_history_is_refused_naming_its_line(experiment, tmp_path, history, named) -> None:
+    d = tmp_path / "history"
+    d.mkdir()
+    shutil.copy(experiment / "settings.json", d)
+    lines = (experiment / "episodes.jsonl").read_text().splitlines()[:-1]
+    number = next(i for i, line in enumerate(lines) if json.loads(line)["planner"] == "cdf")
+    rec = json.loads(lines[number])
+    rec["planner_info"]["history"] = history
+    lines[number] = json.dumps(rec)
+    (d / "episodes.jsonl").write_text("\n".join(lines) + "\n")
+    with pytest.raises(ReportError, match=rf"episodes\.jsonl:{number + 1} is not an episode record: "
+                                          rf"field 'planner_info\.{named}"):
+        write_report(d, out=tmp_path / "page")
+
+
+def test_the_report_replaces_planted_symlinks_and_never_writes_their_targets(experiment, tmp_path) -> None:
+    d = tmp_path / "planted"
+    d.mkdir()
+    for name in ("settings.json", "episodes.jsonl"):
+        shutil.copy(experiment / name, d)
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious")
+    for name in ("report.md", "confusion.png", ".report.md.tmp"):
+        (d / name).symlink_to(victim)
+    res = write_report(d, seeds=[1])
+    assert victim.read_text() == "precious"
+    assert not res.markdown.is_symlink() and res.markdown.read_text().startswith("# Experiment report")
+    assert not (d / "confusion.png").is_symlink() and (d / "confusion.png").read_bytes()[:8] == PNG_MAGIC
+    assert not [p for p in d.iterdir() if p.name.endswith(".tmp") and not p.is_symlink()]  # no temporary left

@@ -25,18 +25,22 @@ tables beside ours, with 95 % Wilson intervals. ::
 from __future__ import annotations
 
 import functools
+import hashlib
 import json
 import operator
 import os
 import pickle
+import stat
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, overload
+from xml.etree import ElementTree
 
 from tqdm import tqdm
 
+from cdf_mj import __version__
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.experiments.runner import (
     START_METHOD,
@@ -46,16 +50,17 @@ from cdf_mj.experiments.runner import (
     check_backend,
     effective_backend,
     run_seeds,
+    worker_count,
 )
-from cdf_mj.experiments.store import RecordStore, locked
+from cdf_mj.experiments.store import RecordStore, locked, write_atomic
 from cdf_mj.planners.base import PLANNERS, Planner, make_planner
 from cdf_mj.planners.cdf import CDFPlanner
-from cdf_mj.records import FAILED, RECORDS_FILE, EpisodeRecord
+from cdf_mj.records import FAILED, RECORDS_FILE, EpisodeRecord, read_settings
 from cdf_mj.scenario.episode import run_episode
 from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
 
 __all__ = ["ExperimentResult", "ResultsExistError", "SettingsMismatchError", "iter_episodes", "run_experiment",
-           "run_many"]
+           "run_many", "scene_files"]
 
 
 class ResultsExistError(ValueError):
@@ -97,11 +102,88 @@ def run_many(seeds: Iterable[int], planner: str = "reactive", config: ScenarioCo
     return list(iter_episodes(seeds, planner, config, scene, progress, cdf))
 
 
+#: MJCF elements whose ``file`` attribute names a file the compiled model is made from,
+#: and the ``<compiler>`` directory each is looked up in first.
+_FILE_ELEMENTS = {"include": None, "model": None, "mesh": "meshdir", "skin": "meshdir",
+                  "hfield": "meshdir", "texture": "texturedir"}
+_MAX_SCENE_FILES = 1000  # more is a loop or not a scene
+
+
+def scene_files(scene: str | Path) -> dict[str, str]:
+    """Every file the MJCF ``scene`` is made from, as absolute path -> SHA-256 (hex).
+
+    The scene file, the files it includes (``<include file=...>``, recursively), the model
+    files it attaches (``<model file=...>``, with their own includes and assets) and its
+    meshes, skins, height fields and textures, looked up as MuJoCo does: includes from the
+    directory of the file that starts the model, assets in the ``<compiler>`` ``meshdir``,
+    ``texturedir`` or ``assetdir`` (relative to that directory) and then in it. A file that
+    is not found is left out (MuJoCo refuses the scene then). ValueError naming a file
+    that is not a regular file (a FIFO would block) or that is not XML where XML is due.
+    """
+    found: dict[str, str] = {}
+
+    def digest(path: Path) -> bytes:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+        try:
+            if not stat.S_ISREG(os.fstat(fd).st_mode):
+                raise ValueError(f"scene file {path} is not a regular file: give a file")
+            with os.fdopen(fd, "rb", closefd=False) as fh:
+                data = fh.read()
+        finally:
+            os.close(fd)
+        found[str(path)] = hashlib.sha256(data).hexdigest()
+        return data
+
+    def walk(path: Path, root: Path) -> None:
+        """Hash the MJCF ``path`` and everything it names; ``root``: the model's directory."""
+        if str(path) in found or len(found) > _MAX_SCENE_FILES:
+            return
+        try:
+            tree = ElementTree.fromstring(digest(path))
+        except ElementTree.ParseError as exc:
+            raise ValueError(f"scene file {path} is not XML ({exc})") from None
+        dirs = {}
+        for comp in tree.iter("compiler"):
+            for key in ("meshdir", "texturedir", "assetdir"):
+                if comp.get(key):
+                    dirs[key] = root / comp.get(key, "")
+        for elem in tree.iter():
+            name = elem.get("file")
+            if name is None or not isinstance(elem.tag, str) or elem.tag not in _FILE_ELEMENTS:
+                continue
+            kind = _FILE_ELEMENTS[elem.tag]
+            places = [d for d in (dirs.get(kind or ""), dirs.get("assetdir")) if d is not None] if kind else []
+            places += [root, path.parent]
+            target = next((q / name for q in places if (q / name).exists()), None)
+            if target is None:
+                continue  # MuJoCo names it when it loads the scene
+            target = target.resolve()
+            if elem.tag == "include":
+                walk(target, root)
+            elif elem.tag == "model":
+                walk(target, target.parent)  # an attached model resolves its own files
+            elif str(target) not in found:
+                digest(target)
+
+    top = Path(scene).resolve()
+    walk(top, top.parent)
+    return found
+
+
 def _settings(seeds: Sequence[int], planners: Sequence[str], config: ScenarioConfig,
               cdf: CDFConfig, scene: str | Path) -> dict[str, Any]:
     return {"seeds": [int(seeds[0]), int(seeds[-1]) + 1] if seeds else [0, 0],
             "planners": list(planners), "scenario": config.to_dict(), "cdf": cdf.to_dict(),
-            "scene": str(Path(scene).resolve())}
+            "scene": str(Path(scene).resolve()), "scene_files": scene_files(scene),
+            "version": __version__}
+
+
+def _shown(path: str) -> str:
+    """``path`` relative to the working directory where it lies below it."""
+    try:
+        return str(Path(path).relative_to(Path.cwd()))
+    except ValueError:
+        return path
 
 
 def _differences(old: dict[str, Any], new: dict[str, Any], prefix: str = "") -> list[str]:
@@ -207,12 +289,12 @@ def run_experiment(out_dir: str | Path, seeds: Sequence[int], planners: Sequence
     out.mkdir(parents=True, exist_ok=True)
     with locked(out):  # a second run into this directory is refused here, before any check
         _check_directory(out, settings, resume)
-        tmp = settings_path.with_name(settings_path.name + ".tmp")
-        tmp.write_text(json.dumps(settings, indent=2) + "\n")
-        os.replace(tmp, settings_path)  # never a half-written settings file
+        # Whole or not at all, synced before and after the rename, never through a link.
+        write_atomic(settings_path, json.dumps(settings, indent=2) + "\n")
         order = {name: i for i, name in enumerate(planners)}
         peaks: list[float] = []
-        with RecordStore.open(records_path, drop_failed=resume and retry_failed) as store:
+        with RecordStore.open(records_path, drop_failed=resume and retry_failed,
+                              seeds=range(seeds[0], seeds[-1] + 1), planners=planners) as store:
             done = store.done()
             resumed = len(done)
             todo = [(s, tuple(p for p in planners if (s, p) not in done)) for s in seeds]
@@ -231,7 +313,7 @@ def run_experiment(out_dir: str | Path, seeds: Sequence[int], planners: Sequence
     ran_on = effective_backend(backend, n_workers, len(todo))
     return ExperimentResult(out_dir=out, records=records, ran=total, resumed=resumed,
                             failed=sum(1 for r in records if r.get("status") == FAILED),
-                            backend=ran_on, workers=1 if ran_on == "serial" else n_workers,
+                            backend=ran_on, workers=worker_count(backend, n_workers, len(todo)),
                             wall_time=time.perf_counter() - t0,
                             peak_worker_rss_mb=max(peaks, default=float("nan")))
 
@@ -247,11 +329,21 @@ def _check_directory(out: Path, settings: dict[str, Any], resume: bool) -> None:
         raise ValueError(f"{records_path} has no {settings_path.name} beside it, so its settings "
                          "cannot be checked: choose another directory")
     try:
-        old = json.loads(settings_path.read_text())
-        if not isinstance(old, dict):
-            raise ValueError("not a JSON object")
+        old = read_settings(settings_path)
     except ValueError as exc:
-        raise ValueError(f"{settings_path} is damaged ({exc}): choose another directory") from None
+        raise ValueError(f"{exc}; {settings_path.name} is damaged: choose another directory") from None
+    old_files: dict[str, str] = old.get("scene_files") or {}
+    new_files: dict[str, str] = settings["scene_files"]
+    if old.get("version") != settings["version"]:
+        raise SettingsMismatchError(f"{out} holds results of cdf_mj {old.get('version') or '(version not recorded)'}, "
+                                    f"and this is {settings['version']}: the records would mix two "
+                                    "versions; choose another directory")
+    if old.get("scene") == settings["scene"] and old_files != new_files:
+        changed = sorted(set(old_files) ^ set(new_files)) + sorted(
+            k for k in set(old_files) & set(new_files) if old_files[k] != new_files[k])
+        raise SettingsMismatchError(f"the scene {_shown(changed[0]) if changed else settings['scene']} changed "
+                                    f"since the run in {out} started: the records would mix two worlds; "
+                                    "restore it, or choose another directory")
     diff = _differences(old, json.loads(json.dumps(settings)))
     if diff:
         raise SettingsMismatchError(f"{out} holds results from other settings (differing: {', '.join(diff)}); "

@@ -10,19 +10,21 @@ runs out of one directory.
 
 from __future__ import annotations
 
+import errno
 import json
 import os
-from collections.abc import Iterable, Iterator
-from contextlib import contextmanager
+import stat
+from collections.abc import Iterable, Iterator, Sequence
+from contextlib import contextmanager, suppress
 from pathlib import Path
 from types import TracebackType
 from typing import IO, Any
 
 import numpy as np
 
-from cdf_mj.records import FAILED, read_records
+from cdf_mj.records import FAILED, fsync_directory, read_records, write_atomic
 
-__all__ = ["RecordStore", "json_default", "locked"]
+__all__ = ["RecordStore", "fsync_directory", "json_default", "locked", "write_atomic"]
 
 
 def json_default(obj: object) -> object:
@@ -33,6 +35,21 @@ def json_default(obj: object) -> object:
     if isinstance(obj, np.generic):
         return obj.item()
     raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
+
+
+def _open_no_follow(path: Path, flags: int) -> int:
+    """``os.open`` that refuses a symlink or a non-regular file at ``path`` (ValueError naming it)."""
+    try:
+        fd = os.open(path, flags | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0), 0o666)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise ValueError(f"{path} is a symbolic link: the records file must be a regular file, "
+                             "move the link away or choose another directory") from None
+        raise
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        raise ValueError(f"{path} is not a regular file: move it away or choose another directory")
+    return fd
 
 
 @contextmanager
@@ -71,37 +88,41 @@ class RecordStore:
         self._fh = fh
 
     @classmethod
-    def open(cls, path: str | Path, drop_failed: bool = False) -> RecordStore:
+    def open(cls, path: str | Path, drop_failed: bool = False, seeds: range | None = None,
+             planners: Sequence[str] | None = None) -> RecordStore:
         """Open ``path`` for appending, reading the records already there.
 
-        A last line cut short by a killed run is dropped (truncated from the file); any
-        other line that is not a record is a ValueError naming its line number
-        (:func:`cdf_mj.records.read_records`). With ``drop_failed``, failed records are
-        removed from the file (rewritten atomically) so that their episodes run again.
-        Writers of one file must not overlap: hold :func:`locked` on its directory.
+        Every line is checked before any work (:func:`cdf_mj.records.read_records`): a
+        line that is not a record, a ``(seed, planner)`` recorded twice, or, where the run's
+        ``seeds`` (a range) and ``planners`` are given, a record of another seed or planner
+        is a ValueError naming the file and the line. A last line cut short by a killed
+        run is dropped (truncated from the file). With ``drop_failed``, failed records are
+        removed from the file (rewritten atomically) so that their episodes run again. A
+        symlink or a non-regular file at ``path`` is refused (ValueError), never written
+        through. Writers of one file must not overlap: hold :func:`locked` on its directory.
         """
         path = Path(path)
-        records: list[dict[str, Any]] = []
-        if path.exists():
+        fd = _open_no_follow(path, os.O_RDWR | os.O_APPEND | os.O_CREAT)
+        try:
             try:
-                found = read_records(path)
+                found = read_records(path, seeds=seeds, planners=planners)
             except ValueError as exc:
                 raise ValueError(f"{exc}; the file is damaged: move it away or choose another directory") from None
             records = found.records
             if found.partial:
-                with open(path, "r+b") as cut:
-                    cut.truncate(found.complete_bytes)
-                    cut.flush()
-                    os.fsync(cut.fileno())
-        if drop_failed and any(r.get("status") == FAILED for r in records):
-            records = [r for r in records if r.get("status") != FAILED]
-            tmp = path.with_name(path.name + ".tmp")
-            with open(tmp, "w", encoding="utf-8") as out:
-                out.write("".join(json.dumps(r, allow_nan=False) + "\n" for r in records))
-                out.flush()
-                os.fsync(out.fileno())
-            os.replace(tmp, path)
-        fh = open(path, "a", encoding="utf-8")  # noqa: SIM115 - closed by close() / __exit__
+                os.ftruncate(fd, found.complete_bytes)
+                os.fsync(fd)
+            if drop_failed and any(r.get("status") == FAILED for r in records):
+                records = [r for r in records if r.get("status") != FAILED]
+                write_atomic(path, "".join(json.dumps(r, allow_nan=False) + "\n" for r in records))
+                os.close(fd)
+                fd = _open_no_follow(path, os.O_RDWR | os.O_APPEND)
+            os.set_blocking(fd, True)
+            fh = os.fdopen(fd, "a", encoding="utf-8")
+        except BaseException:
+            with suppress(OSError):
+                os.close(fd)
+            raise
         return cls(path, records, fh)
 
     def done(self) -> set[tuple[int, str]]:

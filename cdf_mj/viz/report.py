@@ -18,7 +18,8 @@ Legends lie outside the axes (beside, above or below), never over the data.
 
 A figure whose data are absent (no CDF records, no braking before a lane entry) is left
 out and the page says why. The records file is read with
-:func:`cdf_mj.records.read_records`: a damaged line is an error naming it; failed episodes
+:func:`cdf_mj.records.read_records` and the settings with :func:`cdf_mj.records.read_settings`,
+before any work: a damaged line or key is one error naming it; failed episodes
 (``"status": "failed"``) and a half-written last line (a run still writing) are skipped
 and counted. Every rate and count comes from :mod:`cdf_mj.analysis.metrics`, as in the
 tables. Planners other than ``cdf`` and ``reactive`` are shown like them. The
@@ -33,7 +34,7 @@ global backend is changed. ::
 
 from __future__ import annotations
 
-import json
+import io
 import math
 import statistics
 from collections.abc import Sequence
@@ -52,7 +53,18 @@ from cdf_mj.model.geometry import box_corners
 from cdf_mj.model.layout import Layout
 from cdf_mj.planners.base import Planner, make_planner
 from cdf_mj.planners.cdf import CDFPlanner
-from cdf_mj.records import FAILED, LABELS, RECORDS_FILE, Label, lead_time, paper_avoided, prediction, read_records
+from cdf_mj.records import (
+    FAILED,
+    LABELS,
+    RECORDS_FILE,
+    Label,
+    lead_time,
+    paper_avoided,
+    prediction,
+    read_records,
+    read_settings,
+    write_atomic,
+)
 from cdf_mj.scenario.episode import run_episode
 from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
 
@@ -85,7 +97,7 @@ class Experiment:
     records: list[dict[str, Any]]  # completed episodes only
     failed: int = 0  # records with "status": "failed", skipped
     unreadable: int = 0  # 1 if the file ends in a half-written line (a run killed or still writing), skipped
-    planners: list[str] = field(default_factory=list)  # settings order, then any others
+    planners: list[str] = field(default_factory=list)  # those with completed records, in settings order
 
     def by_planner(self, name: str) -> list[dict[str, Any]]:
         """The completed records of one planner."""
@@ -106,20 +118,20 @@ class ReportResult:
 
 def load_experiment(path: str | Path) -> Experiment:
     """Read ``settings.json`` and ``episodes.jsonl``; failed records and a half-written last
-    line are counted and skipped. :class:`ReportError` if either file is missing, a line is
-    not a record (naming the file, the line and the field), or no episode completed."""
+    line are counted and skipped. :class:`ReportError` (one line) if either file is missing,
+    a settings key is not of its kind (:func:`cdf_mj.records.read_settings`, naming the
+    key), a line is not a record of the run (:func:`cdf_mj.records.read_records`, naming
+    the file, the line and the field: of another seed or planner, or an episode twice),
+    or no episode completed."""
     path = Path(path)
     settings_path, records_path = path / "settings.json", path / RECORDS_FILE
     for p in (settings_path, records_path):
         if not p.is_file():
             raise ReportError(f"{path} is not an experiment directory: {p.name} is missing "
                               f"(write one with: cdf-mj experiment --out {path})")
-    try:
-        settings = json.loads(settings_path.read_text(encoding="utf-8"))
-    except ValueError as exc:
-        raise ReportError(f"{settings_path}: not JSON ({exc})") from None
-    try:
-        found = read_records(records_path)
+    try:  # every key and every line checked before any work: one line naming the file and the key or line
+        settings = read_settings(settings_path)
+        found = read_records(records_path, seeds=range(*settings["seeds"]), planners=settings["planners"])
     except ValueError as exc:
         raise ReportError(str(exc)) from None
     records = [r for r in found.records if r.get("status") != FAILED]
@@ -127,8 +139,7 @@ def load_experiment(path: str | Path) -> Experiment:
     if not records:
         raise ReportError(f"{records_path} holds no completed episode "
                           f"({failed} failed, {unreadable} half-written line(s))")
-    planners = [p for p in settings.get("planners", []) if any(r["planner"] == p for r in records)]
-    planners += sorted({r["planner"] for r in records} - set(planners))
+    planners = [p for p in settings["planners"] if any(r["planner"] == p for r in records)]
     return Experiment(path, settings, records, failed, unreadable, planners)
 
 
@@ -138,22 +149,24 @@ def _tuples(value: Any) -> Any:
 
 
 def _scenario(settings: dict[str, Any]) -> ScenarioConfig:
-    raw = dict(settings.get("scenario", {}))
+    raw = dict(settings["scenario"])  # an object (read_settings checked it), names one too
     names = raw.pop("names", None)
     fields = {k: _tuples(v) for k, v in raw.items()}
-    if names:
-        fields["names"] = SceneNames(**names)
     try:
+        if names:
+            fields["names"] = SceneNames(**names)
         return ScenarioConfig(**fields)
-    except TypeError as exc:
-        raise ReportError(f"settings.json: scenario settings this version cannot read ({exc})") from None
+    except (TypeError, ValueError) as exc:
+        raise ReportError(" ".join(f"settings.json: scenario settings this version cannot read ({exc})"
+                                   .split())) from None
 
 
 def _cdf(settings: dict[str, Any]) -> CDFConfig:
     try:
-        return CDFConfig(**{k: _tuples(v) for k, v in settings.get("cdf", {}).items()})
-    except TypeError as exc:
-        raise ReportError(f"settings.json: CDF settings this version cannot read ({exc})") from None
+        return CDFConfig(**{k: _tuples(v) for k, v in settings["cdf"].items()})
+    except (TypeError, ValueError) as exc:
+        raise ReportError(" ".join(f"settings.json: CDF settings this version cannot read ({exc})"
+                                   .split())) from None
 
 
 def _planner(name: str, cdf: CDFConfig) -> Planner:
@@ -173,8 +186,10 @@ def _figure(width: float, height: float) -> Any:
 
 
 def _save(fig: Any, path: Path) -> Path:
-    fig.savefig(path, dpi=100)
-    return path
+    """Write ``fig`` as PNG whole or not at all, never through a symlink (:func:`write_atomic`)."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    return write_atomic(path, buf.getvalue())
 
 
 def _confusion(exp: Experiment, path: Path) -> Path | str:
@@ -397,17 +412,19 @@ def trajectories_figure(exp: Experiment, planner: str, seeds: Sequence[int],
 
 
 def _posterior(exp: Experiment, seeds: Sequence[int], path: Path) -> Path | str:
-    recs = {int(r["seed"]): r for r in exp.by_planner("cdf")
-            if (r.get("planner_info") or {}).get("history", {}).get("t")}
+    recs = {int(r["seed"]): r for r in exp.by_planner("cdf") if _history(r) is not None}
     chosen = [s for s in seeds if s in recs] or sorted(recs)[:3]
     if not chosen:
         return "no CDF records with a posterior history"
-    tau = exp.settings.get("cdf", {}).get("tau")
+    tau = exp.settings["cdf"].get("tau")
+    if not (isinstance(tau, (int, float)) and not isinstance(tau, bool) and math.isfinite(tau)):
+        tau = None
     fig = _figure(8.0, 1.0 + 1.9 * len(chosen))
     axes = np.atleast_1d(fig.subplots(len(chosen), 1, sharex=True))
     for ax, seed in zip(axes, chosen, strict=True):
         rec = recs[seed]
-        h = rec["planner_info"]["history"]
+        h = _history(rec)
+        assert h is not None, "chosen from the records with a history"
         for key, name, color in _CURVES:
             ax.plot(h["t"], h[key], color=color, lw=1.8, label=name)
         if tau is not None:
@@ -427,6 +444,22 @@ def _posterior(exp: Experiment, seeds: Sequence[int], path: Path) -> Path | str:
     fig.legend(list(legend.values()), list(legend), loc="outside upper center", ncol=3, fontsize=7,
                frameon=False)
     return _save(fig, path)
+
+
+def _history(rec: dict[str, Any]) -> dict[str, list[float]] | None:
+    """The CDF's posterior history of a record, ``t`` and the curves of :data:`_CURVES` as
+    lists of finite numbers of one length; None if the record holds no such history."""
+    h = rec["planner_info"].get("history")
+    if not isinstance(h, dict):
+        return None
+    out = {}
+    for key in ("t", *(c[0] for c in _CURVES)):
+        v = h.get(key)
+        if not (isinstance(v, list) and v and all(
+                isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in v)):
+            return None
+        out[key] = v
+    return out if len({len(v) for v in out.values()}) == 1 else None
 
 
 def _lead_times(exp: Experiment, path: Path) -> Path | str:
@@ -521,6 +554,6 @@ def write_report(path: str | Path, out: str | Path | None = None, seeds: Sequenc
         lines += [f"Trajectory and posterior seeds ({planner}): {', '.join(map(str, seeds))}.", ""]
     lines += notes
     markdown = out / "report.md"
-    markdown.write_text("\n".join(lines).rstrip() + "\n", encoding="utf-8")
+    write_atomic(markdown, "\n".join(lines).rstrip() + "\n")  # a planted symlink is replaced, never followed
     return ReportResult(markdown=markdown, figures=figures, omitted=omitted, records=len(exp.records),
                         failed=exp.failed, unreadable=exp.unreadable)
