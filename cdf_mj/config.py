@@ -13,35 +13,78 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-__all__ = ["MAX_BRAKE", "CDFConfig", "DriverPrior", "ScenarioConfig", "SceneNames"]
+__all__ = ["MAX_ACCEL", "MAX_BRAKE", "MAX_DURATION", "MAX_EPISODES", "MAX_LENGTH", "MAX_PARTICLES",
+           "MAX_SEED", "MAX_SPEED", "MAX_START_SPREAD", "MAX_WORKERS", "CDFConfig", "DriverPrior",
+           "ScenarioConfig", "SceneNames"]
 
 #: Maximum braking of a passenger car on a moderate-friction road, 16 ft/s^2 [m/s^2].
 MAX_BRAKE = 16 * 0.3048
 
+# Upper bounds, checked when a configuration is built (and by the CLI before any work), so
+# that an absurd number is one clear error up front, never an allocation without bound, an
+# overflow or records of nonsense later. Each is far beyond any meaningful value.
+#: Particles of the CDF filter: ~40 arrays of N float64 per filter, ~0.3 GB at 10^6 [1].
+MAX_PARTICLES = 10**6
+#: Episodes of one run: 10^7 records of ~1 kB fill ~10 GB and take days on one core [1].
+MAX_EPISODES = 10**7
+#: Largest seed: every seed is exact in any JSON reader (a double holds integers to 2^53) [1].
+MAX_SEED = 2**53 - 1
+#: Worker processes of one run: beyond any single machine's cores [1].
+MAX_WORKERS = 1024
+#: Episode length: the junction is crossed in ~4 s; 10 minutes is 6000 ticks at dt 0.1 s [s].
+MAX_DURATION = 600.0
+#: Shift of the ego start along its route, either way: a junction scene's scale [m].
+MAX_START_SPREAD = 200.0
+#: Any other length (margins, look-ahead, creep, std of a position) [m].
+MAX_LENGTH = 1000.0
+#: Any speed or speed std: 360 km/h [m/s].
+MAX_SPEED = 100.0
+#: Any acceleration, braking or its std: about 10 g [m/s^2].
+MAX_ACCEL = 100.0
+
 
 def _check(cond: bool, name: str, value: object, allowed: str) -> None:
     if not cond:
-        raise ValueError(f"{name}={value!r} is out of range: must be {allowed}")
+        text = repr(value)  # a 400-digit number or a long list: its start and length suffice
+        shown = text if len(text) <= 60 else f"{text[:40]}...({len(text)} characters)"
+        raise ValueError(f"{name}={shown} is out of range: must be {allowed}")
 
 
-def _finite(*values: float) -> bool:
-    return all(math.isfinite(v) for v in values)
+def _finite(*values: Any) -> bool:
+    """Whether every value is a real number (not a bool, not a string) that is finite as a
+    float (a 400-digit integer is not)."""
+    try:
+        return all(isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
+                   for v in values)
+    except OverflowError:
+        return False
 
 
-def _pair_ok(pair: Any, low: float, positive: bool = False) -> bool:
-    """Whether ``pair`` is a finite ``(lo, hi)`` of numbers with ``low <= lo <= hi``
+def _within(value: Any, low: float, high: float, *, open_low: bool = False) -> bool:
+    """Whether ``value`` is a finite real in ``[low, high]`` (``(low, high]`` with ``open_low``)."""
+    return _finite(value) and (value > low if open_low else value >= low) and value <= high
+
+
+def _pair_ok(pair: Any, low: float, positive: bool = False, high: float = math.inf) -> bool:
+    """Whether ``pair`` is a finite ``(lo, hi)`` of numbers with ``low <= lo <= hi <= high``
     (``lo > low`` where ``positive``)."""
+    if isinstance(pair, (str, bytes, Mapping)):
+        return False
     try:
         first, second = pair
-        lo, hi = float(first), float(second)
     except (TypeError, ValueError):
         return False
-    return _finite(lo, hi) and (lo > low if positive else lo >= low) and lo <= hi
+    if not _finite(first, second):
+        return False
+    lo, hi = float(first), float(second)
+    return (lo > low if positive else lo >= low) and lo <= hi <= high
 
 
 @dataclass(frozen=True)
@@ -102,7 +145,11 @@ class SceneNames:
 class ScenarioConfig:
     """Behavioural and statistical parameters of the T-intersection scenario.
 
-    Units: metres, seconds, radians. ``dt`` is the paper's planner/filter tick.
+    Units: metres, seconds, radians. ``dt`` is the paper's planner/filter tick. ValueError
+    naming the field and its range for any value that is not a finite number within its
+    physical range (the ``MAX_*`` bounds of this module: e.g. ``duration`` <= 600 s,
+    ``ego_start_spread`` within +-200 m of site ``ego_start``), and for ``names`` that are
+    not a :class:`SceneNames` (a mapping of its fields is converted).
     """
 
     # --- timing -------------------------------------------------------------------
@@ -171,34 +218,42 @@ class ScenarioConfig:
     names: SceneNames = field(default_factory=lambda: SceneNames())
 
     def __post_init__(self) -> None:
-        _check(_finite(self.dt) and self.dt > 0, "dt", self.dt, "> 0 [s]")
-        _check(_finite(self.duration) and self.duration >= self.dt, "duration", self.duration,
-               f">= dt = {self.dt} [s]")
-        _check(_finite(self.beta) and 0.0 <= self.beta <= 1.0, "beta", self.beta, "in [0, 1]")
-        _check(_finite(self.p_left) and 0.0 <= self.p_left <= 1.0, "p_left", self.p_left, "in [0, 1]")
-        for name in ("obs_noise_pos", "obs_noise_heading", "obs_noise_speed", "noise_accel",
-                     "noise_steer", "passed_margin", "lookahead_gain"):
+        # Every number finite and within a physical range (the MAX_* bounds of this module).
+        if isinstance(self.names, Mapping):  # read back from JSON (settings.json)
+            try:
+                object.__setattr__(self, "names", SceneNames(**self.names))
+            except TypeError as exc:
+                raise ValueError(f"names: {exc}; the keys are SceneNames fields") from None
+        _check(isinstance(self.names, SceneNames), "names", self.names,
+               "a SceneNames (e.g. SceneNames(route_ego='av_path'))")
+        _check(_within(self.dt, 0.0, 1.0, open_low=True), "dt", self.dt,
+               "> 0 and <= 1 [s] (the paper's tick is 0.1 s)")
+        _check(_within(self.duration, self.dt if _finite(self.dt) else 0.0, MAX_DURATION), "duration",
+               self.duration, f"in [dt = {self.dt}, {MAX_DURATION:g}] [s]")
+        for name in ("beta", "p_left", "departure_look", "hesitation"):
             v = getattr(self, name)
-            _check(_finite(v) and v >= 0, name, v, ">= 0")
-        for name in ("ego_speed", "obstacle_accel", "obstacle_turn_speed", "obstacle_yield_brake",
-                     "critical_gap", "lookahead", "ego_speed_gain"):
+            _check(_within(v, 0.0, 1.0), name, v, "in [0, 1] (a probability)")
+        for name, high, unit in (("obs_noise_pos", MAX_LENGTH, "m"), ("obs_noise_heading", math.pi, "rad"),
+                                 ("obs_noise_speed", MAX_SPEED, "m/s"), ("noise_accel", MAX_ACCEL, "m/s^2"),
+                                 ("noise_steer", math.pi, "rad"), ("passed_margin", MAX_LENGTH, "m"),
+                                 ("lookahead_gain", MAX_DURATION, "s"), ("clear_distance", MAX_LENGTH, "m")):
             v = getattr(self, name)
-            _check(_finite(v) and v > 0, name, v, "> 0")
-        lo, hi = self.ego_start_spread
-        _check(_finite(lo, hi) and lo <= hi, "ego_start_spread", self.ego_start_spread,
-               "a finite (low, high) pair with low <= high [m]")
-        _check(_pair_ok(self.stop_dwell, 0.0), "stop_dwell", self.stop_dwell,
-               "a finite (low, high) pair with 0 <= low <= high [s]")
-        _check(_finite(self.departure_look) and 0.0 <= self.departure_look <= 1.0,
-               "departure_look", self.departure_look, "in [0, 1]")
-        _check(_finite(self.clear_distance) and self.clear_distance >= 0, "clear_distance",
-               self.clear_distance, ">= 0 [m]")
-        _check(_finite(self.hesitation) and 0.0 <= self.hesitation <= 1.0,
-               "hesitation", self.hesitation, "in [0, 1]")
-        _check(_finite(self.hesitation_creep) and self.hesitation_creep > 0, "hesitation_creep",
-               self.hesitation_creep, "> 0 [m]")
-        _check(_pair_ok(self.hesitation_pause, 0.0), "hesitation_pause", self.hesitation_pause,
-               "a finite (low, high) pair with 0 <= low <= high [s]")
+            _check(_within(v, 0.0, high), name, v, f"in [0, {high:g}] [{unit}]")
+        for name, high, unit in (("ego_speed", MAX_SPEED, "m/s"), ("obstacle_accel", MAX_ACCEL, "m/s^2"),
+                                 ("obstacle_turn_speed", MAX_SPEED, "m/s"),
+                                 ("obstacle_yield_brake", MAX_ACCEL, "m/s^2"),
+                                 ("critical_gap", MAX_DURATION, "s"), ("lookahead", MAX_LENGTH, "m"),
+                                 ("ego_speed_gain", 1000.0, "1/s"), ("hesitation_creep", MAX_LENGTH, "m")):
+            v = getattr(self, name)
+            _check(_within(v, 0.0, high, open_low=True), name, v, f"> 0 and <= {high:g} [{unit}]")
+        _check(_pair_ok(self.ego_start_spread, -MAX_START_SPREAD, high=MAX_START_SPREAD),
+               "ego_start_spread", self.ego_start_spread,
+               f"a finite (low, high) pair with -{MAX_START_SPREAD:g} <= low <= high <= "
+               f"{MAX_START_SPREAD:g} [m] (a shift of the start site along the ego's route)")
+        for name in ("stop_dwell", "hesitation_pause"):
+            v = getattr(self, name)
+            _check(_pair_ok(v, 0.0, high=MAX_DURATION), name, v,
+                   f"a finite (low, high) pair with 0 <= low <= high <= {MAX_DURATION:g} [s]")
 
     @property
     def n_ticks(self) -> int:
@@ -239,15 +294,16 @@ class DriverPrior:
     departure_hazard: tuple[float, float] = (0.4, 4.0)
 
     def __post_init__(self) -> None:
-        _check(_finite(self.p_left) and 0.0 <= self.p_left <= 1.0, "DriverPrior.p_left",
-               self.p_left, "in [0, 1]")
-        _check(_pair_ok(self.beta, 0.0) and self.beta[1] <= 1.0, "DriverPrior.beta", self.beta,
+        _check(_within(self.p_left, 0.0, 1.0), "DriverPrior.p_left", self.p_left, "in [0, 1]")
+        _check(_pair_ok(self.beta, 0.0, high=1.0), "DriverPrior.beta", self.beta,
                "a (low, high) pair with 0 <= low <= high <= 1")
-        for name in ("critical_gap", "accel", "turn_speed", "yield_brake", "departure_hazard"):
-            _check(_pair_ok(getattr(self, name), 0.0, positive=True), f"DriverPrior.{name}",
-                   getattr(self, name), "a finite (low, high) pair with 0 < low <= high")
-        _check(_pair_ok(self.clear_distance, 0.0), "DriverPrior.clear_distance",
-               self.clear_distance, "a finite (low, high) pair with 0 <= low <= high [m]")
+        for name, high, unit in (("critical_gap", MAX_DURATION, "s"), ("accel", MAX_ACCEL, "m/s^2"),
+                                 ("turn_speed", MAX_SPEED, "m/s"), ("yield_brake", MAX_ACCEL, "m/s^2"),
+                                 ("departure_hazard", 1000.0, "1/s")):
+            _check(_pair_ok(getattr(self, name), 0.0, positive=True, high=high), f"DriverPrior.{name}",
+                   getattr(self, name), f"a finite (low, high) pair with 0 < low <= high <= {high:g} [{unit}]")
+        _check(_pair_ok(self.clear_distance, 0.0, high=MAX_LENGTH), "DriverPrior.clear_distance",
+               self.clear_distance, f"a finite (low, high) pair with 0 <= low <= high <= {MAX_LENGTH:g} [m]")
 
     def to_dict(self) -> dict:
         """JSON-serialisable view."""
@@ -259,7 +315,8 @@ class CDFConfig:
     """Parameters of the CDF particle filter and planner (chosen on seeds 0-199 only).
 
     ``likelihood_std`` gives a diagonal Sigma; ``likelihood_cov`` (4x4) overrides it.
-    Units follow the pose [x m, y m, theta rad, v m/s].
+    Units follow the pose [x m, y m, theta rad, v m/s]. ValueError naming the field for any
+    value that is not finite or beyond its bound (``n_particles`` <= :data:`MAX_PARTICLES`).
     """
 
     n_particles: int = 1000  # N
@@ -316,34 +373,37 @@ class CDFConfig:
             raw: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in self.prior.items()}
             object.__setattr__(self, "prior", DriverPrior(**raw))
         _check(isinstance(self.prior, DriverPrior), "prior", self.prior, "a DriverPrior")
-        _check(_finite(self.mode_jump) and 0.0 <= self.mode_jump <= 0.5, "mode_jump",
-               self.mode_jump, "in [0, 0.5] [1/tick]")
-        _check(_finite(self.intent_floor) and 0.0 <= self.intent_floor <= 1.0, "intent_floor",
-               self.intent_floor, "in [0, 1]")
+        _check(_within(self.mode_jump, 0.0, 0.5), "mode_jump", self.mode_jump, "in [0, 0.5] [1/tick]")
+        _check(_within(self.intent_floor, 0.0, 1.0), "intent_floor", self.intent_floor, "in [0, 1]")
         _check(isinstance(self.reinit_redraw, bool), "reinit_redraw", self.reinit_redraw,
                "True or False")
-        _check(_finite(self.param_jitter) and 0.0 <= self.param_jitter <= 1.0, "param_jitter",
-               self.param_jitter, "in [0, 1] (a fraction of each prior range)")
-        _check(self.ego_brake is None or (isinstance(self.ego_brake, (int, float))
-                                          and _finite(self.ego_brake) and self.ego_brake > 0),
-               "ego_brake", self.ego_brake, "None (the ego car's) or > 0 [m/s^2]")
-        _check(_finite(self.ego_latency) and self.ego_latency >= 0, "ego_latency",
-               self.ego_latency, ">= 0 [s]")
-        _check(isinstance(self.n_particles, int) and not isinstance(self.n_particles, bool)
-               and self.n_particles >= 1, "n_particles",
-               self.n_particles, "an integer >= 1")
-        _check(_finite(self.tau) and 0.0 < self.tau <= 1.0, "tau", self.tau, "in (0, 1]")
-        _check(self.cutoff_rule in ("predictive", "paper"), "cutoff_rule", self.cutoff_rule,
-               "'predictive' or 'paper'")
-        _check(_finite(self.resample_ess_fraction) and 0.0 <= self.resample_ess_fraction <= 1.0,
-               "resample_ess_fraction", self.resample_ess_fraction, "in [0, 1]")
-        _check(_finite(self.reinit_mahalanobis) and self.reinit_mahalanobis > 0,
-               "reinit_mahalanobis", self.reinit_mahalanobis, "> 0")
-        _check(_finite(self.process_noise_scale) and self.process_noise_scale >= 0,
-               "process_noise_scale", self.process_noise_scale, ">= 0")
-        std = tuple(self.likelihood_std)
-        _check(len(std) == 4 and _finite(*std) and all(s > 0 for s in std), "likelihood_std",
-               self.likelihood_std, "4 finite values > 0")
+        _check(_within(self.param_jitter, 0.0, 1.0), "param_jitter", self.param_jitter,
+               "in [0, 1] (a fraction of each prior range)")
+        _check(self.ego_brake is None or _within(self.ego_brake, 0.0, MAX_ACCEL, open_low=True),
+               "ego_brake", self.ego_brake, f"None (the ego car's) or in (0, {MAX_ACCEL:g}] [m/s^2]")
+        _check(_within(self.ego_latency, 0.0, 10.0), "ego_latency", self.ego_latency, "in [0, 10] [s]")
+        _check(isinstance(self.n_particles, numbers.Integral) and not isinstance(self.n_particles, bool)
+               and 1 <= self.n_particles <= MAX_PARTICLES, "n_particles", self.n_particles,
+               f"an integer in [1, {MAX_PARTICLES:.0e}] (memory: ~0.3 GB per filter at the bound)")
+        _check(_within(self.tau, 0.0, 1.0, open_low=True), "tau", self.tau, "in (0, 1]")
+        _check(isinstance(self.cutoff_rule, str) and self.cutoff_rule in ("predictive", "paper"),
+               "cutoff_rule", self.cutoff_rule, "'predictive' or 'paper'")
+        _check(_within(self.resample_ess_fraction, 0.0, 1.0), "resample_ess_fraction",
+               self.resample_ess_fraction, "in [0, 1]")
+        _check(_within(self.reinit_mahalanobis, 0.0, 1e3, open_low=True), "reinit_mahalanobis",
+               self.reinit_mahalanobis, "in (0, 1000] (a Mahalanobis distance)")
+        _check(_within(self.process_noise_scale, 0.0, 100.0), "process_noise_scale",
+               self.process_noise_scale, "in [0, 100] (a factor on the scenario's noise)")
+        std = self.likelihood_std
+        _check(not isinstance(std, (str, bytes, Mapping)) and hasattr(std, "__len__") and len(std) == 4
+               and all(_within(s, 0.0, MAX_LENGTH, open_low=True) for s in std), "likelihood_std",
+               self.likelihood_std, f"4 finite values in (0, {MAX_LENGTH:g}] [m, m, rad, m/s]")
+        if self.likelihood_cov is not None:
+            try:
+                cov_ok = np.asarray(self.likelihood_cov, dtype=float).shape == (4, 4)
+            except (TypeError, ValueError, OverflowError):
+                cov_ok = False
+            _check(cov_ok, "likelihood_cov", self.likelihood_cov, "a 4x4 matrix of numbers (Sigma)")
         cov = self.covariance
         try:
             ok = bool(np.all(np.isfinite(cov))) and np.allclose(cov, cov.T)

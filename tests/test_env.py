@@ -127,6 +127,14 @@ def test_out_of_range_actions_are_clipped_and_bad_ones_refused(scene):
     assert applied[0][0] == scene.layout().ego.accel_range[0] == -4.877
 
 
+@pytest.mark.parametrize("penalty", [float("nan"), float("inf"), -1.0, 1e300, "100", True])
+def test_a_collision_penalty_that_is_not_a_bounded_number_is_refused(scene, penalty):
+    with pytest.raises(ValueError, match=r"collision_penalty=.*must be a finite number in \[0, 1e\+06\]"):
+        cdf_mj.TIntersectionEnv(scene=scene, collision_penalty=penalty, run_filter=False, label=False)
+    env = cdf_mj.TIntersectionEnv(scene=scene, collision_penalty=0.0, run_filter=False, label=False)
+    assert env.collision_penalty == 0.0
+
+
 def test_a_scene_object_keeps_its_names_and_frames_follow_dt(scene):
     with pytest.raises(ValueError, match="names apply to a scene file"):
         gym.make(cdf_mj.ENV_ID, scene=scene, names=cdf_mj.SceneNames())

@@ -94,7 +94,7 @@ def test_the_old_filter_loses_the_standing_car(scene):
     the line as soon as it believes the road clear; no rejuvenation): every hypothesis
     that goes dies, only "has seen the ego and waits" explains it. The test above fails
     for that filter: it shows what the departure hazard is for."""
-    old = CDFConfig(n_particles=N, prior=DriverPrior(departure_hazard=(1e6, 1e6)), mode_jump=0.0,
+    old = CDFConfig(n_particles=N, prior=DriverPrior(departure_hazard=(1000.0, 1000.0)), mode_jump=0.0,
                     intent_floor=0.0)
     cfg = ScenarioConfig(beta=0.0, p_left=0.0, stop_dwell=(3.0, 3.0), ego_start_spread=(-45.0, -45.0))
     rec = run_episode(cfg, 3, CDFPlanner(old), scene, label=False, trace=True)

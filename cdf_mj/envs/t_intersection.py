@@ -21,6 +21,7 @@ The obstacle is the scenario's (:class:`cdf_mj.scenario.world.World`, the same c
 from __future__ import annotations
 
 import math
+import numbers
 from pathlib import Path
 from typing import Any
 
@@ -47,6 +48,8 @@ __all__ = ["TIntersectionEnv"]
 
 _DEFAULT_CAMERA = "top"  # the camera used when the scene has one and none is named
 _FREE_VIEW = 70.0  # [m] what the free camera over the junction shows, top to bottom of the frame
+#: Largest collision penalty: 10^6 steps' progress; more swamps every return in float32 [1].
+_MAX_PENALTY = 1e6
 
 
 class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
@@ -134,7 +137,8 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         run_filter: run the CDF filter (for ``info`` and the observation); about 0.5 ms
             per step at N = 1000.
         label: compute ``info["label"]`` at reset (one counterfactual run, ~15 ms).
-        collision_penalty: reward on a collision step, negated [1].
+        collision_penalty: reward on a collision step, negated [1]: a finite number in
+            [0, 10^6] (ValueError otherwise, e.g. for NaN).
         camera: name of the MJCF camera ``render`` uses (``top``, ``ego_chase``, ...), or
             None (default): the scene's camera ``top`` if it has one, else a free camera
             looking straight down at the junction (at the point of the ego's route nearest
@@ -162,6 +166,14 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ValueError(f"render_mode={render_mode!r}: choose None or 'rgb_array'")
         if posterior_in_observation and not run_filter:
             raise ValueError("posterior_in_observation=True needs run_filter=True")
+        try:
+            penalty = float(collision_penalty) if isinstance(collision_penalty, numbers.Real) else math.nan
+        except OverflowError:  # an integer too large for a float
+            penalty = math.nan
+        if isinstance(collision_penalty, bool) or not 0.0 <= penalty <= _MAX_PENALTY:
+            raise ValueError(f"collision_penalty={collision_penalty!r} is out of range: must be a finite "
+                             f"number in [0, {_MAX_PENALTY:g}] (the reward on a collision step, negated; "
+                             "a progress step earns about 1)")
         self.config = config or ScenarioConfig()
         self.cdf = cdf or CDFConfig()
         if isinstance(scene, Scene) and names is not None:
@@ -175,7 +187,7 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         self.posterior_in_observation = posterior_in_observation
         self.run_filter = run_filter
         self.label = label
-        self.collision_penalty = float(collision_penalty)
+        self.collision_penalty = penalty
         m = self.scene.model
         self._camera_id = -1  # -1: the free camera over the junction
         if render_mode is not None:  # no camera, no frame size needed when nothing is drawn

@@ -29,9 +29,13 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import math
+import os
+import stat
 import sys
 import warnings
+import xml.etree.ElementTree as ET
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,7 +52,8 @@ if sys.version_info >= (3, 11):
 else:  # Python 3.10: the same parser from PyPI (a dependency there)
     import tomli as tomllib
 
-__all__ = ["SceneError", "SceneWarning", "check_drive", "read_names", "substeps", "validate"]
+__all__ = ["SceneError", "SceneWarning", "check_drive", "check_regular_files", "read_names",
+           "route_mujoco_warnings", "substeps", "validate"]
 
 # MuJoCo object types by the word the error messages use.
 _OBJ = {
@@ -67,6 +72,9 @@ _ROUTE_STEP = 0.2  # [m] spacing of the points at which routes are tested agains
 _HEADING_TOL = math.radians(20.0)  # [rad] obstacle start site vs its routes' first direction
 _DRIVE_TIME = 0.3  # [s] length of each phase of the test drive
 _FAR = (2000.0, -3000.0)  # [m] chassis-frame y of ego, obstacle in the test drive: apart, alone
+#: Largest coordinate or size of any body, geom or site in a scene, and largest control
+#: range: 100 km, far beyond a junction; larger values are a unit mistake or garbage [m].
+MAX_EXTENT = 1e5
 
 
 class SceneError(ValueError):
@@ -76,6 +84,98 @@ class SceneError(ValueError):
 
 class SceneWarning(UserWarning):
     """A scene that loads but may not simulate well (e.g. an explicit integrator)."""
+
+
+# ---------------------------------------------------------------------- MuJoCo's warnings
+#: MuJoCo's own warnings ("XML contains a 'NaN'", "Nan, Inf or huge value in QACC ...") go to
+#: this logger at level WARNING instead of stdout and a MUJOCO_LOG.TXT in the working
+#: directory. The package's logger "cdf_mj" has a NullHandler, so they show only where the
+#: application configures logging (e.g. ``logging.basicConfig()``).
+MUJOCO_LOGGER = logging.getLogger("cdf_mj.mujoco")
+logging.getLogger("cdf_mj").addHandler(logging.NullHandler())
+
+
+def _log_mujoco_warning(message: str) -> None:
+    MUJOCO_LOGGER.warning("MuJoCo: %s", " ".join(str(message).split()))
+
+
+def route_mujoco_warnings() -> None:
+    """Send MuJoCo's warnings to the logger ``cdf_mj.mujoco`` (:data:`MUJOCO_LOGGER`) rather
+    than MuJoCo's default (print ``WARNING: ...`` to stdout and append to ``MUJOCO_LOG.TXT``
+    in the working directory). Done when this module is imported; a handler the application
+    set with ``mujoco.set_mju_user_warning`` before is kept."""
+    if mujoco.get_mju_user_warning() is None:
+        mujoco.set_mju_user_warning(_log_mujoco_warning)
+
+
+route_mujoco_warnings()
+
+
+# ---------------------------------------------------------------------- files
+def _kind_of(mode: int) -> str:
+    """What a non-regular file is, in words."""
+    for test, word in ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+                       (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a character device"),
+                       (stat.S_ISBLK, "a block device")):
+        if test(mode):
+            return word
+    return "not a regular file"
+
+
+def _regular(path: Path, what: str) -> None:
+    """SceneError unless ``path`` (followed if a link) is a regular file; nothing is opened,
+    so a FIFO or device cannot block."""
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        raise SceneError(f"{what} not found: {path}") from None
+    except OSError as exc:
+        raise SceneError(f"{what} {path} cannot be read: {exc.strerror or exc}") from None
+    if not stat.S_ISREG(mode):
+        raise SceneError(f"{what} {path} is {_kind_of(mode)}, not a regular file")
+
+
+def check_regular_files(path: str | Path) -> None:
+    """SceneError, one line naming the file, unless the MJCF file ``path`` and every file it
+    names (``<include file=...>`` recursively, meshes, textures, height fields, models of
+    ``<attach>``) that exists is a regular file. Runs before MuJoCo opens any of them, so a
+    FIFO or a device in a scene cannot hang or flood the load. Files that do not exist or
+    that are not valid XML are left to MuJoCo, whose error names them."""
+    path = Path(path)
+    _regular(path, "scene file")
+    root_dir = path.parent
+    seen: set[Path] = set()
+    todo = [path]
+    while todo:
+        current = todo.pop()
+        if current in seen:
+            continue
+        seen.add(current)
+        try:
+            tree = ET.parse(current)
+        except (ET.ParseError, OSError, ValueError):
+            continue  # MuJoCo reports a malformed file with its line
+        dirs = {root_dir, current.parent}
+        for compiler in tree.iter("compiler"):
+            for attr in ("meshdir", "texturedir", "assetdir"):
+                if compiler.get(attr):
+                    dirs.add(root_dir / compiler.get(attr, ""))
+        for element in tree.iter():
+            name = element.get("file")
+            if not name:
+                continue
+            for base in sorted(dirs):
+                candidate = base / name
+                try:
+                    mode = os.stat(candidate).st_mode
+                except (OSError, ValueError):
+                    continue
+                if not stat.S_ISREG(mode):
+                    raise SceneError(f"scene {path}: <{element.tag} file=\"{name}\"> is "
+                                     f"{candidate}, {_kind_of(mode)}, not a regular file; MuJoCo "
+                                     "would block or fail reading it")
+                if element.tag == "include":
+                    todo.append(candidate)
 
 
 def _required_junction(n: SceneNames) -> list[tuple[str, str]]:
@@ -99,8 +199,10 @@ def validate(model: mujoco.MjModel, data: mujoco.MjData, names: SceneNames, sour
              cars: bool = True, compiler_degree: bool = False) -> None:
     """Raise one SceneError listing every missing element, then every element of the wrong
     kind, shape, place or meaning (each checked only where it exists); return if there are
-    none. With ``cars``, warn (:class:`SceneWarning`) for an integrator other than
-    implicit/implicitfast.
+    none. Among them: a timestep that is not a finite number > 0, and any body, geom or
+    site whose position, orientation or size (or actuator whose control range) is not a
+    finite number within :data:`MAX_EXTENT` (the meaning of the junction is then not read). With
+    ``cars``, warn (:class:`SceneWarning`) for an integrator other than implicit/implicitfast.
 
     ``data`` must hold the model's reference configuration after ``mj_kinematics`` (world
     positions of sites, bodies and geoms); ``source`` names the scene in the message.
@@ -126,6 +228,8 @@ def validate(model: mujoco.MjModel, data: mujoco.MjData, names: SceneNames, sour
                   and not np.all(np.isfinite((d.site if kind == "site" else d.body)(name).xpos))]
     if not_finite:
         wrong.append(f"positions that are not finite numbers: {', '.join(not_finite)}")
+    numbers = _number_problems(m, d, skip={name.split("'")[1] for name in not_finite})
+    wrong += numbers
     routes: dict[str, Polyline] = {}
     for route in (n.route_ego, n.route_left, n.route_right):
         if not has("body", route):
@@ -141,7 +245,7 @@ def validate(model: mujoco.MjModel, data: mujoco.MjData, names: SceneNames, sour
     for site in (n.stop_line, n.ego_lane):
         if has("site", site) and m.site(site).type[0] != mujoco.mjtGeom.mjGEOM_BOX:
             wrong.append(f"site '{site}' must be a box (its half sizes give the area)")
-    if not not_finite:
+    if not not_finite and not numbers:  # the meaning of non-finite places cannot be read
         wrong += _meaning_problems(m, d, n, routes, has)
     if cars:
         for p in (n.ego_prefix, n.obstacle_prefix):
@@ -153,6 +257,38 @@ def validate(model: mujoco.MjModel, data: mujoco.MjData, names: SceneNames, sour
                          "(docs/SCENES.md lists the names a scene must have and what they mean)")
     if cars:  # only our cars care; the integrator of a scene whose cars are watched is the user's
         _warn_integrator(m, source)
+
+
+def _number_problems(m: mujoco.MjModel, d: mujoco.MjData, skip: set[str]) -> list[str]:
+    """A timestep that is not a finite number > 0; every body, geom and site whose world
+    position, orientation or size is not a finite number within :data:`MAX_EXTENT` of the
+    origin; every actuator whose control range is not (five named per kind, those named in
+    ``skip`` left out: already listed)."""
+    wrong: list[str] = []
+    timestep = float(m.opt.timestep)
+    if not (math.isfinite(timestep) and timestep > 0):
+        wrong.append(f"<option timestep=\"{timestep:g}\"> must be a finite number of seconds > 0, "
+                     "e.g. 0.005")
+    views = (("body", m.nbody, (d.xpos, d.xmat), m.body),
+             ("geom", m.ngeom, (d.geom_xpos, d.geom_xmat, m.geom_size), m.geom),
+             ("site", m.nsite, (d.site_xpos, d.site_xmat, m.site_size), m.site),
+             ("actuator", m.nu, (m.actuator_ctrlrange,), m.actuator))
+    for kind, count, arrays, view in views:
+        if not count:
+            continue
+        values = np.hstack([np.asarray(a).reshape(count, -1) for a in arrays])
+        with np.errstate(invalid="ignore"):
+            bad = np.flatnonzero(~np.all(np.isfinite(values), axis=1)
+                                 | (np.max(np.abs(values), axis=1) > MAX_EXTENT))
+        bad = np.array([i for i in bad if view(int(i)).name not in skip], dtype=int)
+        if len(bad):
+            shown = ", ".join(f"'{view(int(i)).name}'" if view(int(i)).name else f"#{int(i)} (unnamed)"
+                              for i in bad[:5])
+            more = f" and {len(bad) - 5} more" if len(bad) > 5 else ""
+            what = "control range" if kind == "actuator" else "position, orientation or size"
+            wrong.append(f"{kind}s whose {what} is not a finite number within {MAX_EXTENT:.0e} "
+                         f"(m or rad): {shown}{more}")
+    return wrong
 
 
 def _warn_integrator(m: mujoco.MjModel, source: str) -> None:
@@ -425,6 +561,8 @@ def read_names(path: str | Path) -> SceneNames:
     kind = path.suffix.lower()
     if kind not in (".json", ".toml"):
         raise SceneError(f"names file {path}: expected a .json or .toml file, got {path.suffix or 'no suffix'!r}")
+    if path.exists():  # a FIFO or a device would block or flood read_text
+        _regular(path, "names file")
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:

@@ -31,7 +31,7 @@ from cdf_mj.model.layout import Layout
 from cdf_mj.model.occlusion import Occluders
 from cdf_mj.model.vehicle import CarGeometry
 from cdf_mj.sim.assets import DEFAULT_SCENE
-from cdf_mj.sim.checks import SceneError, check_drive, substeps, validate
+from cdf_mj.sim.checks import SceneError, check_drive, check_regular_files, substeps, validate
 
 __all__ = ["DEFAULT_SCENE", "Car", "Scene", "SceneError", "SimulationDivergedError", "car_geometry",
            "read_layout"]
@@ -222,10 +222,11 @@ class Scene:
     # ----------------------------------------------------------------- loading
     @classmethod
     def load(cls, path: str | Path = DEFAULT_SCENE, names: SceneNames | None = None) -> Scene:
-        """Compile an MJCF file into a scene; errors name the file."""
+        """Compile an MJCF file into a scene; errors name the file. The file and every file
+        it names must be regular files (:func:`cdf_mj.sim.checks.check_regular_files`:
+        checked before MuJoCo opens any, so a FIFO cannot block)."""
         path = Path(path)
-        if not path.is_file():
-            raise SceneError(f"scene file not found: {path}")
+        check_regular_files(path)
         try:  # through MjSpec: the model does not keep the compiler's angle unit, the spec does
             spec = mujoco.MjSpec.from_file(str(path))
             model = spec.compile()

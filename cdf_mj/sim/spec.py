@@ -26,7 +26,7 @@ import mujoco
 
 from cdf_mj.config import SceneNames
 from cdf_mj.sim.assets import CAR_XML
-from cdf_mj.sim.checks import SceneError
+from cdf_mj.sim.checks import SceneError, check_regular_files
 
 __all__ = ["add_car"]
 
@@ -63,6 +63,7 @@ def add_car(spec: mujoco.MjSpec, prefix: str, pos: tuple[float, float] = (0.0, 0
         raise ValueError(f"add_car: pos must be (x, y) in metres, got {pos!r}") from None
     if not all(math.isfinite(v) for v in (x, y, float(yaw))):
         raise ValueError(f"add_car: pose must be finite, got pos={pos}, yaw={yaw}")
+    check_regular_files(car_file)  # a FIFO would block MuJoCo
     try:
         car = mujoco.MjSpec.from_file(str(car_file))
     except ValueError as exc:

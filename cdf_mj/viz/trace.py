@@ -34,7 +34,7 @@ from cdf_mj.config import SceneNames
 from cdf_mj.model.vehicle import CarGeometry
 from cdf_mj.records import EpisodeRecord
 from cdf_mj.scenario.monitor import MonitorTrace, read_trace
-from cdf_mj.sim.checks import SceneError
+from cdf_mj.sim.checks import SceneError, check_regular_files
 from cdf_mj.sim.gl import Offscreen, gl_backend
 from cdf_mj.sim.scene import read_layout
 from cdf_mj.viz.camera import FollowCamera
@@ -90,6 +90,7 @@ def _scene_model(scene: str | Path, names: SceneNames) -> tuple[mujoco.MjModel, 
     path = Path(scene)
     if not path.is_file():
         raise SceneError(f"--scene {path}: file not found")
+    check_regular_files(path)  # a FIFO among its includes would block MuJoCo
     try:
         spec = mujoco.MjSpec.from_file(str(path))
         if spec.camera(_TOP) is None:
