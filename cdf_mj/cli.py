@@ -9,7 +9,13 @@
 
 Bad input (unknown planner, negative seed, out-of-range parameter, unreadable scene,
 a simulation that diverges) ends with one line ``cdf-mj: error: ...`` on stderr and exit
-status 2; ``--debug`` shows the traceback instead.
+status 2; ``--debug`` shows the traceback instead. Every count and size has an upper bound
+(``cdf_mj.config.MAX_*``: 10^6 particles, 10^7 episodes, 1024 workers, seeds below 2^53),
+checked before any work; control characters in a message (a path with a newline) are
+escaped, so the error stays one line. A run in which episodes failed
+(``experiment``, ``reproduce``, ``sweep``) exits with status 1. With stderr closed
+(``2>&-``) commands run as usual and only their messages are lost; with stdout closed
+(``>&-``) nothing runs (status 2), as what they print would be lost.
 
 Adding a subcommand: write ``_add_<name>(subparsers)``, which builds its parser with
 ``_command`` (use :func:`add_scenario_arguments` for ``--scene`` and ``--set``) and sets
@@ -22,6 +28,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import errno
 import json
 import os
 import sys
@@ -41,7 +48,14 @@ except (ImportError, AttributeError, RuntimeError) as _exc:
 
 from cdf_mj import __version__
 from cdf_mj.analysis.tables import TableFormat
-from cdf_mj.config import CDFConfig, ScenarioConfig
+from cdf_mj.config import (
+    MAX_EPISODES,
+    MAX_PARTICLES,
+    MAX_SEED,
+    MAX_WORKERS,
+    CDFConfig,
+    ScenarioConfig,
+)
 from cdf_mj.experiments.runner import WorkerDiedError
 from cdf_mj.experiments.store import json_default, locked
 from cdf_mj.extras import install_hint
@@ -90,14 +104,46 @@ class _Parser(argparse.ArgumentParser):
 
 
 # ----------------------------------------------------------------- shared arguments
-def _non_negative_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {value}")
-    return value
+def _shown(text: str) -> str:
+    """``text`` for an error message: quoted, and cut if long (a 400-digit number)."""
+    return repr(text) if len(text) <= 40 else f"{text[:30]!r}...({len(text)} characters)"
+
+
+def _int_in(low: int, high: int, why: str) -> Callable[[str], int]:
+    """An argparse type: an integer in ``[low, high]``; ``why`` gives the bound's reason in
+    the error. Every count and size of the CLI goes through it, checked before any work."""
+    def parse(text: str) -> int:
+        try:
+            value: int | None = int(text)
+        except ValueError:  # also a number of more than 4300 digits
+            value = None
+        if value is None or not low <= value <= high:
+            kind = {0: "a non-negative integer", 1: "a positive integer"}.get(low, f"an integer >= {low}")
+            raise argparse.ArgumentTypeError(f"must be {kind} of at most {high} ({why}), got {_shown(text)}")
+        return value
+    return parse
+
+
+#: Seeds: non-negative, at most MAX_SEED (exact in every JSON reader).
+_non_negative_int = _int_in(0, MAX_SEED, "a seed; 2^53 - 1 at most, exact in JSON")
+_episodes = _int_in(1, MAX_EPISODES, "at most 10^7 episodes per run: ~10 GB of records")
+_particles = _int_in(1, MAX_PARTICLES, "memory: ~0.3 GB per filter at 10^6")
+_workers = _int_in(1, MAX_WORKERS, "processes on one machine")
+_pixels = _int_in(1, 16384, "pixels; MuJoCo's offscreen buffer is smaller")
+
+
+def _finite_float(low: float, high: float, what: str) -> Callable[[str], float]:
+    """An argparse type: a finite number in ``[low, high]`` (``what``: its unit, for the error)."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = float("nan")
+        if not low <= value <= high:  # NaN fails too
+            raise argparse.ArgumentTypeError(f"must be a number from {low:g} to {high:g} {what}, got "
+                                             f"{_shown(text)}")
+        return value
+    return parse
 
 
 def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
@@ -133,8 +179,11 @@ def _coerce(name: str, value: Any, default: Any) -> Any:
     """``value`` in the type of the field's default; CLIError if it cannot be."""
     def number(v: Any) -> float:
         if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise CLIError(f"--set {name}: expected a number, got {v!r}")
-        return float(v)
+            raise CLIError(f"--set {name}: expected a number, got {_shown(str(v))}")
+        try:
+            return float(v)
+        except OverflowError:  # a 400-digit integer
+            raise CLIError(f"--set {name}: {_shown(str(v))} is too large a number") from None
 
     if isinstance(default, float):
         return number(value)
@@ -193,9 +242,9 @@ def add_cdf_arguments(parser: argparse.ArgumentParser, swept: bool = False) -> N
     (:class:`cdf_mj.config.CDFConfig`). ``swept``: say they apply where not swept."""
     d = CDFConfig()
     where = " where not swept" if swept else ""
-    parser.add_argument("--particles", type=_positive_int, default=d.n_particles,
-                        help=f"CDF particle count N{where} (default {d.n_particles})")
-    parser.add_argument("--tau", type=float, default=d.tau,
+    parser.add_argument("--particles", type=_particles, default=d.n_particles,
+                        help=f"CDF particle count N{where}, 1 to 10^6 (memory) (default {d.n_particles})")
+    parser.add_argument("--tau", type=_finite_float(0.0, 1.0, "(a probability)"), default=d.tau,
                         help=f"CDF braking threshold on P(cutoff){where} (default {d.tau})")
     parser.add_argument("--cutoff-rule", choices=("predictive", "paper"), default=d.cutoff_rule,
                         help=f"how P(cutoff) is computed (default {d.cutoff_rule}; see docs/RESULTS.md)")
@@ -245,20 +294,14 @@ def _add_episode(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_cmd_episode)
 
 
-def _positive_int(text: str) -> int:
-    value = _non_negative_int(text)
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be a positive integer, got {value}")
-    return value
-
-
 def _positive_seconds(text: str) -> float:
     try:
         value = float(text)
     except ValueError:
         value = float("nan")
-    if not (value > 0 and value < float("inf")):
-        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text!r}")
+    if not (value > 0 and value <= 600.0):  # a timing run of 10 minutes at most
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, at most 600, got "
+                                         f"{_shown(text)}")
     return value
 
 
@@ -271,13 +314,22 @@ def _planner_list(text: str) -> list[str]:
     return names
 
 
+def _seed_range(seed0: int, episodes: int) -> range:
+    """Seeds ``seed0 ... seed0 + episodes - 1``, lazily (a range); CLIError if the last one is
+    beyond :data:`MAX_SEED`."""
+    if seed0 + episodes - 1 > MAX_SEED:
+        raise CLIError(f"--seed0 {seed0} with --episodes {episodes} runs seeds up to "
+                       f"{seed0 + episodes - 1}, beyond the largest seed {MAX_SEED}")
+    return range(seed0, seed0 + episodes)
+
+
 def _cmd_experiment(args: argparse.Namespace) -> int:
     from cdf_mj.analysis.tables import experiment_tables
     from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
 
     config = config_from_args(args)
     cdf = cdf_from_args(args)
-    seeds = range(args.seed0, args.seed0 + args.episodes)
+    seeds = _seed_range(args.seed0, args.episodes)
     if args.retry_failed and args.force:
         raise CLIError("--force starts over, so --retry-failed has nothing to retry: give one of them")
     if args.address is not None and args.backend != "ray":
@@ -323,14 +375,15 @@ def _remove_run(out: Path) -> None:
 
 
 def _add_experiment_arguments(p: argparse.ArgumentParser, episodes: int, out: str) -> None:
-    p.add_argument("--episodes", type=_positive_int, default=episodes, help=f"default {episodes}")
+    p.add_argument("--episodes", type=_episodes, default=episodes,
+                   help=f"number of seeds, 1 to 10^7 (default {episodes})")
     p.add_argument("--seed0", type=_non_negative_int, default=0, help="first seed (default 0)")
     p.add_argument("--planners", type=_planner_list, default=["cdf", "reactive"],
                    help="comma-separated planners run on the same seeds (default cdf,reactive)")
     p.add_argument("--out", default=out, help=f"result directory (default {out})")
     add_cdf_arguments(p)
-    p.add_argument("--workers", type=_positive_int, default=None,
-                   help="worker processes (default: the CPU count; 1 runs in this process)")
+    p.add_argument("--workers", type=_workers, default=None,
+                   help="worker processes, 1 to 1024 (default: the CPU count; 1 runs in this process)")
     p.add_argument("--backend", choices=("process", "ray"), default="process",
                    help=f"where episodes run: a local process pool (default) or Ray ({install_hint('ray')})")
     p.add_argument("--address", default=None,
@@ -365,13 +418,22 @@ def _add_reproduce(subparsers: argparse._SubParsersAction) -> None:
     _add_experiment_arguments(p, episodes=1000, out="results/reproduce")
 
 
+#: Most points of one sweep (each an experiment on every seed).
+MAX_SWEEP_VALUES = 100
+
+
 def _value_list(text: str) -> list[float]:
+    """Comma-separated finite numbers, 1 to :data:`MAX_SWEEP_VALUES` of them (the range of
+    each is the swept setting's, checked by its configuration)."""
     try:
         values = [float(v) for v in text.split(",") if v.strip()]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
-    if not values:
-        raise argparse.ArgumentTypeError("expected at least one value")
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {_shown(text)}") from None
+    if not values or len(values) > MAX_SWEEP_VALUES:
+        raise argparse.ArgumentTypeError(f"expected 1 to {MAX_SWEEP_VALUES} values, got {len(values)}")
+    bad = [v for v in values if not abs(v) < float("inf")]  # inf, nan; also a 400-digit number
+    if bad:
+        raise argparse.ArgumentTypeError(f"expected finite numbers, got {bad[0]!r} in {_shown(text)}")
     return values
 
 
@@ -380,9 +442,10 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
     config = config_from_args(args)
     cdf = cdf_from_args(args)
-    seeds = range(args.seed0, args.seed0 + args.episodes)
+    seeds = _seed_range(args.seed0, args.episodes)
     if args.values is not None and len(args.sweeps) > 1:
         raise CLIError("--values applies to one sweep at a time; name a single sweep")
+    failed = []
     for name in args.sweeps:
         try:
             result = run_sweep(name, args.out, seeds, planners=args.planners, values=args.values, config=config,
@@ -393,6 +456,13 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         print(result.markdown + "\n")
         figure = f", {result.figure_path}" if result.figure_path else ""
         print(f"wrote {result.csv_path}, {result.markdown_path}{figure}\n")
+        failed += [f"{name} = {f.value:g}: {f}" for f in result.failures]
+    for line in failed:  # as `experiment` does: the run goes on, the status says it
+        print(f"{PROG}: {line}", file=sys.stderr)
+    if failed:
+        print(f"{PROG}: the failed episodes are left out of the tables; their records hold the error and "
+              "traceback (\"status\": \"failed\")", file=sys.stderr)
+        return EXIT_FAILED_EPISODES
     return 0
 
 
@@ -409,13 +479,13 @@ def _add_sweep(subparsers: argparse._SubParsersAction) -> None:
                    help=f"one or more of: {', '.join(SWEEPS)}")
     p.add_argument("--values", type=_value_list, default=None,
                    help="comma-separated values (one sweep only; default: the sweep's own)")
-    p.add_argument("--episodes", type=_positive_int, default=200, help="seeds per point (default 200)")
+    p.add_argument("--episodes", type=_episodes, default=200, help="seeds per point, 1 to 10^7 (default 200)")
     p.add_argument("--seed0", type=_non_negative_int, default=0, help="first seed (default 0)")
     p.add_argument("--planners", type=_planner_list, default=["cdf", "reactive"],
                    help="comma-separated planners (default cdf,reactive)")
     p.add_argument("--out", default="results/sweeps", help="output directory (default results/sweeps)")
     add_cdf_arguments(p, swept=True)
-    p.add_argument("--workers", type=_positive_int, default=None,
+    p.add_argument("--workers", type=_workers, default=None,
                    help="worker processes per point (default: the CPU count; 1 runs in this process)")
     p.add_argument("--no-figure", action="store_true", help="tables only (no matplotlib needed)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -529,15 +599,15 @@ def _add_render(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--camera", default=None,
                    help="a camera of the scene, e.g. top, ego_chase or obstacle_chase (default: "
                         "a view that follows both cars and the conflict zone)")
-    p.add_argument("--width", type=int, default=640, help="image width [px], even for MP4 (default 640)")
-    p.add_argument("--height", type=int, default=480, help="image height [px], even for MP4 (default 480)")
-    p.add_argument("--fps", type=float, default=None,
+    p.add_argument("--width", type=_pixels, default=640, help="image width [px], even for MP4 (default 640)")
+    p.add_argument("--height", type=_pixels, default=480, help="image height [px], even for MP4 (default 480)")
+    p.add_argument("--fps", type=_finite_float(1e-3, 1000.0, "frames per second"), default=None,
                    help="frames per simulated second (default 30 for MP4, 25 for GIF)")
-    p.add_argument("--frame", type=float, default=None, metavar="T",
+    p.add_argument("--frame", type=_finite_float(0.0, 600.0, "[s]"), default=None, metavar="T",
                    help="render the one frame at T seconds to a .png (T from 0 to the episode's "
                         "end; past it is an error naming the end)")
     add_cdf_arguments(p)
-    p.add_argument("--max-particles", type=_non_negative_int, default=100,
+    p.add_argument("--max-particles", type=_int_in(0, MAX_PARTICLES, "particles"), default=100,
                    help="most distinct particles drawn per frame (default 100)")
     p.add_argument("--shadows", action="store_true", help="draw shadows (slower)")
     p.add_argument("--antialias", action="store_true", help="4x multisampling (slower)")
@@ -563,7 +633,8 @@ def _seed_list(text: str) -> list[int]:
     try:
         seeds = [_non_negative_int(v) for v in text.split(",") if v.strip()]
     except argparse.ArgumentTypeError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated non-negative integers, got {text!r}") from None
+        raise argparse.ArgumentTypeError(f"expected comma-separated seeds from 0 to {MAX_SEED}, got "
+                                         f"{_shown(text)}") from None
     if not seeds:
         raise argparse.ArgumentTypeError("expected at least one seed")
     return seeds
@@ -610,14 +681,17 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-def _int_list(text: str) -> list[int]:
-    try:
-        values = [int(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {text!r}") from None
-    if not values or min(values) < 1:
-        raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {text!r}")
-    return values
+def _int_list(item: Callable[[str], int]) -> Callable[[str], list[int]]:
+    """An argparse type: comma-separated integers, each parsed (and bounded) by ``item``."""
+    def parse(text: str) -> list[int]:
+        try:
+            values = [item(v) for v in text.split(",") if v.strip()]
+        except argparse.ArgumentTypeError as exc:  # it names the bound
+            raise argparse.ArgumentTypeError(f"expected comma-separated positive integers; each {exc}") from None
+        if not values:
+            raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {_shown(text)}")
+        return values
+    return parse
 
 
 def _add_bench(subparsers: argparse._SubParsersAction) -> None:
@@ -625,18 +699,18 @@ def _add_bench(subparsers: argparse._SubParsersAction) -> None:
         subparsers, "bench", summary="timing table: physics, filter stages, planners, reproduction scaling",
         description="Print the benchmark table of docs/PERFORMANCE.md: medians from one run "
                     "(pin to one core with taskset -c 0 for the single-core rows).")
-    p.add_argument("--episodes", type=_positive_int, default=30,
+    p.add_argument("--episodes", type=_episodes, default=30,
                    help="episodes timed per planner (default 30)")
-    p.add_argument("--particles", type=_int_list, default=[250, 1000, 4000],
-                   help="filter sizes N to time (default 250,1000,4000)")
+    p.add_argument("--particles", type=_int_list(_particles), default=[250, 1000, 4000],
+                   help="filter sizes N to time, each 1 to 10^6 (default 250,1000,4000)")
     p.add_argument("--env-seconds", type=_positive_seconds, default=1.0,
                    help="seconds of each of the 3 timed runs of the Gymnasium env per setting (default 1)")
     p.add_argument("--reproduce", action="store_true",
                    help="also time the paper's reproduction with each --workers count (minutes)")
     p.add_argument("--only-reproduce", action="store_true", help="only the reproduction rows")
-    p.add_argument("--reproduce-episodes", type=_positive_int, default=1000,
+    p.add_argument("--reproduce-episodes", type=_episodes, default=1000,
                    help="seeds in the timed reproduction (default 1000)")
-    p.add_argument("--workers", type=_int_list, default=[1, 2],
+    p.add_argument("--workers", type=_int_list(_workers), default=[1, 2],
                    help="worker counts for the reproduction (default 1,2)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_scenario_arguments(p)
@@ -706,8 +780,40 @@ def _command_list(parser: argparse.ArgumentParser) -> str:
     return "\n".join(lines)
 
 
+def _guard_standard_streams() -> str | None:
+    """Make closed standard streams harmless; returns why the command cannot run, or None.
+
+    A standard descriptor (0, 1, 2) that is closed (``cdf-mj ... 2>&-``) is opened on
+    ``/dev/null``, so that no file the run opens later takes its number and receives what
+    is meant for the terminal (MuJoCo's and ffmpeg's messages, a worker's output). With
+    stderr closed, what goes there (progress bars, warnings, the one-line error) is dropped
+    and the command runs as usual: its exit status still tells the outcome (0 done, 1 some
+    episodes failed, 2 bad input). With stdout closed (``>&-``) the output a command exists
+    to print (a record, the tables) would be lost, so nothing runs: the reason is returned
+    (exit status 2); ``> /dev/null`` discards the output on purpose.
+    """
+    for fd in (0, 1, 2):
+        try:
+            os.fstat(fd)
+        except OSError:  # closed: hold the number with /dev/null
+            null = os.open(os.devnull, os.O_RDWR)
+            if null != fd:
+                os.dup2(null, fd)
+                os.close(null)
+    if sys.stderr is None:  # Python found fd 2 closed at start-up
+        sys.stderr = open(os.devnull, "w", encoding="utf-8")  # noqa: SIM115 - for the life of the process
+    if sys.stdout is None:
+        return ("standard output is closed, so what the command prints would be lost; redirect it to a "
+                "file, or to /dev/null to discard it")
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run ``cdf-mj`` with ``argv`` (default ``sys.argv[1:]``); returns the exit status."""
+    """Run ``cdf-mj`` with ``argv`` (default ``sys.argv[1:]``); returns the exit status.
+    Closed standard streams: see :func:`_guard_standard_streams`."""
+    closed = _guard_standard_streams()
+    if closed is not None:
+        return _fail(CLIError(closed))
     parser = build_parser()
     try:
         args = parser.parse_args(argv)
@@ -728,17 +834,33 @@ def main(argv: Sequence[str] | None = None) -> int:
     # WorkerDiedError: a worker process died (the finished episodes are saved);
     # OSError: a path that cannot be written (not a directory, no permission, disk full);
     # ImportError: an optional extra is missing (cdf_mj.extras.require names it).
-    except (ValueError, FloatingPointError, WorkerDiedError, OSError, ImportError) as exc:
+    # OverflowError: a number too large for a float that slipped past the bounds.
+    except (ValueError, FloatingPointError, OverflowError, WorkerDiedError, OSError, ImportError) as exc:
         if args.debug:
             raise
+        out = getattr(args, "out", None)
+        if isinstance(exc, OSError) and exc.filename is None and exc.errno in _WRITE_ERRORS and out:
+            exc.filename = f"{out} (writing)"  # a failed write() names no file: name the output
         return _fail(exc)
+
+
+#: Errors of a write that names no file (``[Errno 28] No space left on device``): reported
+#: with the command's output path (``--out``), the only place a command writes.
+_WRITE_ERRORS = frozenset({errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EIO, errno.EROFS})
+
+
+def _one_line(text: str) -> str:
+    """``text`` with every control character escaped (a path with a newline stays one line)."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
 
 
 def _fail(exc: Exception) -> int:
     if isinstance(exc, OSError) and exc.filename is not None:
-        message = f"{exc.filename}: {exc.strerror or type(exc).__name__}"
+        where = exc.filename if exc.filename2 is None else f"{exc.filename} -> {exc.filename2}"
+        message = _one_line(f"{where if isinstance(where, str) else os.fsdecode(where)}: "
+                            f"{exc.strerror or type(exc).__name__}")
     else:
-        message = " ".join(str(exc).split()) or type(exc).__name__  # one line
+        message = _one_line(" ".join(str(exc).split()) or type(exc).__name__)  # one line
     print(f"{PROG}: error: {message}", file=sys.stderr)
     return EXIT_USAGE
 

@@ -12,6 +12,8 @@ from cdf_mj.cli import main
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.experiments.sweep import SWEEPS, comparison_figures, run_sweep
 from cdf_mj.extras import install_hint
+from cdf_mj.planners.base import PLANNERS
+from cdf_mj.planners.simple import ReactivePlanner
 from cdf_mj.records import load_records
 
 
@@ -117,3 +119,70 @@ def test_a_sweep_directory_of_the_earlier_layout_is_reused(tmp_path):
     assert (tmp_path / "tau" / "0.9" / "episodes.jsonl").read_bytes() == kept
     assert not (tmp_path / "tau" / "reference").exists()
     assert {(r["value"], r["planner"]) for r in result.rows} == {(0.9, "cdf"), (0.5, "cdf"), (0.9, "reactive")}
+
+
+class _BreaksAboveBetaTenth(ReactivePlanner):
+    """The reactive planner, except that it raises at beta above 0.1 (a user's buggy planner)."""
+
+    def reset(self, layout, config, rng):
+        if config.beta > 0.1:
+            raise RuntimeError(f"planner broke at beta {config.beta}")
+        super().reset(layout, config, rng)
+
+
+def test_failed_episodes_are_counted_per_point_and_never_hidden(tmp_path, monkeypatch, capsys):
+    """A point whose episodes all fail keeps its row (episodes 0, failed 2), the Markdown
+    names it, its directory and the error, and the command exits 1 (issue 15, item 1)."""
+    monkeypatch.setitem(PLANNERS, "fragile", _BreaksAboveBetaTenth)
+    res = run_sweep("beta", tmp_path, seeds=range(2), planners=("fragile", "cv"), values=(0.05, 0.2), workers=1)
+    rows = {(r["value"], r["planner"]): r for r in res.rows}
+    assert set(rows) == {(0.05, "fragile"), (0.05, "cv"), (0.2, "fragile"), (0.2, "cv")}
+    assert (rows[0.2, "fragile"]["episodes"], rows[0.2, "fragile"]["failed"]) == (0, 2)
+    assert (rows[0.05, "fragile"]["episodes"], rows[0.05, "fragile"]["failed"]) == (2, 0)
+    assert (rows[0.2, "cv"]["episodes"], rows[0.2, "cv"]["failed"]) == (2, 0)
+    assert res.failed == 2 and [(f.value, f.failed, f.episodes) for f in res.failures] == [(0.2, 2, 4)]
+    assert res.failures[0].directory == tmp_path / "beta" / "0.2"
+    assert "RuntimeError: planner broke at beta 0.2" in res.failures[0].error
+    with open(res.csv_path, encoding="utf-8") as fh:
+        csv_rows = [r for r in csv.DictReader(fh) if r["planner"] == "fragile"]
+    assert [(r["value"], r["episodes"], r["failed"]) for r in csv_rows] == [("0.05", "2", "0"), ("0.2", "0", "2")]
+    md = res.markdown_path.read_text(encoding="utf-8")
+    assert "| 0.2 | fragile | 0 |" in md and "**2 episodes failed**" in md and str(tmp_path / "beta" / "0.2") in md
+    assert res.figure_path.is_file()  # a point without completed episodes is drawn as a gap
+
+    argv = ["sweep", "beta", "--values", "0.05,0.2", "--episodes", "2", "--planners", "fragile,cv",
+            "--workers", "1", "--quiet", "--no-figure", "--out", str(tmp_path)]
+    assert main(argv) == 1  # EXIT_FAILED_EPISODES, as `experiment`
+    err = capsys.readouterr().err
+    assert "beta = 0.2: 2 of 4 episodes failed" in err and "planner broke" in err and "Traceback" not in err
+    assert main([*argv[:3], "0.05", *argv[4:]]) == 0  # the point without failures alone: success
+
+
+_FULL_DISK_SWEEP = """
+import resource, signal, sys
+from cdf_mj.experiments.sweep import run_sweep
+
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails with EFBIG
+resource.setrlimit(resource.RLIMIT_FSIZE, (20_000, resource.getrlimit(resource.RLIMIT_FSIZE)[1]))
+try:
+    run_sweep("beta", sys.argv[1], seeds=range(2), planners=("cv",), values=(0.05, 0.2), workers=1)
+except OSError as exc:
+    print(exc.errno)
+    sys.exit(3)
+"""
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="needs POSIX resource limits")
+def test_a_full_disk_leaves_the_earlier_figure_whole(tmp_path):
+    """The figure (> 20 kB) meets a full disk: an OSError, the earlier PNG untouched, no
+    partial or temporary file (issue 15, item 2)."""
+    import subprocess
+
+    run_sweep("beta", tmp_path, seeds=range(2), planners=("cv",), values=(0.05, 0.2), workers=1)
+    before = (tmp_path / "beta.png").read_bytes()
+    assert len(before) > 20_000
+    run = subprocess.run([sys.executable, "-c", _FULL_DISK_SWEEP, str(tmp_path)], capture_output=True,
+                         text=True, timeout=120, check=False)
+    assert run.returncode == 3, run.stderr
+    assert (tmp_path / "beta.png").read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []

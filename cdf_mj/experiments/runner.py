@@ -17,7 +17,9 @@ backend       where the seeds run
 ============  ===================================================================
 
 An episode that raises is recorded as a *failed* record (``"status": "failed"``, with its
-seed, planner, error and traceback) and the run goes on. Successful records carry
+seed, planner, error and traceback) and the run goes on; a planner that calls
+``sys.exit()`` (raises ``SystemExit``) is a failed episode too, not the end of the run. Only
+``KeyboardInterrupt`` (Ctrl-C) stops the run. Successful records carry
 ``"status": "ok"``. The records are persisted by :mod:`cdf_mj.experiments.store`.
 """
 
@@ -25,6 +27,7 @@ from __future__ import annotations
 
 import os
 import resource
+import socket
 import sys
 import threading
 import traceback
@@ -42,8 +45,8 @@ from cdf_mj.records import FAILED, OK
 if TYPE_CHECKING:
     from cdf_mj.planners.base import Planner
 
-__all__ = ["BACKENDS", "START_METHOD", "Backend", "SeedJob", "SeedResult", "WorkerDiedError", "check_backend",
-           "effective_backend", "run_seeds"]
+__all__ = ["BACKENDS", "RAY_CONNECT_TIMEOUT_S", "START_METHOD", "Backend", "ClusterUnreachableError", "SeedJob",
+           "SeedResult", "WorkerDiedError", "check_backend", "effective_backend", "run_seeds", "worker_count"]
 
 Backend = Literal["serial", "process", "ray"]
 BACKENDS: tuple[str, ...] = ("serial", "process", "ray")
@@ -51,6 +54,16 @@ BACKENDS: tuple[str, ...] = ("serial", "process", "ray")
 
 class WorkerDiedError(RuntimeError):
     """A worker process died (killed, out of memory); finished seeds are saved."""
+
+
+class ClusterUnreachableError(ConnectionError):
+    """No Ray cluster answers at the ``address`` given (an OSError); no seed was run."""
+
+
+#: [s] How long the ``ray`` backend waits for the cluster at ``address`` to accept a
+#: connection before it gives up with :class:`ClusterUnreachableError` (instead of Ray's own
+#: retrying, which goes on for minutes when nothing listens there).
+RAY_CONNECT_TIMEOUT_S = 10.0
 
 
 @dataclass(frozen=True)
@@ -113,7 +126,7 @@ class SeedWorker:
         for name in planners or job.planners:
             try:
                 rec = run_episode(job.config, seed, job.factories[name](), self.scene, label=False).to_dict()
-            except Exception as exc:  # recorded with its traceback; the run goes on
+            except (Exception, SystemExit) as exc:  # recorded with its traceback; the run goes on
                 records.append(_failed(seed, name, exc))
                 continue
             rec["planner"] = name  # the experiment's name for it, whatever the class calls itself
@@ -125,7 +138,7 @@ class SeedWorker:
             try:
                 label, hit = (label_of(done[0]["intent"], hit), hit) if hit is not None else \
                     counterfactual(job.config, seed, self.scene)
-            except Exception as exc:  # without a label no record of this seed is usable
+            except (Exception, SystemExit) as exc:  # without a label no record of this seed is usable
                 records = [_failed(seed, r["planner"], exc) if r["status"] == OK else r for r in records]
             else:
                 for r in done:
@@ -212,6 +225,32 @@ def _process_pool(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], wor
                 fut.cancel()
 
 
+def _probe_ray_address(address: str, timeout: float = RAY_CONNECT_TIMEOUT_S) -> None:
+    """:class:`ClusterUnreachableError` (one line) unless a TCP connection to ``address``
+    (``host:port`` or ``ray://host:port``) opens within ``timeout`` seconds. An address
+    without a port (``auto``, ``local``) is left to Ray."""
+    scheme, sep, rest = address.strip().partition("://")
+    host, colon, port_text = (rest if sep else scheme).rpartition(":")
+    if not colon:
+        return
+    host = host.strip("[]") or "127.0.0.1"
+    try:
+        port = int(port_text)
+    except ValueError:
+        port = -1
+    if not 0 < port < 65536:
+        raise ClusterUnreachableError(f"Ray address {address!r}: the port must be a number from 1 to 65535; "
+                                      "give host:port, e.g. 127.0.0.1:6379")
+    try:
+        with socket.create_connection((host, port), timeout=timeout):
+            pass
+    except OSError as exc:
+        why = exc.strerror or str(exc) or type(exc).__name__
+        raise ClusterUnreachableError(f"no Ray cluster answers at {address} within {timeout:g} s ({why}); start "
+                                      "one there (ray start --head), or leave out the address to run a "
+                                      "local Ray instance") from None
+
+
 def _ray(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], workers: int,
          address: str | None) -> Iterator[SeedResult]:
     ray = require("ray", "ray", "the ray backend")
@@ -250,14 +289,27 @@ def run_seeds(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], backend
     ``workers`` defaults to the CPU count (with Ray and an ``address``: one actor per CPU
     of the cluster); ``backend="process"`` with one worker, or fewer than two seeds, runs
     in this process. Raises :class:`WorkerDiedError` if a
-    worker dies; seeds already yielded are unaffected.
+    worker dies; seeds already yielded are unaffected. With ``backend="ray"`` and an
+    ``address``, raises :class:`ClusterUnreachableError` at once (before any seed runs) if
+    nothing accepts a connection there within :data:`RAY_CONNECT_TIMEOUT_S`.
     """
     cluster_default = backend == "ray" and address is not None and workers is None
     workers = check_backend(backend, workers)
     where = effective_backend(backend, workers, len(todo))
-    if cluster_default:
-        workers = 0  # one actor per CPU of the cluster
-    return _BACKENDS[where](job, todo, min(workers, max(1, len(todo))), address)
+    if where == "ray" and address is not None:
+        require("ray", "ray", "the ray backend")  # a missing extra is told first
+        _probe_ray_address(address)
+    n = 0 if cluster_default else worker_count(backend, workers, len(todo))  # 0: one actor per cluster CPU
+    return _BACKENDS[where](job, todo, n, address)
+
+
+def worker_count(backend: str, workers: int, n_items: int) -> int:
+    """How many workers really run ``n_items`` seeds when ``workers`` are asked for: one in
+    this process (see :func:`effective_backend`), else at most one per seed (``workers=10**6``
+    on 3 seeds is 3)."""
+    if effective_backend(backend, workers, n_items) == "serial":
+        return 1
+    return min(workers, max(1, n_items))
 
 
 def effective_backend(backend: str, workers: int, n_items: int) -> str:

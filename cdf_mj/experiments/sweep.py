@@ -25,6 +25,12 @@ sweep writes ``OUT/<sweep>.csv``, ``OUT/<sweep>.md`` (the metrics of
 :func:`cdf_mj.analysis.metrics.planner_metrics` per point and planner) and
 ``OUT/<sweep>.png`` (matplotlib, the optional extra ``viz``).
 
+An episode that fails (raises; its record holds the error) is left out of the metrics but
+never out of the table: every point and planner keeps its row, with the column ``failed``
+counting its failed episodes (a point whose episodes all failed has ``episodes`` 0), and
+:attr:`SweepResult.failures` names each point with failures, its directory and the first
+error. ``cdf-mj sweep`` then exits with status 1.
+
 The ``tau`` sweep also writes ``OUT/tau_curve.csv``, the false alarms and detections for
 a fine grid of thresholds (:func:`cdf_mj.analysis.metrics.tau_curve`), read from the
 filter's P(cutoff) history of the run at the largest tau: before it brakes, the filter's
@@ -42,6 +48,7 @@ times agree with those runs. ::
 from __future__ import annotations
 
 import csv
+import io
 import json
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
@@ -52,6 +59,7 @@ import numpy as np
 
 from cdf_mj.analysis.metrics import (
     PlannerMetrics,
+    Rate,
     brier_over_time,
     decision_time,
     planner_metrics,
@@ -60,8 +68,10 @@ from cdf_mj.analysis.metrics import (
 )
 from cdf_mj.analysis.tables import format_number, format_rate
 from cdf_mj.config import CDFConfig, ScenarioConfig
+from cdf_mj.experiments.store import write_atomic
 from cdf_mj.extras import require
 from cdf_mj.records import (
+    FAILED,
     RecordLike,
     completed,
     is_false_alarm,
@@ -71,7 +81,8 @@ from cdf_mj.records import (
 )
 from cdf_mj.sim.scene import DEFAULT_SCENE
 
-__all__ = ["SWEEPS", "SweepResult", "SweepSpec", "VizUnavailableError", "comparison_figures", "run_sweep"]
+__all__ = ["SWEEPS", "PointFailures", "SweepResult", "SweepSpec", "VizUnavailableError", "comparison_figures",
+           "run_sweep"]
 
 class VizUnavailableError(ImportError):
     """matplotlib is missing: the figures need the optional extra ``viz``."""
@@ -122,17 +133,39 @@ SWEEPS: dict[str, SweepSpec] = {s.name: s for s in (
 )}
 
 
+@dataclass(frozen=True)
+class PointFailures:
+    """The failed episodes of one experiment directory of a sweep (a point, or the
+    reference run listed at the first point)."""
+
+    value: float  # the swept value the directory's rows are listed at
+    directory: Path  # its episodes.jsonl holds each failed record's error and traceback
+    failed: int  # failed episodes
+    episodes: int  # all episodes of the directory
+    error: str  # the first failed record's error, e.g. "MemoryError: ..."
+
+    def __str__(self) -> str:
+        return (f"{self.failed} of {self.episodes} episodes failed in {self.directory} "
+                f"(first: {' '.join(self.error.split())})")
+
+
 @dataclass
 class SweepResult:
     """What :func:`run_sweep` wrote: one row per point and planner, and the file paths."""
 
     name: str
-    rows: list[dict[str, Any]]  # PlannerMetrics.to_row() with "sweep", "value" and "point_wall_s"
+    rows: list[dict[str, Any]]  # PlannerMetrics.to_row() with "sweep", "value", "failed" and "point_wall_s"
     csv_path: Path
     markdown_path: Path
     figure_path: Path | None
     markdown: str
     extra: dict[str, Any] = field(default_factory=dict)  # tau: the fine curve and the agreement check
+    failures: list[PointFailures] = field(default_factory=list)  # directories with failed episodes
+
+    @property
+    def failed(self) -> int:
+        """Failed episodes over the whole sweep (0: every episode ran)."""
+        return sum(f.failed for f in self.failures)
 
 
 def _value_text(value: float) -> str:
@@ -152,13 +185,35 @@ def _run_point(out: Path, seeds: Sequence[int], planners: Sequence[str], config:
                cdf: CDFConfig, scene: str | Path, progress: bool,
                workers: int | None) -> tuple[list[RecordLike], float]:
     """One :func:`run_experiment` call, resumed where ``out`` holds the same settings (a
-    finished point is reused, an interrupted one continues); returns its completed records
-    and its wall time [s]."""
+    finished point is reused, an interrupted one continues); returns all its records (the
+    failed ones too) and its wall time [s]."""
     from cdf_mj.experiments.experiment import run_experiment
 
     result = run_experiment(out, seeds, list(planners), config, cdf, scene, progress,
                             workers=workers, resume=True)
-    return completed(result), result.wall_time
+    return list(result.records), result.wall_time
+
+
+def _failures(value: float, directory: Path, records: Sequence[RecordLike]) -> list[PointFailures]:
+    """The failed episodes of one directory's records (an empty list if none failed)."""
+    failed = [r for r in records if record_field(r, "status") == FAILED]
+    if not failed:
+        return []
+    return [PointFailures(value, directory, len(failed), len(records), str(record_field(failed[0], "error")))]
+
+
+def _metrics(records: Sequence[RecordLike], planners: Sequence[str]) -> list[tuple[PlannerMetrics, int]]:
+    """Each planner's metrics over its completed records with its count of failed episodes,
+    for every planner named in ``planners`` that has records (one whose episodes all failed
+    included, with ``episodes`` 0)."""
+    metrics = planner_metrics(records)
+    failed: dict[str, int] = {}
+    for r in records:
+        failed[record_field(r, "planner")] = failed.get(record_field(r, "planner"), 0) + \
+            (record_field(r, "status") == FAILED)
+    nan = float("nan")
+    return [(metrics.get(p) or PlannerMetrics(p, 0, 0, 0, Rate(0, 0), Rate(0, 0), nan, nan, nan, None, None),
+             failed[p]) for p in planners if p in failed]
 
 
 @dataclass(frozen=True)
@@ -167,10 +222,12 @@ class _Point:
 
     value: float
     metrics: PlannerMetrics
+    failed: int  # the planner's failed episodes at this point (not in ``metrics``)
     wall: float  # [s] of the point's run_experiment calls
 
     def row(self, sweep: str) -> dict[str, Any]:
-        return {"sweep": sweep, "value": self.value, **self.metrics.to_row(), "point_wall_s": round(self.wall, 2)}
+        return {"sweep": sweep, "value": self.value, **self.metrics.to_row(), "failed": self.failed,
+                "point_wall_s": round(self.wall, 2)}
 
 
 def run_sweep(name: str, out_dir: str | Path, seeds: Iterable[int], planners: Sequence[str] = ("cdf", "reactive"),
@@ -214,6 +271,7 @@ def run_sweep(name: str, out_dir: str | Path, seeds: Iterable[int], planners: Se
         points.sort(key=lambda p: -p[0])
 
     table: list[_Point] = []
+    failures: list[PointFailures] = []
     records_by_value: dict[float, list[RecordLike]] = {}
     references = [p for p in planners if p != "cdf"] if spec.cdf_only else []
     for i, (value, cfg, cdf_v) in enumerate(points):
@@ -222,12 +280,14 @@ def run_sweep(name: str, out_dir: str | Path, seeds: Iterable[int], planners: Se
         if i == 0 and references and _planners_in(point) == list(planners):
             names, references = planners, []  # an earlier version's layout: every planner here
         recs, wall = _run_point(point, seeds, names, cfg, cdf_v, scene, progress, workers)
+        failures += _failures(value, point, recs)
         if i == 0 and references:  # unaffected by the swept CDF setting: run once, at the base
             ref, ref_wall = _run_point(out / name / "reference", seeds, references, config, cdf, scene,
                                        progress, workers)
+            failures += _failures(value, out / name / "reference", ref)
             recs, wall = recs + ref, wall + ref_wall
-        records_by_value[value] = recs
-        table += [_Point(value, m, wall) for m in planner_metrics(recs).values()]
+        records_by_value[value] = completed(recs)
+        table += [_Point(value, m, k, wall) for m, k in _metrics(recs, planners)]
     table.sort(key=lambda p: (p.value, planners.index(p.metrics.planner) if p.metrics.planner in planners else 99))
     rows = [p.row(name) for p in table]
 
@@ -239,16 +299,16 @@ def run_sweep(name: str, out_dir: str | Path, seeds: Iterable[int], planners: Se
         extra["agreement"] = _tau_agreement(records_by_value, top)
         _write_csv(out / "tau_curve.csv", curve)
 
-    md = _markdown(spec, table, extra)
+    md = _markdown(spec, table, extra, failures)
     csv_path, md_path = out / f"{name}.csv", out / f"{name}.md"
     _write_csv(csv_path, rows)
-    md_path.write_text(md + "\n", encoding="utf-8")
+    write_atomic(md_path, md + "\n")
     fig_path = None
     if figure:
         fig_path = out / f"{name}.png"
         _figure(spec, rows, extra, fig_path)
     return SweepResult(name=name, rows=rows, csv_path=csv_path, markdown_path=md_path,
-                       figure_path=fig_path, markdown=md, extra=extra)
+                       figure_path=fig_path, markdown=md, extra=extra, failures=failures)
 
 
 def _tau_agreement(records_by_value: dict[float, list[RecordLike]], top: float) -> dict[str, int]:
@@ -273,38 +333,42 @@ def _tau_agreement(records_by_value: dict[float, list[RecordLike]], top: float) 
 _COLUMNS = ("sweep", "value", "planner", "episodes", "imminent", "collisions", "avoided", "avoided_lo",
             "avoided_hi", "avoided_k", "avoided_n", "false_alarms", "false_alarms_lo", "false_alarms_hi",
             "false_alarms_k", "false_alarms_n", "lead_time", "min_gap", "time_lost", "brier_left",
-            "brier_seen", "point_wall_s")
+            "brier_seen", "failed", "point_wall_s")
 
 
 def _write_csv(path: Path, rows: list[dict[str, Any]]) -> None:
-    if not rows:
-        path.write_text("", encoding="utf-8")
-        return
-    cols = [c for c in _COLUMNS if c in rows[0]] + [c for c in rows[0] if c not in _COLUMNS]
-    with open(path, "w", newline="", encoding="utf-8") as fh:
-        w = csv.DictWriter(fh, fieldnames=cols, extrasaction="ignore")
+    """``rows`` as CSV, whole or not at all (:func:`~cdf_mj.experiments.store.write_atomic`)."""
+    text = io.StringIO(newline="")
+    if rows:
+        cols = [c for c in _COLUMNS if c in rows[0]] + [c for c in rows[0] if c not in _COLUMNS]
+        w = csv.DictWriter(text, fieldnames=cols, extrasaction="ignore")
         w.writeheader()
         for r in rows:
             w.writerow({k: ("" if r.get(k) is None else r.get(k)) for k in cols})
+    write_atomic(path, text.getvalue())
 
 
-def _markdown(spec: SweepSpec, table: list[_Point], extra: dict[str, Any]) -> str:
+def _markdown(spec: SweepSpec, table: list[_Point], extra: dict[str, Any], failures: Sequence[PointFailures]) -> str:
     lines = [f"Sweep `{spec.name}`: {spec.label}", "",
              ("| value | planner | imminent | collisions | avoided (95 % CI) | false alarms (95 % CI) "
              "| median lead [s] | median min gap [m] | mean time lost [s] | Brier P(left) | Brier P(seen) "
-             "| point wall time [s] |"),
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| failed | point wall time [s] |"),
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for p in table:
         m = p.metrics
         cells = [_value_text(p.value), m.planner, str(m.imminent), str(m.collisions), format_rate(m.avoided),
                  format_rate(m.false_alarms), format_number(m.lead_time), format_number(m.min_gap),
                  format_number(m.time_lost), format_number(m.brier_left, 3), format_number(m.brier_seen, 3),
-                 format_number(p.wall, 1)]
+                 str(p.failed), format_number(p.wall, 1)]
         lines.append("| " + " | ".join(cells) + " |")
     others = sorted({_value_text(p.value) for p in table if p.metrics.planner != "cdf"})
     if spec.cdf_only and others:
         lines += ["", (f"Planners other than `cdf` do not read this setting: they ran once and are "
                        f"listed at {spec.name} = {', '.join(others)}.")]
+    if failures:
+        lines += ["", f"**{sum(f.failed for f in failures)} episodes failed** and are not in the metrics "
+                      "(each failed record holds its error and traceback):"]
+        lines += [f"- {spec.name} = {_value_text(f.value)}: {f}" for f in failures]
     if "agreement" in extra:
         a = extra["agreement"]
         lines += ["", (f"Brake times derived from the histories of the largest-tau run agree with the "
@@ -326,14 +390,18 @@ def _pyplot() -> Any:
 
 
 def _save(fig: Any, path: Path) -> Path:
-    """Lay out, write as PNG (110 dpi, parents created) and close a figure; returns ``path``."""
+    """Lay out, write as PNG (110 dpi, parents created; whole or not at all) and close a
+    figure; returns ``path``."""
     import matplotlib.pyplot as plt
 
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    png = io.BytesIO()
+    try:
+        fig.savefig(png, format="png", dpi=110)
+    finally:
+        plt.close(fig)
+    return write_atomic(path, png.getvalue())
 
 
 def _figure(spec: SweepSpec, rows: list[dict[str, Any]], extra: dict[str, Any], path: Path) -> None:
