@@ -30,7 +30,7 @@ draws its own from the filter's prior (:class:`cdf_mj.config.DriverPrior`).
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from enum import IntEnum
 
 import numpy as np
@@ -118,20 +118,6 @@ class DriverParams:
         return cls(accel=config.obstacle_accel, turn_speed=config.obstacle_turn_speed,
                    yield_brake=config.obstacle_yield_brake, critical_gap=config.critical_gap,
                    clear_distance=config.clear_distance)
-
-    def take(self, rows: np.ndarray) -> DriverParams:
-        """The parameters of the particles ``rows`` (arrays only; floats are shared)."""
-        return DriverParams(**{f.name: (v[rows] if isinstance(v := getattr(self, f.name), np.ndarray) else v)
-                               for f in fields(self)})
-
-    def put(self, rows: np.ndarray, other: DriverParams) -> DriverParams:
-        """A copy whose ``rows`` take ``other``'s values (arrays of ``len(rows)``)."""
-        out = {}
-        for f in fields(self):
-            v = np.array(getattr(self, f.name), dtype=float, copy=True)
-            v[rows] = getattr(other, f.name)
-            out[f.name] = v
-        return DriverParams(**out)
 
 
 def bicycle_step(x: np.ndarray, u: np.ndarray, dt: float, wheelbase: float) -> np.ndarray:
