@@ -4,14 +4,13 @@ after it, recorded in an experiment's settings), one-line errors for every broke
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
-from cli_helpers import assert_one_line_error, run_cli
+from cli_helpers import assert_one_line_error, load_script, run_cli
 
 from cdf_mj import cli
 from cdf_mj.config import CDFConfig, ScenarioConfig
@@ -161,12 +160,7 @@ def test_the_experiment_records_the_presets_config_and_refuses_another(tmp_path,
 
 # ----------------------------------------------------------------- scripts/mismatch.py
 def _script():
-    spec = importlib.util.spec_from_file_location("mismatch_script", SCRIPT)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module  # its dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
+    return load_script(SCRIPT, "mismatch_script")
 
 
 def test_mismatch_refuses_a_broken_preset_before_running(tmp_path):
