@@ -151,6 +151,15 @@ def test_a_hesitating_driver_noses_out_stops_and_goes_on(scene):
     assert s[-1] > s[k_go] + 5.0  # then went on
 
 
+def test_a_creep_past_the_commit_point_is_refused(scene):
+    """On models/xml the commit point is 1.44-1.45 m from the start: a 1.5 m creep could never
+    end in a stop (the driver is committed by then), so it is one clear error, not a
+    driver who silently never hesitates."""
+    with pytest.raises(ValueError, match=r"hesitation_creep=1.5 m reaches the commit point, 1\.4\d m"):
+        World(scene, ScenarioConfig(hesitation=0.5, hesitation_creep=1.5))
+    World(scene, ScenarioConfig(hesitation=0.0, hesitation_creep=1.5))  # no hesitation: no matter
+
+
 def test_departure_look_sees_the_ego_when_it_would_leave(scene):
     """beta = 0 but departure_look = 1: the driver's only look is on the tick its dwell ends
     with the ego in sight; it sees the ego (first_seen = the dwell) and does not go."""

@@ -130,6 +130,14 @@ class World:
         self._nu_std = np.array([config.noise_accel, config.noise_steer])
         self._s0 = layout.route_ego.project(layout.ego_start[:2])[0]
         self._s_conflict = layout.route_ego.project(layout.conflict)[0]
+        if config.hesitation > 0.0:  # a stop past the commit point would never happen
+            start = layout.obstacle_start[:2]
+            room = min(float(s - r.project(start)[0]) for r, s in zip(layout.obstacle_routes,
+                                                                        self.driver.s_commit, strict=True))
+            if config.hesitation_creep >= room:
+                raise ValueError(f"hesitation_creep={config.hesitation_creep} m reaches the commit point, "
+                                 f"{room + 1e-9:.2f} m from the obstacle's start in {scene.source}: a driver "
+                                 "past it never stops again; give a shorter creep")
         self.done = True  # until reset
 
     # ------------------------------------------------------------------ episode
