@@ -54,6 +54,7 @@ from cdf_mj.config import (
     MAX_SEED,
     MAX_WORKERS,
     CDFConfig,
+    RiskConfig,
     ScenarioConfig,
 )
 from cdf_mj.experiments.runner import WorkerDiedError
@@ -238,21 +239,34 @@ def add_format_argument(parser: argparse.ArgumentParser) -> None:
 
 
 def add_cdf_arguments(parser: argparse.ArgumentParser, swept: bool = False) -> None:
-    """``--particles``, ``--tau`` and ``--cutoff-rule``: the CDF planner's settings
-    (:class:`cdf_mj.config.CDFConfig`). ``swept``: say they apply where not swept."""
+    """``--particles``, ``--tau``, ``--cutoff-rule`` and the risk rule's ``--brake-risk``,
+    ``--release-risk`` and ``--risk-latency``: the CDF planner's settings
+    (:class:`cdf_mj.config.CDFConfig`; the risk rule's are shared by ``imm-risk`` and
+    ``cv-risk``). ``swept``: say they apply where not swept."""
     d = CDFConfig()
+    r = d.risk
     where = " where not swept" if swept else ""
     parser.add_argument("--particles", type=_particles, default=d.n_particles,
                         help=f"CDF particle count N{where}, 1 to 10^6 (memory) (default {d.n_particles})")
     parser.add_argument("--tau", type=_finite_float(0.0, 1.0, "(a probability)"), default=d.tau,
-                        help=f"CDF braking threshold on P(cutoff){where} (default {d.tau})")
+                        help=f"braking threshold on P(cutoff) of cdf-threshold, the paper's rule{where} "
+                             f"(default {d.tau})")
+    parser.add_argument("--brake-risk", type=_finite_float(0.0, 1.0, "(a probability)"), default=r.brake,
+                        help=f"risk rule (cdf, imm-risk, cv-risk): brake when P(collision if braking is "
+                             f"deferred) reaches this{where} (default {r.brake})")
+    parser.add_argument("--release-risk", type=_finite_float(0.0, 1.0, "(a probability)"), default=r.release,
+                        help=f"risk rule: release the brake below this risk, at most --brake-risk "
+                             f"(default {r.release})")
+    parser.add_argument("--risk-latency", type=_finite_float(0.0, 10.0, "[s]"), default=r.latency,
+                        help=f"risk rule: margin [s] on top of one decision interval (default {r.latency})")
     parser.add_argument("--cutoff-rule", choices=("predictive", "paper"), default=d.cutoff_rule,
                         help=f"how P(cutoff) is computed (default {d.cutoff_rule}; see docs/RESULTS.md)")
 
 
 def cdf_from_args(args: argparse.Namespace) -> CDFConfig:
     """The :class:`cdf_mj.config.CDFConfig` of :func:`add_cdf_arguments` (validated)."""
-    return CDFConfig(n_particles=args.particles, tau=args.tau, cutoff_rule=args.cutoff_rule)
+    risk = RiskConfig(brake=args.brake_risk, release=args.release_risk, latency=args.risk_latency)
+    return CDFConfig(n_particles=args.particles, tau=args.tau, cutoff_rule=args.cutoff_rule, risk=risk)
 
 
 def _print_json(obj: Any) -> None:

@@ -22,7 +22,7 @@ import numpy as np
 
 __all__ = ["MAX_ACCEL", "MAX_BRAKE", "MAX_DURATION", "MAX_EPISODES", "MAX_LENGTH", "MAX_PARTICLES",
            "MAX_SEED", "MAX_SPEED", "MAX_START_SPREAD", "MAX_WORKERS", "CDFConfig", "DriverPrior",
-           "ScenarioConfig", "SceneNames"]
+           "RiskConfig", "ScenarioConfig", "SceneNames"]
 
 #: Maximum braking of a passenger car on a moderate-friction road, 16 ft/s^2 [m/s^2].
 MAX_BRAKE = 16 * 0.3048
@@ -311,6 +311,47 @@ class DriverPrior:
 
 
 @dataclass(frozen=True)
+class RiskConfig:
+    """The risk decision rule (:class:`cdf_mj.planners.decision.RiskRule`), shared by every
+    predictor that runs with it (``cdf``, ``imm-risk``, ``cv-risk``).
+
+    Each tick the predictor's hypotheses of the obstacle's future are rolled forward
+    against three plans of the ego: going on at its nominal speed, going on for one more
+    decision interval plus ``latency`` and then braking at its maximum rate, and braking
+    now. The ego brakes when the probability of a collision that deferring would make
+    unavoidable (it collides whether the ego goes on or brakes after the deferral)
+    reaches ``brake``, provided braking now lowers the risk; a braking ego releases (and
+    returns to its nominal speed) once that risk of going on is below ``release`` and it
+    is not inside the conflict zone. ValueError naming the field for a threshold outside
+    (0, 1], ``release > brake``, a negative latency or a horizon outside (0, 30] s.
+    Chosen on seeds 0-199 only (docs/DECISION.md).
+    """
+
+    brake: float = 0.2  # brake when P(collision if braking is deferred) >= this, in (0, 1]
+    release: float = 0.1  # release when that risk falls below this, in (0, brake]
+    latency: float = 0.1  # [s] margin on top of one decision interval before the brake acts
+    horizon: float = 5.0  # [s] look-ahead of the rollouts
+    margin: float = 0.3  # [m] added to each half size of both collision boxes
+
+    def __post_init__(self) -> None:
+        _check(_within(self.brake, 0.0, 1.0, open_low=True), "brake", self.brake, "in (0, 1]")
+        _check(_within(self.release, 0.0, 1.0, open_low=True), "release", self.release, "in (0, 1]")
+        _check(self.release <= self.brake, "release", self.release,
+               f"at most the brake threshold {self.brake} (hysteresis: release below, brake at or above)")
+        _check(_within(self.latency, 0.0, 10.0), "latency", self.latency, "in [0, 10] [s]")
+        _check(_within(self.horizon, 0.0, 30.0, open_low=True), "horizon", self.horizon, "in (0, 30] [s]")
+        _check(_within(self.margin, 0.0, 5.0), "margin", self.margin, "in [0, 5] [m]")
+
+    def replace(self, **changes: Any) -> RiskConfig:
+        """A copy with some fields changed (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict:
+        """JSON-serialisable view."""
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True)
 class CDFConfig:
     """Parameters of the CDF particle filter and planner (chosen on seeds 0-199 only).
 
@@ -367,12 +408,22 @@ class CDFConfig:
     # here a decision brakes within the same 0.1 s tick.
     ego_brake: float | None = None
     ego_latency: float = 0.0
+    # When to brake. "risk" (default): RiskConfig's rule on the particles rolled forward,
+    # released when the risk falls. "threshold": the paper's rule, brake once P(cutoff) >= tau
+    # and hold it to the end.
+    decision: str = "risk"
+    risk: RiskConfig = field(default_factory=lambda: RiskConfig())
 
     def __post_init__(self) -> None:
         if isinstance(self.prior, dict):  # read back from JSON (settings.json): lists -> pairs
             raw: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in self.prior.items()}
             object.__setattr__(self, "prior", DriverPrior(**raw))
+        if isinstance(self.risk, dict):  # read back from JSON (settings.json)
+            object.__setattr__(self, "risk", RiskConfig(**self.risk))
         _check(isinstance(self.prior, DriverPrior), "prior", self.prior, "a DriverPrior")
+        _check(isinstance(self.risk, RiskConfig), "risk", self.risk, "a RiskConfig")
+        _check(isinstance(self.decision, str) and self.decision in ("risk", "threshold"), "decision",
+               self.decision, "'risk' or 'threshold' (the paper's)")
         _check(_within(self.mode_jump, 0.0, 0.5), "mode_jump", self.mode_jump, "in [0, 0.5] [1/tick]")
         _check(_within(self.intent_floor, 0.0, 1.0), "intent_floor", self.intent_floor, "in [0, 1]")
         _check(isinstance(self.reinit_redraw, bool), "reinit_redraw", self.reinit_redraw,

@@ -141,6 +141,11 @@ VARIANTS = {
 
 @pytest.mark.parametrize("variant", list(VARIANTS))
 def test_waiting_drivers_warned_when_they_cut_across_and_not_when_they_turn_away(variant: str):
+    """A left-turner that waited 0, 1 or 2 s is braked for before it enters the ego's lane.
+    A right-turner may be braked for while its intent is unknown and the ego must decide
+    (the ego here reaches the junction 2.4 s after the obstacle leaves: its last safe
+    moment comes before the turn shows), but never once the filter reads the turn
+    (P(right) > 0.9), and the brake is released by the end."""
     kw = dict(VARIANTS[variant])
     names = kw.pop("names")
     for i, wait in enumerate((0.0, 1.0, 2.0)):
@@ -148,8 +153,11 @@ def test_waiting_drivers_warned_when_they_cut_across_and_not_when_they_turn_away
         assert entered is not None and brake is not None, (wait, "no warning for a cut-off")
         assert brake < entered, (wait, brake, entered)
         brake, entered, monitor = _wait_and_go(names, wait, "right", seed=i, **kw)
-        assert brake is None, (wait, "warned for a turn away")
-        assert monitor.trace[-1]["posterior"]["p_right"] > 0.5
+        rows = monitor.trace
+        assert not rows[-1]["brake"], (wait, "still braking for a turn away")
+        assert not any(r["brake"] for r in rows if r["posterior"]["p_right"] > 0.9), \
+            (wait, "braked for a car read as turning away")
+        assert rows[-1]["posterior"]["p_right"] > 0.5
 
 
 # ------------------------------------------------------------------ the trace file

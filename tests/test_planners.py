@@ -114,9 +114,12 @@ class _BrakesLate(DecidingPlanner):
         super().reset(layout, config, rng)
         self.layout = layout
 
-    def decide(self, obs: PlannerInput) -> bool:
+    def observe(self, obs: PlannerInput) -> None:
         self.record(obs.t, p_left=0.123456789, speed=obs.poses[1, 3])
-        return 0.45 < obs.t < 0.75
+        self._alarm = 1.0 if 0.45 < obs.t < 0.75 else 0.0
+
+    def alarm(self) -> float:
+        return self._alarm
 
 
 def test_a_deciding_planner_latches_its_first_yes_and_keeps_a_history(scene):

@@ -11,8 +11,9 @@ import mujoco
 import numpy as np
 import pytest
 
+from cdf_mj.analysis.metrics import decision_time
 from cdf_mj.cli import main
-from cdf_mj.config import ScenarioConfig, SceneNames
+from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames
 from cdf_mj.model.driver import ego_control
 from cdf_mj.records import Label
 from cdf_mj.scenario.episode import World, run_episode
@@ -40,7 +41,8 @@ def test_fourway_differs_in_geometry(fourway: Scene, scene: Scene):
 
 def test_cdf_brakes_for_a_cutoff_on_the_fourway(fourway: Scene):
     """Seeds 0-11 hold cut-offs on this scene (measured: 97 of seeds 0-199); on each one the
-    CDF brakes before the obstacle enters the ego lane, and the ego avoids it."""
+    CDF's filter warns (P(cutoff) >= tau) before the obstacle enters the ego lane, its rule
+    brakes, and the ego avoids it."""
     cfg = ScenarioConfig()
     cutoffs = 0
     for seed in range(12):
@@ -54,7 +56,8 @@ def test_cdf_brakes_for_a_cutoff_on_the_fourway(fourway: Scene):
         cutoffs += 1
         assert rec.planner_info["prediction"] == "Cutoff"
         assert rec.brake_time is not None and rec.entered_lane_time is not None
-        assert rec.brake_time < rec.entered_lane_time
+        warned = decision_time(rec, CDFConfig().tau)
+        assert warned is not None and warned < rec.entered_lane_time
         assert rec.collision_with != "obstacle"
         if cutoffs == 2:
             break
@@ -158,7 +161,8 @@ def test_scene_from_scratch_gets_two_cars_and_the_filter():
         world.step(ego_control(world.driver, world.layout.ego, d.poses[0], d.brake))
     assert all(0.0 <= d.posterior.p_cutoff <= 1.0 for d in decisions)
     assert monitor.brake_time is not None, "the monitor never asked to brake in a cut-off"
-    assert world.entered_lane is None or monitor.brake_time < world.entered_lane
+    warned = next(d.t for d in decisions if d.posterior.p_cutoff >= monitor.cdf.tau)
+    assert world.entered_lane is None or warned < world.entered_lane
     assert world.collision != "obstacle"
     assert decisions[-1].posterior.p_left > 0.9
 

@@ -79,7 +79,7 @@ def test_sweep_refuses_bad_requests(tmp_path):
         run_sweep("particles", tmp_path, seeds=range(1), values=(10.5,))
     with pytest.raises(ValueError, match="beta"):
         run_sweep("beta", tmp_path, seeds=range(1), values=(1.5,))
-    assert set(SWEEPS) == {"beta", "particles", "tau", "noise", "obs-noise"}
+    assert set(SWEEPS) == {"beta", "particles", "tau", "risk", "noise", "obs-noise"}
 
 
 def test_cli_sweep(tmp_path, capsys, monkeypatch):

@@ -19,7 +19,7 @@ W, H = 320, 240
 
 @pytest.fixture(scope="module")
 def cdf_replay(scene):
-    return record_episode(1, "cdf", CONFIG, scene, label=False)
+    return record_episode(1, "cdf-threshold", CONFIG, scene, label=False)  # brakes within the clip
 
 
 def _draw(panel: Panel, t: float) -> np.ndarray:

@@ -17,8 +17,8 @@ TWO_SECONDS = ScenarioConfig(duration=2.0)
 
 
 def test_recorded_episode_is_the_plain_episode(scene) -> None:
-    rep = record_episode(1, "cdf", TWO_SECONDS, scene, label=False)
-    plain = run_episode(TWO_SECONDS, 1, "cdf", scene, label=False)
+    rep = record_episode(1, "cdf-threshold", TWO_SECONDS, scene, label=False)
+    plain = run_episode(TWO_SECONDS, 1, "cdf-threshold", scene, label=False)
     assert rep.record.to_dict() == {**plain.to_dict(), "trace": rep.record.trace}
     assert rep.record.brake_time == plain.brake_time is not None
     assert len(rep.particles) == len(rep.times) - 1 == len(rep.seen) == len(rep.belief)
@@ -30,7 +30,7 @@ def test_recorded_episode_is_the_plain_episode(scene) -> None:
 
 
 def test_particle_snapshots_are_distinct_and_heaviest_first(scene) -> None:
-    rep = record_episode(1, "cdf", TWO_SECONDS, scene, label=False)
+    rep = record_episode(1, "cdf-threshold", TWO_SECONDS, scene, label=False)
     for xy, code, weight, heading in rep.particles:
         assert xy.dtype == np.float32 and xy.shape == (len(code), 2) and heading.shape == code.shape
         assert heading.dtype == np.float32 and np.all(np.abs(heading) <= math.pi + 1e-6)
@@ -47,7 +47,7 @@ def test_particle_headings_are_the_weighted_circular_mean(scene) -> None:
     merged = _distinct_particles(xy, np.zeros(3, int), np.zeros(3, bool), np.array([0.25, 0.25, 0.5]),
                                  np.array([math.pi - 0.1, -math.pi + 0.1, math.pi]))
     assert len(merged.code) == 1 and abs(abs(merged.heading[0]) - math.pi) < 1e-6  # not 0: across +-pi
-    rep = record_episode(1, "cdf", TWO_SECONDS, scene, label=False)
+    rep = record_episode(1, "cdf-threshold", TWO_SECONDS, scene, label=False)
     start = scene.layout().obstacle_start[2]
     first = rep.particles[0]
     assert np.all(np.abs(np.remainder(first.heading - start + math.pi, 2 * math.pi) - math.pi) < 0.05)
@@ -74,7 +74,7 @@ def test_label_is_the_scenario_label(scene) -> None:
 
 
 def test_time_lookups(scene) -> None:
-    rep = record_episode(1, "cdf", TWO_SECONDS, scene, label=False)
+    rep = record_episode(1, "cdf-threshold", TWO_SECONDS, scene, label=False)
     assert rep.tick(0.0) == 0 and rep.tick(0.1) == 1 and rep.tick(0.1999) == 1
     assert rep.tick(rep.end_time + 5.0) == len(rep.times) - 2
     brake = rep.record.brake_time

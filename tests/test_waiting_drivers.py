@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 from junctions import junction_scene
 
+from cdf_mj.analysis.metrics import decision_time
 from cdf_mj.config import CDFConfig, DriverPrior, ScenarioConfig
 from cdf_mj.inference.particle_filter import THETA, ParticleFilter
 from cdf_mj.model.driver import DriverModel, Intent, Mode, road_clear
@@ -55,18 +56,23 @@ def _departure(rec) -> float:
 
 @pytest.mark.parametrize("name", ["default", "fourway", "rotated", "mirrored"])
 def test_cutoff_after_a_wait_is_warned_before_the_lane_and_a_turn_away_is_not(scenes, name):
-    """For waits of 0, 1 and 2 s and two seeds each: a left-turner that waited is
-    warned of (P(cutoff) >= tau) before it enters the ego's lane and not while it still
-    stands; a right-turner that waited never is."""
+    """For waits of 0, 1 and 2 s and two seeds each: a left-turner that waited is warned
+    of (the filter's P(cutoff) >= tau) before it enters the ego's lane and not while it
+    still stands, and the CDF (risk rule) brakes and the ego does not touch it; for a
+    right-turner that waited the CDF never brakes."""
     scene = scenes[name]
+    tau = CDFConfig().tau
     for dwell in (0.0, 1.0, 2.0):
         for seed in (0, 1):
             rec = run_episode(_waiting(dwell, 1.0), seed, CDFPlanner(CDFConfig()),
                               scene, label=False, trace=True)
+            warned = decision_time(rec, tau)
             assert rec.entered_lane_time is not None, (name, dwell, seed)
-            assert rec.brake_time is not None and rec.brake_time < rec.entered_lane_time, \
-                (name, dwell, seed, rec.brake_time, rec.entered_lane_time)
-            assert rec.brake_time >= _departure(rec), (name, dwell, seed, rec.brake_time)
+            assert warned is not None and warned < rec.entered_lane_time, \
+                (name, dwell, seed, warned, rec.entered_lane_time)
+            assert warned >= _departure(rec), (name, dwell, seed, warned)
+            assert rec.brake_time is not None and rec.collision_with != "obstacle", \
+                (name, dwell, seed, rec.brake_time, rec.collision_time)
             rec = run_episode(_waiting(dwell, 0.0), seed, CDFPlanner(CDFConfig()),
                               scene, label=False)
             p_cutoff = rec.planner_info["history"]["p_cutoff"]

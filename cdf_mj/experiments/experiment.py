@@ -54,7 +54,7 @@ from cdf_mj.experiments.runner import (
 )
 from cdf_mj.experiments.store import RecordStore, locked, write_atomic
 from cdf_mj.planners.base import PLANNERS, Planner, make_planner
-from cdf_mj.planners.cdf import CDFPlanner
+from cdf_mj.planners.cdf import CDFPlanner, ThresholdCDFPlanner
 from cdf_mj.records import FAILED, RECORDS_FILE, EpisodeRecord, read_settings
 from cdf_mj.scenario.episode import run_episode
 from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
@@ -74,9 +74,18 @@ class SettingsMismatchError(ValueError):
 
 
 def _factory(name: str, cdf: CDFConfig | None) -> Callable[[], Planner]:
-    """A picklable zero-argument planner factory (the CDF with its configuration)."""
+    """A picklable zero-argument planner factory: the CDF with its configuration
+    (``cdf-threshold`` with the paper's rule), the ``-risk`` baselines with the CDF's risk
+    rule parameters (so that every planner with the risk rule decides alike)."""
+    cdf = cdf or CDFConfig()
     if name == "cdf":
-        return functools.partial(CDFPlanner, cdf or CDFConfig())
+        return functools.partial(CDFPlanner, cdf)
+    if name == "cdf-threshold":
+        return functools.partial(ThresholdCDFPlanner, cdf)
+    if name in ("imm-risk", "cv-risk"):
+        from cdf_mj.planners.baselines import CVRiskPlanner, IMMRiskPlanner
+
+        return functools.partial(IMMRiskPlanner if name == "imm-risk" else CVRiskPlanner, risk=cdf.risk)
     make_planner(name)  # unknown name: ValueError listing the known ones
     return PLANNERS[name]
 

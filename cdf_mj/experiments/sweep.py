@@ -6,8 +6,10 @@ sweep       what changes                                          default values
 beta        ``ScenarioConfig.beta``, P(observe a visible ego)     0.01 0.02 0.05 0.1 0.2
             per tick (the CDF is told the true beta)
 particles   ``CDFConfig.n_particles`` N                           100 250 500 1000 2000 4000
-tau         ``CDFConfig.tau``, the CDF's braking threshold        0.5 0.6 0.7 0.8 0.85 0.9
-                                                                  0.95 0.99
+tau         ``CDFConfig.tau``, the threshold of the paper's rule  0.5 0.6 0.7 0.8 0.85 0.9
+            (the CDF runs with ``decision = "threshold"``)        0.95 0.99
+risk        ``CDFConfig.risk.brake``, the risk rule's braking     0.05 0.1 0.2 0.3 0.5
+            threshold (``release`` at half of it)
 noise       process noise: ``noise_accel`` and ``noise_steer``    0.5 1 2 4
             times the factor (both cars; the CDF's filter noise
             follows, as ``process_noise_scale`` x the scenario's)
@@ -18,7 +20,7 @@ obs-noise   observation noise: ``obs_noise_pos``, ``_heading``,   0.5 1 2 4
 Every point is one :func:`cdf_mj.experiments.experiment.run_experiment` call in its own directory
 ``OUT/<sweep>/<value>/`` (so a point that finished is reused by a later call with the same
 settings, and an interrupted one resumes), on the same seeds for every point (common
-random numbers). Settings that only the CDF reads (``particles``, ``tau``) run the other
+random numbers). Settings that only the CDF reads (``particles``, ``tau``, ``risk``) run the other
 planners once, as references, in ``OUT/<sweep>/reference/`` (reported at the first point),
 so that a point's directory holds the same settings whatever the other values are. Each
 sweep writes ``OUT/<sweep>.csv``, ``OUT/<sweep>.md`` (the metrics of
@@ -124,8 +126,13 @@ SWEEPS: dict[str, SweepSpec] = {s.name: s for s in (
               lambda c, d, v: (c.replace(beta=float(v)), d), cdf_only=False, log_x=True),
     SweepSpec("particles", "particle count N", (100, 250, 500, 1000, 2000, 4000),
               lambda c, d, v: (c, d.replace(n_particles=int(v))), cdf_only=True, integer=True, log_x=True),
-    SweepSpec("tau", "braking threshold tau on P(cutoff)", (0.5, 0.6, 0.7, 0.8, 0.85, 0.9, 0.95, 0.99),
-              lambda c, d, v: (c, d.replace(tau=float(v))), cdf_only=True),
+    SweepSpec("tau", "braking threshold tau on P(cutoff) (the paper's rule)",
+              (0.5, 0.6, 0.7, 0.8, 0.85, 0.9, 0.95, 0.99),
+              lambda c, d, v: (c, d.replace(tau=float(v), decision="threshold")), cdf_only=True),
+    SweepSpec("risk", "risk rule: braking threshold on P(collision if deferred)", (0.05, 0.1, 0.2, 0.3, 0.5),
+              lambda c, d, v: (c, d.replace(decision="risk", risk=d.risk.replace(brake=float(v),
+                                                                                  release=float(v) / 2))),
+              cdf_only=True, log_x=True),
     SweepSpec("noise", "process noise, factor on noise_accel and noise_steer", (0.5, 1.0, 2.0, 4.0),
               lambda c, d, v: _scale_process(c, d, float(v)), cdf_only=False, log_x=True),
     SweepSpec("obs-noise", "observation noise, factor on obs_noise_*", (0.5, 1.0, 2.0, 4.0),

@@ -38,8 +38,9 @@ the "predictive" rule, or fully with the paper's rule (``CDFConfig.cutoff_rule``
 looks r count only until the ego's last chance to stop short of the obstacle's path
 (braking ``CDFConfig.ego_brake`` after ``ego_latency``): past that, waiting for the
 driver to see it is no option. It is counted while the ego itself is exposed
-(:meth:`ParticleFilter.ego_exposed`: not past the conflict point, and within the widest
-clear distance or critical gap of the prior), else 0. ::
+(:meth:`ParticleFilter.ego_exposed`: it has not yet cleared the obstacle's path), else 0.
+:meth:`ParticleFilter.futures` gives the left-turners' futures that the risk decision
+rule (:mod:`cdf_mj.planners.decision`) rolls forward. ::
 
     pf = ParticleFilter.from_layout(scene.layout(), ScenarioConfig(), CDFConfig(), rng)
     pf.reset(S0)
@@ -56,7 +57,17 @@ import numpy as np
 
 from cdf_mj.config import CDFConfig, DriverPrior, ScenarioConfig
 from cdf_mj.inference.resampling import effective_sample_size, stratified_resample
-from cdf_mj.model.driver import DriverModel, DriverParams, Intent, Mode, bicycle_step, obstacle_control, update_belief
+from cdf_mj.model.conflict import Futures
+from cdf_mj.model.driver import (
+    DriverModel,
+    DriverParams,
+    Intent,
+    Mode,
+    bicycle_step,
+    obstacle_control,
+    road_clear,
+    update_belief,
+)
 from cdf_mj.model.geometry import OrientedBox, wrap_angle
 from cdf_mj.model.layout import Layout
 from cdf_mj.model.occlusion import Occluders, sight_targets
@@ -158,7 +169,6 @@ class ParticleFilter:
             inside = np.flatnonzero(ego_lane.contains(obstacle.footprint(poses)).any(axis=-1))
             if inside.size:
                 self._s_enter = float(s_grid[inside[0]])
-        # The widest clearance any plausible driver asks for: the ego is exposed inside it.
         # Kernel jitter of the continuous parameters after each resampling: std = this
         # fraction of each prior range, values kept inside the range.
         ranges = np.array([getattr(prior, name) for name in THETA[:-1]], dtype=float)
@@ -167,13 +177,14 @@ class ParticleFilter:
         # [s] the slowest plausible driver needs from a standstill at the line into the lane.
         self._t_slowest = float(self._arrival(np.zeros(1), np.zeros(1), np.array([prior.accel[0]]),
                                               np.array([prior.turn_speed[0]]))[0])
-        self._exposed = DriverParams(accel=0.0, turn_speed=0.0, yield_brake=0.0,
-                                     critical_gap=prior.critical_gap[1],
-                                     clear_distance=prior.clear_distance[1])
         self.skipped_updates = 0  # measurements that were NaN or infinite
         self.reinits = 0  # times every likelihood vanished
         self._ego: np.ndarray | None = None
         self._ego_targets: np.ndarray | None = None
+        self._arc: np.ndarray = np.zeros(0)  # arc length on the left route of the pose array _arc_of
+        self._arc_of: np.ndarray | None = None
+        self._sight: np.ndarray = np.zeros(0, dtype=bool)  # ego visible from each eye, for _sight_of
+        self._sight_of: tuple[np.ndarray, np.ndarray] | None = None
         # The particles (N rows after reset): obstacle pose (N, 4), driver mode (N,), belief
         # (N, 4), whether the driver has seen the ego (N,), intent (N,).
         self.pose = np.zeros((0, 4))
@@ -269,7 +280,7 @@ class ParticleFilter:
         rows = np.flatnonzero(going | committed) if behind_test else np.flatnonzero(going)
         if rows.size == 0:
             return p
-        s_rows = self.model.routes[_LEFT].project(self.pose[rows, :2])[0]
+        s_rows = self.left_arc()[rows]
         in_going = going[rows]
         idx = rows[in_going]
         if idx.size:
@@ -280,8 +291,7 @@ class ParticleFilter:
             remaining = np.maximum(self.model.s_commit[_LEFT] - s, 0.0)  # [m]
             t_commit = (np.sqrt(v * v + 2.0 * a * remaining) - v) / a
             ticks = np.minimum(np.ceil(t_commit / dt - 1e-9), self.ego_ticks_to_stop())
-            beta = self.theta[idx, 5] * self.occluders.visible(self.obstacle.eye(self.pose[idx]),
-                                                               self._targets())
+            beta = self.theta[idx, 5] * self.sees_ego()[idx]
             p[idx] = (1.0 - beta) ** ticks
         if behind_test:
             counted = p[rows] > 0.0
@@ -343,17 +353,86 @@ class ParticleFilter:
         return targets
 
     def ego_exposed(self) -> bool:
-        """Whether the (known) ego could still be cut off: it has not passed the conflict
-        point, and it is within the widest clear distance or critical gap of the prior.
-        The driver's own "clear" rule, applied to the true ego pose with the most cautious
-        parameters of the prior."""
-        ego = self._ego_pose()
-        ahead = ((self.model.conflict[0] - ego[0]) * math.cos(ego[2])
-                 + (self.model.conflict[1] - ego[1]) * math.sin(ego[2]))  # [m]
-        if ahead < -self.model.config.passed_margin:
-            return False
-        p = self._exposed
-        return bool(ahead <= p.clear_distance or ahead <= p.critical_gap * max(float(ego[3]), 0.0))
+        """Whether the (known) ego could still be cut off: it has not yet cleared the
+        obstacle's path at the conflict point (its tail past it by the obstacle's half
+        width, :meth:`ego_time_to_clear`). An explicit test of the ego's exposure, not the
+        obstacle driver's gap acceptance (a deviation from the paper, docs/DECISION.md)."""
+        return self.ego_time_to_clear() > 0.0
+
+    def left_arc(self) -> np.ndarray:
+        """[m] every particle's arc length on the left route ``(N,)``, computed once per
+        pose array (the filter assigns a new one whenever the particles move)."""
+        if self._arc_of is not self.pose:
+            self._arc = self.model.routes[_LEFT].project(self.pose[:, :2])[0]
+            self._arc_of = self.pose
+        return self._arc
+
+    def sees_ego(self) -> np.ndarray:
+        """Whether the ego is in each particle driver's line of sight ``(N,)``, computed once
+        per pose array and ego pose."""
+        targets = self._targets()
+        cached = self._sight_of
+        if cached is None or cached[0] is not self.pose or cached[1] is not targets:
+            self._sight = self.occluders.visible(self.obstacle.eye(self.pose), targets)
+            self._sight_of = (self.pose, targets)
+        return self._sight
+
+    def futures(self, react_ticks: int = 1) -> Futures:
+        """The left-turners' futures for the risk decision rule
+        (:class:`cdf_mj.model.conflict.Futures`), each particle weighted by its weight
+        times the probability that its driver goes on into the ego's lane:
+
+        - committed: goes on (probability 1, now);
+        - going: unless it sees the ego on one of the ticks before its commit point,
+          ``(1 - beta_i visible_i)^r``, from now;
+        - yielding with a clear belief: goes again now, with the same looks ahead of it;
+        - held back by a belief of an ego coming: goes once that believed (dead-reckoned)
+          ego is past the conflict point by ``passed_margin``;
+        - waiting at the line: as the last two, but leaving within the ``react_ticks``
+          ticks after it may (departure hazard), before the ego could react to it.
+
+        Its own acceleration and turn speed, from its current speed (0 once held back).
+        """
+        left = np.flatnonzero((self.intent == _LEFT) & (self.weights > 0.0))
+        if left.size == 0:
+            return Futures.empty()
+        dt = self.scenario.dt
+        w = self.weights[left]  # a copy (fancy indexing): scaled in place below
+        mode = self.mode[left]
+        s = self.left_arc()[left]
+        theta = self.theta[left]
+        accel, v_max = theta[:, 0], theta[:, 1]
+        v = self.pose[left, 3].copy()
+        delay = np.zeros(left.size)
+        held = (mode == _WAITING) | (mode == _YIELDING)
+        waiting = mode == _WAITING
+        if held.any():
+            v[held] = 0.0
+            rows = left[held]
+            params = DriverParams(accel=0.0, turn_speed=0.0, yield_brake=0.0,
+                                  critical_gap=self.theta[rows, 3], clear_distance=self.theta[rows, 4])
+            clear = road_clear(self.model, self.belief[rows], self.has_belief[rows], self.intent[rows], params)
+            b = self.belief[rows]
+            ahead = ((self.model.conflict[0] - b[:, 0]) * np.cos(b[:, 2])
+                     + (self.model.conflict[1] - b[:, 1]) * np.sin(b[:, 2]))  # [m] believed ego to conflict
+            speed = b[:, 3]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                passes = np.where(speed > 0.1, (ahead + self.model.config.passed_margin) / speed, np.inf)
+            delay[held] = np.where(clear, 0.0, np.maximum(passes, 0.0))
+            delay[waiting] += dt
+            w = w * np.where(waiting, 1.0 - (1.0 - theta[:, 6]) ** react_ticks, 1.0)
+        # Looks ahead of it before its commit point (none once committed).
+        uncommitted = np.flatnonzero(mode != _COMMITTED)
+        if uncommitted.size:
+            u = uncommitted
+            remaining = np.maximum(self.model.s_commit[_LEFT] - s[u], 0.0)  # [m]
+            t_commit = (np.sqrt(v[u] * v[u] + 2.0 * accel[u] * remaining) - v[u]) / accel[u]
+            ticks = np.ceil(t_commit / dt - 1e-9)
+            look = theta[u, 5] * self.sees_ego()[left[u]]
+            w[u] *= (1.0 - look) ** ticks
+        keep = np.isfinite(delay) & (w > 0.0)
+        return Futures(weight=w[keep], s=s[keep], v=v[keep], accel=accel[keep], v_max=v_max[keep],
+                       delay=delay[keep])
 
     # ------------------------------------------------------------------ one tick
     def predict(self, system_pose: np.ndarray | None = None) -> None:

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["OrientedBox", "Polyline", "box_corners", "rotated_corners", "wrap_angle"]
+__all__ = ["OrientedBox", "Polyline", "box_corners", "boxes_overlap", "rotated_corners", "wrap_angle"]
 
 
 def wrap_angle(a: np.ndarray | float) -> np.ndarray:
@@ -193,3 +193,16 @@ def rotated_corners(cx: np.ndarray, cy: np.ndarray, cos: np.ndarray, sin: np.nda
     out[..., 0] = np.asarray(cx)[..., None] + c * lx - s * ly
     out[..., 1] = np.asarray(cy)[..., None] + s * lx + c * ly
     return out
+
+
+def boxes_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Whether rectangles ``a[k]`` and ``b[k]`` overlap (boundary included), for corner
+    arrays ``(K, 4, 2)`` [m] as :func:`cdf_mj.model.geometry.box_corners` gives; separating axes."""
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    edges = np.concatenate([a[:, 1:3] - a[:, 0:2], b[:, 1:3] - b[:, 0:2]], axis=1)  # (K, 4, 2)
+    axes = np.stack([-edges[..., 1], edges[..., 0]], axis=-1)
+    pa = np.einsum("kcj,kaj->kac", a, axes)  # (K, axes, corners)
+    pb = np.einsum("kcj,kaj->kac", b, axes)
+    overlap: np.ndarray = np.all((pa.max(-1) >= pb.min(-1)) & (pb.max(-1) >= pa.min(-1)), axis=-1)
+    return overlap

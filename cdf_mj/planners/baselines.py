@@ -39,18 +39,22 @@ import numpy as np
 from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import IMMEstimator, KalmanFilter
 
-from cdf_mj.config import ScenarioConfig
+from cdf_mj.config import RiskConfig, ScenarioConfig
+from cdf_mj.model.conflict import Futures
 from cdf_mj.model.driver import Intent
-from cdf_mj.model.geometry import Polyline, wrap_angle
+from cdf_mj.model.geometry import Polyline, boxes_overlap, wrap_angle
 from cdf_mj.model.layout import Layout
 from cdf_mj.model.vehicle import CarGeometry
 from cdf_mj.planners.base import DecidingPlanner, PlannerInput
+from cdf_mj.planners.decision import RiskRule, ThresholdRule
 
 __all__ = [
     "CVConfig",
     "CVPlanner",
+    "CVRiskPlanner",
     "IMMConfig",
     "IMMPlanner",
+    "IMMRiskPlanner",
     "RouteKalmanFilter",
     "boxes_overlap",
     "first_conflict",
@@ -143,19 +147,6 @@ class IMMConfig:
 
 
 # ----------------------------------------------------------------- conflict prediction
-def boxes_overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Whether rectangles ``a[k]`` and ``b[k]`` overlap (boundary included), for corner
-    arrays ``(K, 4, 2)`` [m] as :func:`cdf_mj.model.geometry.box_corners` gives; separating axes."""
-    a = np.asarray(a, dtype=float)
-    b = np.asarray(b, dtype=float)
-    edges = np.concatenate([a[:, 1:3] - a[:, 0:2], b[:, 1:3] - b[:, 0:2]], axis=1)  # (K, 4, 2)
-    axes = np.stack([-edges[..., 1], edges[..., 0]], axis=-1)
-    pa = np.einsum("kcj,kaj->kac", a, axes)  # (K, axes, corners)
-    pb = np.einsum("kcj,kaj->kac", b, axes)
-    overlap: np.ndarray = np.all((pa.max(-1) >= pb.min(-1)) & (pb.max(-1) >= pa.min(-1)), axis=-1)
-    return overlap
-
-
 def first_conflict(ego_car: CarGeometry, obstacle_car: CarGeometry, ego_path: np.ndarray,
                    obstacle_path: np.ndarray, margin: float, dt: float) -> float | None:
     """Time [s] from now of the first predicted overlap of the two collision boxes, the
@@ -203,17 +194,21 @@ def _times(horizon: float, dt: float) -> np.ndarray:
 class CVPlanner(DecidingPlanner):
     """Constant-velocity predictor (velocity obstacle): brake when the straight-line
     extrapolations of the obstacle and of the ego at their measured speeds put their
-    boxes in contact within ``horizon``. ``summary()`` holds the decision time and the
-    predicted time to conflict at that moment.
+    boxes in contact within ``horizon`` (its threshold rule), or with the risk rule on the
+    obstacle's straight-line path (``risk``; registered as ``cv-risk``). ``summary()``
+    holds the decision time and the predicted time to conflict at that moment.
 
     Args:
         params: horizon and margin (default :class:`CVConfig`).
+        risk: run with :class:`~cdf_mj.planners.decision.RiskRule` of these parameters
+            instead of the threshold rule.
     """
 
     name = "cv"
 
-    def __init__(self, params: CVConfig | None = None) -> None:
+    def __init__(self, params: CVConfig | None = None, risk: RiskConfig | None = None) -> None:
         self.params = params or CVConfig()
+        self.rule = RiskRule(risk) if risk is not None else ThresholdRule(1.0)
 
     def reset(self, layout: Layout, config: ScenarioConfig, rng: np.random.Generator) -> None:
         """Take the cars' footprints from ``layout`` and the tick ``dt`` from ``config``."""
@@ -221,6 +216,7 @@ class CVPlanner(DecidingPlanner):
         self._ego, self._obstacle, self._dt = layout.ego, layout.obstacle, config.dt
         self._times = _times(self.params.horizon, config.dt)
         self.conflict_in: float | None = None
+        self._obstacle_pose = np.zeros(4)
 
     def time_to_conflict(self, poses: np.ndarray) -> float | None:
         """Predicted time [s] to the first conflict under constant velocities from the
@@ -228,15 +224,36 @@ class CVPlanner(DecidingPlanner):
         return first_conflict(self._ego, self._obstacle, straight_path(poses[0], self._times),
                               straight_path(poses[1], self._times), self.params.margin, self._dt)
 
-    def decide(self, obs: PlannerInput) -> bool:
-        """A predicted conflict within the horizon (predicted only until the decision)."""
-        if self.decision_time is None:
+    def observe(self, obs: PlannerInput) -> None:
+        """Predict the conflict (until the decision, for the threshold rule); keep the
+        obstacle's pose for its straight-line future."""
+        self._obstacle_pose = obs.poses[1]
+        if self.decision_time is None and not self.rule.releases:
             self.conflict_in = self.time_to_conflict(obs.poses)
-        return self.conflict_in is not None
+
+    def alarm(self) -> float:
+        """1 if a conflict is predicted within the horizon, else 0."""
+        return 1.0 if self.conflict_in is not None else 0.0
+
+    def futures(self, react_ticks: int) -> np.ndarray:
+        """The obstacle's straight-line path at its measured speed, ticks ``1..K`` of the
+        rule's horizon ``(K, 4)``."""
+        n = max(1, math.ceil(self.rule.config.horizon / self._dt - 1e-9))  # type: ignore[attr-defined]
+        return straight_path(self._obstacle_pose, np.arange(1, n + 1) * self._dt)
 
     def summary(self) -> dict[str, Any]:
-        """Decision time [s] and the time to conflict [s] predicted then."""
-        return {"decision_time": self.decision_time, "predicted_conflict_in": self.conflict_in}
+        """Rule, decision and release times [s] and the time to conflict [s] predicted then."""
+        return {"rule": self.rule.name, "decision_time": self.decision_time,
+                "release_time": self.release_time, "predicted_conflict_in": self.conflict_in}
+
+
+class CVRiskPlanner(CVPlanner):
+    """:class:`CVPlanner` with the risk rule (default :class:`RiskConfig`), registered as ``cv-risk``."""
+
+    name = "cv-risk"
+
+    def __init__(self, params: CVConfig | None = None, risk: RiskConfig | None = None) -> None:
+        super().__init__(params, risk or RiskConfig())
 
 
 # ----------------------------------------------------------------- intent-only IMM
@@ -299,15 +316,22 @@ class IMMPlanner(DecidingPlanner):
     ``Right``), as for ``cdf``. ``summary()`` holds the prediction, the decision time and
     the per-tick history of P(left) and P(conflict).
 
+    With ``risk`` (registered as ``imm-risk``) it decides by
+    :class:`~cdf_mj.planners.decision.RiskRule` instead: the left intent's filter state
+    (arc length, speed, acceleration, speed capped at ``max_speed``) weighted by P(left)
+    is its one hypothesis; it models no yielding, so a left-turner on its way goes on.
+
     Args:
         params: filter models, horizon and threshold (default :class:`IMMConfig`).
+        risk: run with the risk rule of these parameters instead of the threshold rule.
     """
 
     name = "imm"
     history_keys = ("p_left", "p_conflict")
 
-    def __init__(self, params: IMMConfig | None = None) -> None:
+    def __init__(self, params: IMMConfig | None = None, risk: RiskConfig | None = None) -> None:
         self.params = params or IMMConfig()
+        self.rule = RiskRule(risk) if risk is not None else ThresholdRule(self.params.threshold)
 
     def reset(self, layout: Layout, config: ScenarioConfig, rng: np.random.Generator) -> None:
         """Take the routes and footprints from ``layout``, ``dt``, the prior P(left) and the
@@ -319,6 +343,7 @@ class IMMPlanner(DecidingPlanner):
         self._times = _times(p.horizon, config.dt)
         self._max_speed = p.max_speed if p.max_speed is not None else config.obstacle_turn_speed
         self._p_left = config.p_left
+        self._p_conflict = 0.0
         self.imm: IMMEstimator | None = None
 
     def _start(self, obstacle_pose: np.ndarray) -> IMMEstimator:
@@ -372,15 +397,35 @@ class IMMPlanner(DecidingPlanner):
             total += float(mu) if hit is not None else 0.0
         return min(max(total, 0.0), 1.0)
 
-    def decide(self, obs: PlannerInput) -> bool:
+    def observe(self, obs: PlannerInput) -> None:
         """One IMM step on the measured obstacle pose (the start at the first tick), then
-        P(conflict) >= ``threshold``."""
+        P(conflict)."""
         z = obs.poses[1]
         if self.imm is None:
             self.imm = self._start(z)
         else:
             self.imm.predict()
             self.imm.update(z)
-        p_conflict = self.conflict_probability(obs.poses[0])
-        self.record(obs.t, p_left=self.imm.mu[Intent.LEFT], p_conflict=p_conflict)
-        return p_conflict >= self.params.threshold
+        self._p_conflict = self.conflict_probability(obs.poses[0])
+        self.record(obs.t, p_left=self.imm.mu[Intent.LEFT], p_conflict=self._p_conflict)
+
+    def alarm(self) -> float:
+        """P(conflict) of this tick."""
+        return self._p_conflict
+
+    def futures(self, react_ticks: int) -> Futures:
+        """The left intent's filter state as one hypothesis, weighted by P(left)."""
+        kf = self._imm().filters[int(Intent.LEFT)]
+        s, v, a = (float(q) for q in np.ravel(kf.x))
+        one = np.ones(1)
+        return Futures(weight=one * float(self._imm().mu[Intent.LEFT]), s=one * s, v=one * max(v, 0.0),
+                       accel=one * a, v_max=one * self._max_speed, delay=np.zeros(1))
+
+
+class IMMRiskPlanner(IMMPlanner):
+    """:class:`IMMPlanner` with the risk rule (default :class:`RiskConfig`), registered as ``imm-risk``."""
+
+    name = "imm-risk"
+
+    def __init__(self, params: IMMConfig | None = None, risk: RiskConfig | None = None) -> None:
+        super().__init__(params, risk or RiskConfig())

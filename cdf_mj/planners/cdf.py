@@ -1,5 +1,7 @@
-"""The Cognitive Driving Framework's planner: brake when the particle filter's P(cutoff)
-reaches tau (:class:`CDFPlanner`, registered as ``cdf``)."""
+"""The Cognitive Driving Framework's planner: the particle filter of
+:mod:`cdf_mj.inference.particle_filter` with a decision rule (:class:`CDFPlanner`,
+registered as ``cdf`` with the risk rule and as ``cdf-threshold`` with the paper's rule,
+brake once P(cutoff) >= tau)."""
 
 from __future__ import annotations
 
@@ -8,54 +10,95 @@ from typing import Any
 import numpy as np
 
 from cdf_mj.config import CDFConfig, ScenarioConfig
-from cdf_mj.inference.particle_filter import ParticleFilter
+from cdf_mj.inference.particle_filter import ParticleFilter, Posterior
+from cdf_mj.model.conflict import Futures
 from cdf_mj.model.layout import Layout
 from cdf_mj.planners.base import DecidingPlanner, PlannerInput
+from cdf_mj.planners.decision import RiskRule, ThresholdRule
 
-__all__ = ["CDFPlanner"]
+__all__ = ["CDFPlanner", "ThresholdCDFPlanner"]
 
 
 class CDFPlanner(DecidingPlanner):
-    """The Cognitive Driving Framework: brake when P(cutoff) >= tau.
+    """The Cognitive Driving Framework: the particle filter and ``cdf.decision``'s rule.
+
+    ``"risk"`` (default): :class:`~cdf_mj.planners.decision.RiskRule` with ``cdf.risk`` on
+    the filter's :meth:`~cdf_mj.inference.particle_filter.ParticleFilter.futures`, braking
+    at ``cdf.ego_brake`` (default: the ego car's). ``"threshold"``: the paper's rule, brake
+    once P(cutoff) >= ``cdf.tau`` and hold it.
 
     Its prediction for the episode (README, "Planners"): ``Cutoff`` if it braked, else its
     most probable intent at the end (left -> ``Yield``, right -> ``Right``). ``summary()``
-    holds the prediction, the decision time, the filter's counts of skipped measurements
-    and re-initialisations, and the per-tick posterior history.
+    holds the prediction, the rule, the decision and release times, the filter's counts of
+    skipped measurements and re-initialisations, and the per-tick posterior history.
 
     Args:
-        cdf: filter and threshold parameters (default :class:`CDFConfig`).
+        cdf: filter and decision parameters (default :class:`CDFConfig`).
     """
 
     name = "cdf"
     history_keys = ("p_left", "p_seen", "p_cutoff", "ess")
 
     def __init__(self, cdf: CDFConfig | None = None) -> None:
-        self.cdf = cdf or CDFConfig()
+        self.cdf = cdf = cdf or CDFConfig()
+        self.rule = (RiskRule(cdf.risk, cdf.ego_brake) if cdf.decision == "risk"
+                     else ThresholdRule(cdf.tau))
 
     def reset(self, layout: Layout, config: ScenarioConfig, rng: np.random.Generator) -> None:
         """A new filter for this junction, drawing from the episode's planner ``rng``."""
         super().reset(layout, config, rng)
         self.filter = ParticleFilter.from_layout(layout, config, self.cdf, rng)
         self._started = False
+        self._post: Posterior | None = None
 
-    def decide(self, obs: PlannerInput) -> bool:
+    def observe(self, obs: PlannerInput) -> None:
         """One filter tick on the measured system pose: the posterior now (the prior at the
-        first tick), then the particles propagated to the next tick."""
+        first tick), kept for the rule; then the particles propagated to the next tick."""
         pf = self.filter
         if not self._started:
             post = pf.reset(obs.poses)
             self._started = True
         else:
             post = pf.update(obs.poses)
+        self._post = post
+        self._futures: Futures | None = None
+        if self.rule.releases:  # the risk rule reads the particles of now, before they move
+            self._futures = pf.futures(self.rule.react_ticks)  # type: ignore[attr-defined]
         pf.predict(obs.poses)
         self.record(obs.t, p_left=post.p_left, p_seen=post.p_seen, p_cutoff=post.p_cutoff,
                     ess=post.ess)
-        return post.p_cutoff >= self.cdf.tau
+
+    @property
+    def posterior(self) -> Posterior:
+        """The filter's posterior of the last tick; RuntimeError before the first."""
+        if self._post is None:
+            raise RuntimeError("no filter tick yet: call brake() first")
+        return self._post
+
+    def alarm(self) -> float:
+        """P(cutoff) of this tick's posterior."""
+        return self.posterior.p_cutoff
+
+    def futures(self, react_ticks: int) -> Futures:
+        """The filter's futures of this tick (taken before the particles moved on)."""
+        if self._futures is None:
+            raise RuntimeError("no filter tick yet: call brake() first")
+        return self._futures
 
     def summary(self) -> dict[str, Any]:
-        """Prediction, decision time [s], ``skipped_updates``, ``reinits`` and history."""
+        """Prediction, rule, decision and release times [s], ``skipped_updates``, ``reinits``
+        and history."""
         info = super().summary()
         history = info.pop("history")
         return {**info, "skipped_updates": self.filter.skipped_updates,
                 "reinits": self.filter.reinits, "history": history}
+
+
+class ThresholdCDFPlanner(CDFPlanner):
+    """:class:`CDFPlanner` with the paper's rule (``cdf.decision = "threshold"``), registered
+    as ``cdf-threshold``."""
+
+    name = "cdf-threshold"
+
+    def __init__(self, cdf: CDFConfig | None = None) -> None:
+        super().__init__((cdf or CDFConfig()).replace(decision="threshold"))

@@ -5,8 +5,9 @@ The world itself is :class:`cdf_mj.scenario.world.World` (``reset(seed)``, ``mea
 (``config.dt``) of an episode, in this order:
 
 1. read the system pose ``S_t`` from MuJoCo (error on a non-finite pose);
-2. the ego's planner is asked whether to brake (the first yes is latched: the ego then
-   brakes at the maximum rate to the end), the ego's controller gives its controls;
+2. the ego's planner is asked whether to brake (the first yes is held to the end, unless
+   the planner ``releases_brake``: then every tick's answer counts, and a released ego
+   returns to its nominal speed), the ego's controller gives its controls;
 3. the obstacle looks: line of sight from its eye to the ego (MuJoCo rays); if visible,
    with probability ``beta`` it observes the ego's pose with Gaussian noise; its belief
    is updated (``g``);
@@ -64,13 +65,14 @@ def _simulate(scene: Scene, config: ScenarioConfig, seed: int, planner: Planner,
     planner.reset(world.layout, config, world.rng["planner"])
     braking = False
     brake_time: float | None = None
+    releases = bool(getattr(planner, "releases_brake", False))
     tr: dict[str, list] = {k: [] for k in ("t", "poses", "mode", "seen", "belief", "brake")}
     while not world.done:
         m = world.measure()
-        # The ego decides (its first yes to braking is latched).
-        if planner.brake(PlannerInput(t=m.t, poses=m.poses, obstacle_in_lane=m.obstacle_in_lane)) \
-                and not braking:
-            braking = True
+        # The ego decides (its first yes to braking is held, unless the planner releases).
+        wants = planner.brake(PlannerInput(t=m.t, poses=m.poses, obstacle_in_lane=m.obstacle_in_lane))
+        braking = bool(wants) if releases else (braking or bool(wants))
+        if braking and brake_time is None:
             brake_time = m.t
         tick = world.step(ego_control(world.driver, world.layout.ego, m.poses[0], braking))
         if record_trace:

@@ -12,7 +12,7 @@ world x axis towards y [rad], speed along that heading [m/s]. ::
     monitor = CDFMonitor(layout, ego=CarGeometry.ours(), obstacle=their_car, rng=0)
     for t, ego_pose, obstacle_pose in my_simulation():      # every 0.1 s of simulated time
         decision = monitor.observe(t, ego_pose, obstacle_pose)
-        if decision.brake: ...                              # P(cutoff) reached tau
+        if decision.brake: ...                              # the CDF's rule says brake now
     monitor.save_trace("episode.jsonl")                     # cdf-mj render --trace episode.jsonl
 
 :func:`attach` is the convenience for a MuJoCo model: it reads the layout from the model
@@ -49,6 +49,8 @@ from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames
 from cdf_mj.inference.particle_filter import ParticleFilter, Posterior
 from cdf_mj.model.layout import Layout
 from cdf_mj.model.vehicle import CarGeometry
+from cdf_mj.planners.base import PlannerInput
+from cdf_mj.planners.cdf import CDFPlanner
 
 if TYPE_CHECKING:
     import mujoco
@@ -71,8 +73,9 @@ class Decision:
     t: float  # [s] simulated time of the measurement
     poses: np.ndarray  # (2, 4) measured system pose: ego, obstacle [x m, y m, yaw rad, v m/s]
     posterior: Posterior  # P(left), P(right), P(seen), P(cutoff), effective sample size
-    brake: bool  # P(cutoff) has reached tau at this step or an earlier one (latched)
-    brake_time: float | None  # [s] the first step at which it did
+    brake: bool  # the CDF's decision rule brakes now (CDFConfig.decision: the risk rule may
+    # release; the paper's threshold rule, P(cutoff) >= tau, holds it from the first yes)
+    brake_time: float | None  # [s] the first step at which it braked
 
 
 class PoseSource(Protocol):
@@ -130,7 +133,8 @@ class CDFMonitor:
             its poses (what the Gymnasium env does).
         scenario: ``dt`` (the tick), the observation noise and the scene names kept in
             the trace; default :class:`ScenarioConfig`.
-        cdf: the filter (N, Sigma, tau, its driver model); default :class:`CDFConfig`.
+        cdf: the filter and its decision rule (N, Sigma, its driver model, ``decision``:
+            the risk rule or the paper's threshold tau); default :class:`CDFConfig`.
         rng: the Generator of the filter's randomness, or a seed.
         ego, obstacle: the cars' dimensions, replacing the layout's (default: the
             layout's, which is our car's for a layout built by hand).
@@ -164,8 +168,13 @@ class CDFMonitor:
         self.source = source
         self.record_trace = record_trace
         self.rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
-        self.filter = ParticleFilter.from_layout(self.layout, self.scenario, self.cdf, self.rng)
+        self.planner = CDFPlanner(self.cdf)  # the same filter and rule as the `cdf` planner
         self.reset()
+
+    @property
+    def filter(self) -> ParticleFilter:
+        """The particle filter of the current episode."""
+        return self.planner.filter
 
     def reset(self) -> None:
         """Forget the episode: the next observation starts the filter from the prior, and a
@@ -174,7 +183,7 @@ class CDFMonitor:
         The filter's random stream goes on from where it was, so a replayed episode gets
         other draws; build a new monitor with the same ``rng`` seed to repeat one exactly."""
         self._last_t: float | None = None
-        self.brake_time: float | None = None
+        self.planner.reset(self.layout, self.scenario, self.rng)
         self.decision: Decision | None = None
         self.trace: list[dict[str, Any]] = []
         if isinstance(self.source, _BodySource):
@@ -186,7 +195,8 @@ class CDFMonitor:
 
         The first call after :meth:`reset` starts the filter at the measured pose (the
         obstacle waiting, an unseen ego, intent from the prior); later calls weigh the
-        particles by the new measurement and resample, then propagate them one tick.
+        particles by the new measurement and resample; the decision rule reads them; then
+        they are propagated one tick.
         ValueError, with nothing changed, for a pose that is not 4 finite numbers, a time
         that is not finite or goes back, or a time ``dt`` away from the last one.
         """
@@ -198,17 +208,22 @@ class CDFMonitor:
             raise ValueError(f"CDFMonitor.observe: t must be a finite time [s], got {_show(t)}")
         poses = np.stack([_pose(ego_pose, "ego_pose"), _pose(obstacle_pose, "obstacle_pose")])
         self._check_time(t)
-        post = self.filter.reset(poses) if self._last_t is None else self.filter.update(poses)
-        self.filter.predict(poses)
+        in_lane = bool(self.layout.ego_lane.contains(self.layout.obstacle.footprint(poses[1])).any())
+        brake = self.planner.brake(PlannerInput(t=t, poses=poses, obstacle_in_lane=in_lane))
         self._last_t = t
-        if self.brake_time is None and post.p_cutoff >= self.cdf.tau:
-            self.brake_time = round(t, 6)
-        self.decision = Decision(t=t, poses=poses, posterior=post,
-                                 brake=self.brake_time is not None, brake_time=self.brake_time)
+        post = self.planner.posterior
+        self.decision = Decision(t=t, poses=poses, posterior=post, brake=brake,
+                                 brake_time=self.brake_time)
         if self.record_trace:
             self.trace.append({"t": t, "ego": poses[0].tolist(), "obstacle": poses[1].tolist(),
                                "posterior": post.to_dict(), "brake": self.decision.brake})
         return self.decision
+
+    @property
+    def brake_time(self) -> float | None:
+        """[s] the first observation at which the rule braked, None if it has not."""
+        t = self.planner.decision_time
+        return round(t, 6) if t is not None else None
 
     def step(self) -> Decision:
         """Read the time and both poses from the attached simulation, then :meth:`observe`."""

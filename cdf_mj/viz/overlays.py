@@ -51,6 +51,7 @@ OVERLAY_COLORS = {
     "p_seen": (1.0, 0.9, 0.15, 1.0),
     "p_cutoff": (1.0, 0.35, 0.1, 1.0),
     "p_conflict": (1.0, 0.35, 0.1, 1.0),  # the imm baseline's braking quantity, as P(cutoff)
+    "risk": (1.0, 0.15, 0.15, 1.0),  # the risk rule's braking quantity
 }
 _INTENT_NAMES = ("left", "right")  # cdf_mj.model.driver.Intent order
 _EYE3 = np.eye(3)

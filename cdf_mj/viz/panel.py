@@ -34,10 +34,12 @@ from cdf_mj.viz.replay import POSTERIOR_KEYS, Replay
 __all__ = ["SIDE_MIN_HEIGHT", "Panel", "SidePanel", "particle_legend", "side_width"]
 
 #: The label of each probability of :data:`cdf_mj.viz.replay.POSTERIOR_KEYS`.
-_LABELS = {"p_left": "P(left)", "p_seen": "P(seen)", "p_cutoff": "P(cutoff)", "p_conflict": "P(conflict)"}
+_LABELS = {"p_left": "P(left)", "p_seen": "P(seen)", "p_cutoff": "P(cutoff)", "p_conflict": "P(conflict)",
+           "risk": "risk"}
 #: What each probability means, in the side panel's legend.
 _MEANINGS = {"p_left": "turns across the ego's lane", "p_seen": "has seen the ego",
-             "p_cutoff": "cuts the ego off", "p_conflict": "paths conflict"}
+             "p_cutoff": "cuts the ego off", "p_conflict": "paths conflict",
+             "risk": "collision unless the ego brakes now"}
 #: Smallest frame height [px] the side panel's two charts are laid out for.
 SIDE_MIN_HEIGHT = 160
 _WHITE, _TEXT, _DIM = (235, 235, 235), (220, 220, 220), (150, 150, 150)

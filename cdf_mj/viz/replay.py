@@ -24,6 +24,7 @@ import numpy as np
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.inference.particle_filter import ParticleFilter
 from cdf_mj.planners import CDFPlanner, Planner, make_planner
+from cdf_mj.planners.decision import RiskRule
 from cdf_mj.records import EpisodeRecord
 from cdf_mj.scenario.episode import episode_label, run_episode
 from cdf_mj.sim.gl import RenderError
@@ -35,8 +36,9 @@ if TYPE_CHECKING:
 __all__ = ["POSTERIOR_KEYS", "Particles", "Replay", "check_frame_time", "record_episode"]
 
 #: The probabilities a planner's ``history`` may hold that a replay keeps, in panel order
-#: (``cdf``: p_left, p_seen, p_cutoff; ``imm``: p_left, p_conflict).
-POSTERIOR_KEYS = ("p_left", "p_seen", "p_cutoff", "p_conflict")
+#: (``cdf``: p_left, p_seen, p_cutoff, risk; ``cdf-threshold``: p_left, p_seen, p_cutoff;
+#: ``imm``: p_left, p_conflict). The last one a planner keeps is what it brakes on.
+POSTERIOR_KEYS = ("p_left", "p_seen", "p_cutoff", "p_conflict", "risk")
 
 class Particles(NamedTuple):
     """One tick's distinct particles, heaviest first (world frame): merged by position (to
@@ -147,7 +149,11 @@ class Replay:
         return out
 
     def braking(self, t: float) -> bool:
-        """Whether the ego's planner has decided to brake by time ``t`` [s]."""
+        """Whether the ego brakes at time ``t`` [s] (the tick's flag of the trace: a planner
+        with the risk rule may release its brake)."""
+        flags = (self.record.trace or {}).get("brake")
+        if flags:
+            return bool(flags[self.tick(t)])
         bt = self.record.brake_time
         return bt is not None and t + 1e-9 >= bt
 
@@ -170,7 +176,13 @@ def record_episode(seed: int, planner: str | Planner = "cdf", config: ScenarioCo
     """
     config = config or ScenarioConfig()
     scene = scene or Scene.load(names=config.names)
-    plan = _RecordingCDFPlanner(cdf) if planner == "cdf" else make_planner(planner)
+    if planner in ("cdf", "cdf-threshold"):
+        cdf = cdf or CDFConfig()
+        plan: Planner = _RecordingCDFPlanner(cdf.replace(decision="threshold") if planner == "cdf-threshold"
+                                             else cdf)
+        plan.name = planner
+    else:
+        plan = make_planner(planner)
     record = run_episode(config, seed, plan, scene, label=False, trace=True)
     final = scene.poses()  # the scene holds the state at end_time
     trace = record.trace or {}
@@ -181,6 +193,10 @@ def record_episode(seed: int, planner: str | Planner = "cdf", config: ScenarioCo
     tau: float | None
     if isinstance(plan, _RecordingCDFPlanner):
         particles = plan.filter.snapshots
+    rule = getattr(plan, "rule", None)
+    if isinstance(rule, RiskRule):  # the braking quantity is the risk (the last key)
+        tau = rule.config.brake
+    elif isinstance(plan, _RecordingCDFPlanner):
         tau = plan.cdf.tau
     else:  # a baseline with a probability history (imm): its own threshold
         tau = getattr(getattr(plan, "params", None), "threshold", None)

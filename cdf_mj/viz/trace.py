@@ -66,10 +66,11 @@ class TraceRenderResult:
 
 @dataclass(frozen=True)
 class _TraceRecord:
-    """The two fields of a record that the panel and the replay read."""
+    """The fields of a record that the panel and the replay read."""
 
     seed: str
     brake_time: float | None
+    trace: dict[str, list[bool]]  # "brake": the monitor's decision per tick
 
 
 class _TracePanel(Panel):
@@ -131,7 +132,8 @@ def _replay(trace: MonitorTrace) -> Replay:
     """The trace as a :class:`Replay` for the panel and the pose interpolation."""
     times = np.append(trace.times, trace.times[-1])  # the last tick is the end
     poses = np.concatenate([trace.poses, trace.poses[-1:]])
-    record = cast(EpisodeRecord, _TraceRecord(seed=trace.path.name, brake_time=trace.brake_time))
+    record = cast(EpisodeRecord, _TraceRecord(seed=trace.path.name, brake_time=trace.brake_time,
+                                                 trace={"brake": trace.brake.tolist()}))
     k = len(trace.times)
     return Replay(record=record, label=None, times=times, poses=poses, seen=np.zeros(k, dtype=bool),
                   belief=np.zeros((k, 4)), particles=None,

@@ -1,0 +1,278 @@
+"""Where and when the ego and a left-turning obstacle collide: the junction's conflict map
+and the compiled rollouts of the risk decision rule.
+
+A left-turner crosses into the ego's lane and then drives along it, so whether the two
+collision boxes overlap depends only on two arc lengths: ``s`` of the obstacle on its
+left route and ``q`` of the ego on its route. :class:`ConflictMap` tabulates, for every
+``s`` (0.1 m apart, the route extended straight past its end), the interval
+``[q_lo(s), q_hi(s)]`` of the ego's arc lengths at which the boxes (each widened by a
+margin) overlap: one table per junction and pair of cars, built once (tens of ms) and
+cached. The *conflict zone* is the stretch of the ego's route that the obstacle sweeps
+while it turns in: the ego's arc lengths at which its box overlaps the obstacle's
+anywhere from the obstacle's first overlap with the ego's path until its rear axle
+reaches the conflict point.
+
+:class:`Futures` are weighted hypotheses of the obstacle's motion along that route
+(arc length, speed, acceleration up to a cruise speed, a delay before it moves), as a
+predictor gives them; :func:`collision_masses` rolls each forward on the tick grid
+against the ego's plans (:func:`ego_plans`: going on, going on and then braking,
+braking now) and sums the weights of those that collide, by which plans they collide
+with. Both are Numba kernels (``cache=True``: compiled once per install, then loaded);
+the hypotheses are looped over once, with an early exit. ::
+
+    cmap = conflict_map(layout, margin=0.3)
+    plans = ego_plans(cmap.ego_arc(ego_pose), v, v_nom, gain, a_max, b, n_defer, n_steps, dt)
+    masses = collision_masses(f.weight, f.s, f.v, f.accel, f.v_max, f.delay, plans, dt,
+                              cmap.ds, cmap.q_lo, cmap.q_hi, cmap.q_lo_ahead)
+
+World frame (x east, y north), metres, seconds, radians; poses are rear-axle
+``[x, y, theta, v]``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+
+from cdf_mj.model.geometry import Polyline, boxes_overlap
+from cdf_mj.model.layout import Layout
+from cdf_mj.model.vehicle import CarGeometry
+
+__all__ = [
+    "BRAKE",
+    "DEFER",
+    "GO",
+    "ConflictMap",
+    "Futures",
+    "collision_masses",
+    "conflict_map",
+    "ego_plans",
+    "route_poses",
+    "widened",
+]
+
+#: Rows of :func:`ego_plans` and bits of :func:`collision_masses`' index: the ego goes on
+#: at its nominal speed; goes on for ``n_defer`` ticks, then brakes; brakes now.
+GO, DEFER, BRAKE = 0, 1, 2
+
+_DS = 0.1  # [m] table spacing along both routes
+_EXTEND = 60.0  # [m] the routes go on straight past their last waypoint by this much
+
+
+def route_poses(route: Polyline, s: np.ndarray, window: float = 0.5) -> np.ndarray:
+    """Poses ``(len(s), 4)`` (speed 0) on ``route`` at arc lengths ``s`` [m]: the point and the
+    direction of the chord of ``2 window`` [m] about it; past the last waypoint the route
+    goes on straight along its last segment."""
+    s = np.asarray(s, dtype=float)
+    end = route.length
+    last = route.points[-1] - route.points[-2]
+    last = last / np.hypot(*last)
+    xy = route.point_at(np.minimum(s, end)) + np.maximum(s - end, 0.0)[:, None] * last
+    lo = np.clip(s - window, 0.0, end)
+    hi = np.clip(s + window, 0.0, end)
+    a, b = route.point_at(lo), route.point_at(hi)
+    heading = np.arctan2(b[:, 1] - a[:, 1], b[:, 0] - a[:, 0])
+    heading[s + window > end] = math.atan2(last[1], last[0])
+    out = np.zeros((len(s), 4))
+    out[:, :2], out[:, 2] = xy, heading
+    return out
+
+
+def _reach(car: CarGeometry, margin: float) -> float:
+    """[m] the furthest a corner of the widened box lies from the rear axle."""
+    return float(np.hypot(np.abs(car.hull_offset[0]) + car.hull_half[0] + margin,
+                          np.abs(car.hull_offset[1]) + car.hull_half[1] + margin))
+
+
+@dataclass(frozen=True, eq=False)
+class ConflictMap:
+    """The overlap table of one junction and pair of cars (see the module docstring).
+
+    Attributes:
+        route_ego: the ego's route (``q`` is arc length on it) [m].
+        ds: [m] spacing of the table along the obstacle's left route, from ``s = 0``.
+        q_lo, q_hi: ``(J,)`` the ego's arc lengths [m] between which the boxes overlap with
+            the obstacle at ``s = j ds``; ``inf``/``-inf`` where they never do.
+        q_lo_ahead: ``(J,)`` the least ``q_lo`` from ``j`` on [m].
+        zone: ``(q_lo, q_hi)`` [m] the conflict zone on the ego's route.
+        margin: [m] added to each half size of both boxes.
+    """
+
+    route_ego: Polyline
+    ds: float
+    q_lo: np.ndarray
+    q_hi: np.ndarray
+    q_lo_ahead: np.ndarray
+    zone: tuple[float, float]
+    margin: float
+
+    @classmethod
+    def build(cls, layout: Layout, margin: float = 0.0) -> ConflictMap:
+        """The table of ``layout``'s left route, ego route and cars, boxes widened by ``margin`` [m]."""
+        left, ego_route = layout.route_left, layout.route_ego
+        s = np.arange(0.0, left.length + _EXTEND, _DS)
+        q = np.arange(0.0, ego_route.length + _EXTEND, _DS)
+        obs, ego = route_poses(left, s), route_poses(ego_route, q)
+        wide_obs = widened(layout.obstacle, margin)
+        wide_ego = widened(layout.ego, margin)
+        # Candidate pairs: rear axles within both reaches; then the exact box test on those.
+        reach = _reach(layout.obstacle, margin) + _reach(layout.ego, margin)
+        q_lo = np.full(len(s), np.inf)
+        q_hi = np.full(len(s), -np.inf)
+        for start in range(0, len(s), 256):  # (256, len(q)) distances at a time
+            block = obs[start:start + 256]
+            d2 = ((block[:, None, :2] - ego[None, :, :2]) ** 2).sum(-1)
+            js, is_ = np.nonzero(d2 <= reach * reach)
+            if js.size == 0:
+                continue
+            hit = boxes_overlap(wide_obs.footprint(block[js]), wide_ego.footprint(ego[is_]))
+            js, is_ = js[hit] + start, is_[hit]
+            np.minimum.at(q_lo, js, q[is_])
+            np.maximum.at(q_hi, js, q[is_])
+        first = np.flatnonzero(np.isfinite(q_lo))
+        if first.size == 0:
+            raise ValueError("the obstacle's left route never meets the ego's route: no conflict to "
+                             "assess (check the routes of the scene)")
+        s_conflict = float(left.project(layout.conflict)[0])
+        sweep = slice(first[0], max(first[0] + 1, int(s_conflict / _DS) + 1))
+        zone = (float(np.min(q_lo[sweep])), float(np.max(q_hi[sweep])))
+        q_lo_ahead = np.minimum.accumulate(q_lo[::-1])[::-1].copy()
+        for a in (q_lo, q_hi, q_lo_ahead):
+            a.flags.writeable = False
+        return cls(route_ego=ego_route, ds=_DS, q_lo=q_lo, q_hi=q_hi, q_lo_ahead=q_lo_ahead, zone=zone,
+                   margin=margin)
+
+    def ego_arc(self, ego_pose: np.ndarray) -> float:
+        """[m] the ego's arc length on its route for its pose ``(4,)``."""
+        return float(self.route_ego.project(np.asarray(ego_pose, dtype=float)[:2])[0])
+
+    def inside(self, q: float) -> bool:
+        """Whether the ego at arc length ``q`` [m] is inside the conflict zone."""
+        return self.zone[0] <= q <= self.zone[1]
+
+    def cleared(self, q: float) -> bool:
+        """Whether the ego at arc length ``q`` [m] has left the conflict zone behind."""
+        return q > self.zone[1]
+
+
+def widened(car: CarGeometry, margin: float) -> CarGeometry:
+    """``car`` with ``margin`` [m] added to each half size of its collision box."""
+    return dataclasses.replace(car, hull_half=car.hull_half + margin) if margin else car
+
+
+@functools.lru_cache(maxsize=16)
+def conflict_map(layout: Layout, margin: float = 0.0) -> ConflictMap:
+    """:meth:`ConflictMap.build`, cached per layout object and margin (a scene's layout is
+    the same object for all its episodes)."""
+    return ConflictMap.build(layout, margin)
+
+
+@dataclass(frozen=True)
+class Futures:
+    """Weighted hypotheses of a left-turner's motion along its route, ``(M,)`` arrays.
+
+    ``weight`` is the probability of the hypothesis times the probability that the driver
+    goes on along it (does not yield); from ``delay`` [s] on it moves from arc length
+    ``s`` [m] with speed ``v`` [m/s] changing at ``accel`` [m/s^2] and kept in
+    ``[0, v_max]`` [m/s]; before ``delay`` it stands. Right-turners never enter the ego's
+    lane and are left out.
+    """
+
+    weight: np.ndarray
+    s: np.ndarray
+    v: np.ndarray
+    accel: np.ndarray
+    v_max: np.ndarray
+    delay: np.ndarray
+
+    @classmethod
+    def empty(cls) -> Futures:
+        """No hypothesis of a left-turner."""
+        z = np.zeros(0)
+        return cls(z, z, z, z, z, z)
+
+
+@numba.njit(cache=True, nogil=True)
+def ego_plans(q0: float, v0: float, v_nominal: float, gain: float, max_accel: float, max_brake: float,
+              n_defer: int, n_steps: int, dt: float) -> np.ndarray:  # pragma: no cover - compiled
+    """The ego's arc length [m] at ticks ``1..n_steps`` ``(3, n_steps)`` under the plans
+    :data:`GO` (its nominal controller: acceleration ``gain (v_nominal - v)`` within
+    ``[-max_brake, max_accel]``), :data:`DEFER` (that for ``n_defer`` ticks, then braking at
+    ``max_brake`` [m/s^2]) and :data:`BRAKE` (braking now); from arc length ``q0`` [m]
+    and speed ``v0`` [m/s], constant acceleration within a tick, speed kept >= 0."""
+    out = np.empty((3, n_steps))
+    for plan in range(3):
+        brake_from = n_steps if plan == 0 else (n_defer if plan == 1 else 0)
+        q, v = q0, v0
+        for k in range(n_steps):
+            a = -max_brake if k >= brake_from else min(max(gain * (v_nominal - v), -max_brake), max_accel)
+            v1 = v + a * dt
+            if v1 < 0.0:  # stops within the tick
+                q += v * v / (2.0 * max_brake) if a < 0.0 else 0.0
+                v = 0.0
+            else:
+                q += 0.5 * (v + v1) * dt
+                v = v1
+            out[plan, k] = q
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def collision_masses(weight: np.ndarray, s0: np.ndarray, v0: np.ndarray, accel: np.ndarray,
+                     v_max: np.ndarray, delay: np.ndarray, plans: np.ndarray, dt: float, ds: float,
+                     q_lo: np.ndarray, q_hi: np.ndarray,
+                     q_lo_ahead: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+    """Total weight of the hypotheses (:class:`Futures` arrays) by the plans they collide
+    with: ``out[m]`` for the bit mask ``m`` (bit ``p`` set: it collides with plan row ``p``
+    of ``plans``, the ego's arc lengths ``(P, K)`` at ticks ``1..K`` of ``dt`` [s]).
+
+    Each hypothesis is rolled forward tick by tick (speed ``v0 + accel (t - delay)`` kept in
+    ``[0, v_max]``, trapezoidal arc length); it collides with a plan at the first tick its
+    arc length puts the ego's inside ``[q_lo, q_hi]`` of the table (``ds`` [m] apart).
+    Past the table's end nothing collides. ``q_lo_ahead[j]`` is the least ``q_lo`` from
+    ``j`` on: once it lies beyond a plan's furthest arc length, that plan can no longer
+    collide with the hypothesis (its arc length never decreases), which ends its roll."""
+    n_plans, n_steps = plans.shape
+    full = (1 << n_plans) - 1
+    out = np.zeros(1 << n_plans)
+    n_table = q_lo.shape[0]
+    for i in range(weight.shape[0]):
+        w = weight[i]
+        if w <= 0.0:
+            continue
+        s, v, a, vm, d = s0[i], v0[i], accel[i], v_max[i], delay[i]
+        if vm < v:
+            vm = v
+        v_start = v if d <= 0.0 else 0.0  # a held-back driver stands, then pulls away
+        v_prev = v_start
+        mask = 0
+        done = 0  # plans that collided or no longer can
+        for k in range(n_steps):
+            t = (k + 1) * dt
+            v_now = min(max(v_start + a * (t - d), 0.0), vm) if t > d else 0.0
+            s += 0.5 * (v_prev + v_now) * dt
+            v_prev = v_now
+            j = int(s / ds + 0.5)
+            if j >= n_table:
+                break
+            ahead = q_lo_ahead[j]
+            lo, hi = q_lo[j], q_hi[j]
+            for p in range(n_plans):
+                bit = 1 << p
+                if done & bit:
+                    continue
+                q = plans[p, k]
+                if lo <= q <= hi:
+                    mask |= bit
+                    done |= bit
+                elif ahead > plans[p, n_steps - 1]:
+                    done |= bit
+            if done == full:
+                break
+        out[mask] += w
+    return out

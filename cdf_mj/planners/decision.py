@@ -1,0 +1,157 @@
+"""When to brake: the decision rules a predicting planner is built from (predictor x rule).
+
+A predicting planner (:class:`cdf_mj.planners.base.DecidingPlanner`: ``cdf``, ``imm``,
+``cv``) estimates the obstacle's future each tick; its rule turns that estimate into
+braking or not:
+
+================  ==========================================================================
+ThresholdRule     the paper's rule: brake once the predictor's own alarm probability
+                  (the CDF's P(cutoff), the IMM's P(conflict), the CV's predicted conflict)
+                  reaches a threshold, and hold the brake to the end
+RiskRule          brake at the last safe moment: when the probability of a collision that
+                  deferring the brake by one more decision interval (plus a latency
+                  margin) would make unavoidable reaches ``RiskConfig.brake``; release the
+                  brake, back to the nominal speed, once that risk of going on is below
+                  ``RiskConfig.release`` and the ego is not inside the conflict zone
+================  ==========================================================================
+
+The risk rule rolls the predictor's hypotheses forward
+(:class:`cdf_mj.model.conflict.Futures` along the obstacle's left route, or one
+predicted path of poses) against three plans of the ego on its route: going on
+(``GO``), going on for ``n_defer`` ticks then braking (``DEFER``), braking now
+(``BRAKE``). A hypothesis is *unavoidable if deferred* when it collides under both GO
+and DEFER: the ego could neither pass first nor stop in time after waiting. The ego
+brakes when the weight of those reaches ``brake`` and braking now collides with less
+weight than going on. Any predictor that gives futures runs with it, so a comparison
+of ``cdf`` with ``imm-risk`` isolates the prediction.
+
+Frames and units: world frame, metres, seconds; probabilities in [0, 1].
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from cdf_mj.config import RiskConfig, ScenarioConfig
+from cdf_mj.model.conflict import (
+    BRAKE,
+    DEFER,
+    GO,
+    ConflictMap,
+    Futures,
+    collision_masses,
+    conflict_map,
+    ego_plans,
+    route_poses,
+    widened,
+)
+from cdf_mj.model.geometry import boxes_overlap
+from cdf_mj.model.layout import Layout
+from cdf_mj.planners.base import DecisionRule, Predictor, ThresholdRule
+
+__all__ = ["Assessment", "DecisionRule", "Predictor", "RiskRule", "ThresholdRule"]
+
+
+@dataclass(frozen=True)
+class Assessment:
+    """The risk rule's reading of one tick: probabilities (total weight of the hypotheses)
+    of a collision under each plan, and where the ego is."""
+
+    go: float  # the ego goes on at its nominal speed
+    deferred: float  # collides both going on and braking after the deferral: unavoidable if deferred
+    brake: float  # the ego brakes now
+    inside: bool  # the ego is inside the conflict zone
+
+
+class RiskRule:
+    """Brake at the last safe moment, release when the risk is gone (module docstring).
+
+    Args:
+        config: thresholds, latency margin, horizon and box margin (default :class:`RiskConfig`).
+        ego_brake: [m/s^2] the ego's braking in the plans (default: its car's maximum).
+    """
+
+    name = "risk"
+    releases = True
+    history_keys = ("risk",)
+
+    def __init__(self, config: RiskConfig | None = None, ego_brake: float | None = None) -> None:
+        self.config = config or RiskConfig()
+        if not isinstance(self.config, RiskConfig):
+            raise TypeError(f"config must be a RiskConfig, got {type(self.config).__name__}")
+        if ego_brake is not None and not (isinstance(ego_brake, (int, float)) and math.isfinite(ego_brake)
+                                          and ego_brake > 0):
+            raise ValueError(f"ego_brake={ego_brake!r} is out of range: must be > 0 [m/s^2]")
+        self.ego_brake = ego_brake
+        self.last: Assessment | None = None
+
+    @property
+    def react_ticks(self) -> int:
+        """Ticks before a decision deferred now could act: the next decision, plus the latency."""
+        return self._defer
+
+    def reset(self, layout: Layout, config: ScenarioConfig) -> None:
+        """The junction's conflict map, the ego's limits and its nominal controller."""
+        cfg = self.config
+        self.map: ConflictMap = conflict_map(layout, cfg.margin)
+        self._layout = layout
+        self._dt = config.dt
+        self._steps = max(1, math.ceil(cfg.horizon / config.dt - 1e-9))
+        self._defer = 1 + math.ceil(cfg.latency / config.dt - 1e-9)
+        self._nominal = (config.ego_speed, config.ego_speed_gain, layout.ego.max_accel,
+                         self.ego_brake if self.ego_brake is not None else layout.ego.max_brake)
+        self.last = None
+
+    def plans(self, ego_pose: np.ndarray) -> np.ndarray:
+        """The ego's arc lengths [m] ``(3, K)`` at ticks ``1..K`` under GO, DEFER and BRAKE."""
+        v_nom, gain, a_max, b = self._nominal
+        return ego_plans(self.map.ego_arc(ego_pose), max(float(ego_pose[3]), 0.0), v_nom, gain, a_max, b,
+                         self._defer, self._steps, self._dt)
+
+    def assess(self, ego_pose: np.ndarray, futures: Futures | np.ndarray) -> Assessment:
+        """Collision probabilities of the plans for the predictor's hypotheses."""
+        plans = self.plans(ego_pose)
+        if isinstance(futures, Futures):
+            m = collision_masses(futures.weight, futures.s, futures.v, futures.accel, futures.v_max,
+                                 futures.delay, plans, self._dt, self.map.ds, self.map.q_lo, self.map.q_hi,
+                                 self.map.q_lo_ahead)
+        else:
+            m = self._path_masses(plans, np.asarray(futures, dtype=float))
+        go, deferred, brake = (1 << GO), (1 << GO) | (1 << DEFER), (1 << BRAKE)
+        idx = np.arange(len(m))
+        return Assessment(go=float(m[(idx & go) == go].sum()),
+                          deferred=float(m[(idx & deferred) == deferred].sum()),
+                          brake=float(m[(idx & brake) == brake].sum()),
+                          inside=self.map.inside(self.map.ego_arc(ego_pose)))
+
+    def _path_masses(self, plans: np.ndarray, path: np.ndarray) -> np.ndarray:
+        """:func:`collision_masses` for one predicted obstacle path ``(K', 4)`` at ticks 1..K'."""
+        k = min(len(path), plans.shape[1])
+        out = np.zeros(1 << len(plans))
+        if k == 0:
+            return out
+        lay, margin = self._layout, self.config.margin
+        obstacle = widened(lay.obstacle, margin).footprint(path[:k])
+        ego_car = widened(lay.ego, margin)
+        mask = 0
+        for p, q in enumerate(plans[:, :k]):
+            if boxes_overlap(ego_car.footprint(route_poses(lay.route_ego, q)), obstacle).any():
+                mask |= 1 << p
+        out[mask] = 1.0
+        return out
+
+    def decide(self, predictor: Predictor, ego_pose: np.ndarray, braking: bool) -> bool:
+        """Brake when the deferred risk reaches ``brake`` and braking now lowers the risk; once
+        braking, release when it is below ``release`` outside the conflict zone."""
+        a = self.last = self.assess(ego_pose, predictor.futures(self._defer))
+        if braking:
+            return not (a.deferred < self.config.release and not a.inside)
+        return a.deferred >= self.config.brake and a.brake < a.go
+
+    def values(self) -> dict[str, float]:
+        """``risk``: this tick's probability of a collision made unavoidable by deferring."""
+        return {"risk": self.last.deferred if self.last is not None else 0.0}
+
