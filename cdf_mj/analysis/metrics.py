@@ -37,6 +37,7 @@ from cdf_mj.records import (
     Label,
     RecordLike,
     avoided,
+    braked,
     completed,
     hit_obstacle,
     is_false_alarm,
@@ -262,6 +263,12 @@ class PlannerMetrics:
     time_lost: float  # [s] mean over episodes without a collision (NaN if none)
     brier_left: float | None  # Brier score of P(left) over all ticks (filters only)
     brier_seen: float | None  # Brier score of P(seen) over all ticks (filters that model belief)
+    # The counts of the decision rule's report (docs/DECISION.md), each by a rule of records:
+    recall: Rate = Rate(0, 0)  # Cutoff episodes in which it braked, of the Cutoff ones
+    false_alarms_yield: Rate = Rate(0, 0)  # Yield episodes in which it braked, of the Yield ones
+    false_discovery: Rate = Rate(0, 0)  # episodes not labelled Cutoff, of those in which it braked
+    collisions_yield: int = 0  # Yield episodes with a collision with the obstacle
+    collisions_right: int = 0  # Right episodes with a collision with the obstacle
 
     @property
     def paper_avoided(self) -> float:
@@ -273,13 +280,14 @@ class PlannerMetrics:
         """Flat, JSON- and CSV-ready view (rates as fractions with their 95 % interval)."""
         row: dict[str, float | int | str | None] = {"planner": self.planner, "episodes": self.episodes,
                                                     "imminent": self.imminent, "collisions": self.collisions}
-        for name in ("avoided", "false_alarms"):
+        for name in ("avoided", "false_alarms", "recall", "false_alarms_yield", "false_discovery"):
             rate: Rate = getattr(self, name)
             lo, hi = rate.interval
             row.update({name: rate.value, f"{name}_lo": lo, f"{name}_hi": hi, f"{name}_k": rate.k,
                         f"{name}_n": rate.n})
         row.update({"lead_time": self.lead_time, "min_gap": self.min_gap, "time_lost": self.time_lost,
-                    "brier_left": self.brier_left, "brier_seen": self.brier_seen})
+                    "brier_left": self.brier_left, "brier_seen": self.brier_seen,
+                    "collisions_yield": self.collisions_yield, "collisions_right": self.collisions_right})
         return row
 
 
@@ -295,6 +303,9 @@ def planner_metrics(records: Iterable[RecordLike]) -> dict[str, PlannerMetrics]:
         by_planner.setdefault(record_field(rec, "planner"), []).append(rec)
     out: dict[str, PlannerMetrics] = {}
     for name, recs in by_planner.items():
+        by_label: dict[str, list[RecordLike]] = {lab: [] for lab in LABELS}
+        for r in recs:
+            by_label[record_field(r, "label")].append(r)
         leads = [t for t in map(lead_time, recs) if t is not None]
         intact = [record_field(r, "time_lost") for r in recs if not record_field(r, "collision")]
         brier = {}
@@ -308,7 +319,12 @@ def planner_metrics(records: Iterable[RecordLike]) -> dict[str, PlannerMetrics]:
             false_alarms=Rate(sum(map(is_false_alarm, recs)), len(recs)),
             lead_time=_median(leads), min_gap=_median([record_field(r, "min_gap") for r in recs]),
             time_lost=float(statistics.fmean(intact)) if intact else math.nan,
-            brier_left=brier["p_left"], brier_seen=brier["p_seen"])
+            brier_left=brier["p_left"], brier_seen=brier["p_seen"],
+            recall=Rate(sum(braked(r) for r in recs if is_imminent(r)), sum(map(is_imminent, recs))),
+            false_alarms_yield=Rate(sum(map(is_false_alarm, by_label[Label.YIELD])), len(by_label[Label.YIELD])),
+            false_discovery=Rate(sum(map(is_false_alarm, recs)), sum(map(braked, recs))),
+            collisions_yield=sum(map(hit_obstacle, by_label[Label.YIELD])),
+            collisions_right=sum(map(hit_obstacle, by_label[Label.RIGHT])))
     return out
 
 
@@ -324,6 +340,8 @@ class PairedCounts:
     false_alarm_only_first: int  # episodes not labelled Cutoff in which only the first brakes
     false_alarm_only_second: int
     false_alarm_both: int
+    hit_only_first: int = 0  # episodes of any label in which only the first hits the obstacle
+    hit_only_second: int = 0  # (the paper's count of collisions)
 
 
 def paired_counts(records: Iterable[RecordLike], first: str, second: str) -> PairedCounts:
@@ -332,9 +350,11 @@ def paired_counts(records: Iterable[RecordLike], first: str, second: str) -> Pai
     :func:`~cdf_mj.records.is_false_alarm`)."""
     by_key = {(record_field(r, "planner"), record_field(r, "seed")): r for r in _labelled(records)}
     seeds = sorted({s for p, s in by_key if p == first} & {s for p, s in by_key if p == second})
-    counts = [0] * 5
+    counts = [0] * 7
     for seed in seeds:
         a, b = by_key[(first, seed)], by_key[(second, seed)]
+        counts[5] += hit_obstacle(a) and not hit_obstacle(b)
+        counts[6] += hit_obstacle(b) and not hit_obstacle(a)
         if is_imminent(a):
             hit_a, hit_b = hit_obstacle(a), hit_obstacle(b)
             counts[0] += hit_a and not hit_b

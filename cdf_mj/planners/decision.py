@@ -12,7 +12,8 @@ RiskRule          brake at the last safe moment: when the probability of a colli
                   deferring the brake by one more decision interval (plus a latency
                   margin) would make unavoidable reaches ``RiskConfig.brake``; release the
                   brake, back to the nominal speed, once that risk of going on is below
-                  ``RiskConfig.release`` and the ego is not inside the conflict zone
+                  ``RiskConfig.release`` (inside the conflict zone: once going on is no
+                  riskier than staying there)
 ================  ==========================================================================
 
 The risk rule rolls the predictor's hypotheses forward
@@ -30,12 +31,14 @@ Frames and units: world frame, metres, seconds; probabilities in [0, 1].
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from cdf_mj.config import RiskConfig, ScenarioConfig
+from cdf_mj.inference.particle_filter import ParticleFilter
 from cdf_mj.model.conflict import (
     BRAKE,
     DEFER,
@@ -52,7 +55,7 @@ from cdf_mj.model.geometry import boxes_overlap
 from cdf_mj.model.layout import Layout
 from cdf_mj.planners.base import DecisionRule, Predictor, ThresholdRule
 
-__all__ = ["Assessment", "DecisionRule", "Predictor", "RiskRule", "ThresholdRule"]
+__all__ = ["Assessment", "DecisionRule", "Predictor", "RiskRule", "ThresholdRule", "rollout_assessment"]
 
 
 @dataclass(frozen=True)
@@ -144,14 +147,60 @@ class RiskRule:
         return out
 
     def decide(self, predictor: Predictor, ego_pose: np.ndarray, braking: bool) -> bool:
-        """Brake when the deferred risk reaches ``brake`` and braking now lowers the risk; once
-        braking, release when it is below ``release`` outside the conflict zone."""
+        """Brake when the deferred risk reaches ``brake`` and braking now lowers the risk.
+        Once braking, release when that risk is below ``release``; inside the conflict
+        zone, release as soon as going on is no riskier than staying (an ego stopped in
+        the zone waits for whoever crosses it next)."""
         a = self.last = self.assess(ego_pose, predictor.futures(self._defer))
         if braking:
-            return not (a.deferred < self.config.release and not a.inside)
+            release = a.go <= a.brake if a.inside else a.deferred < self.config.release
+            return not release
         return a.deferred >= self.config.brake and a.brake < a.go
 
     def values(self) -> dict[str, float]:
         """``risk``: this tick's probability of a collision made unavoidable by deferring."""
         return {"risk": self.last.deferred if self.last is not None else 0.0}
 
+
+
+def rollout_assessment(pf: ParticleFilter, rule: RiskRule, ego_pose: np.ndarray,
+                       rng: np.random.Generator) -> Assessment:
+    """The reference for :meth:`RiskRule.assess` on a CDF filter: every particle rolled
+    forward through the filter's own model (its observation draws with beta and line of
+    sight, belief update, driver state machine with its departure hazard and mode jumps,
+    process noise and bicycle) for the rule's horizon, once with the ego going on and once
+    with it going on for the deferral and then braking (the same draws for both: ``rng``
+    is copied), each tick tested for an overlap of the two widened collision boxes.
+
+    Slow (a filter tick per rolled tick and plan, in NumPy): for tests and for measuring
+    how closely the compiled rule agrees (docs/DECISION.md). The filter is not changed;
+    call it after the update of a tick, before the particles move on (where the rule
+    reads them).
+    """
+    plans = rule.plans(ego_pose)
+    layout = rule._layout
+    ego_car = widened(layout.ego, rule.config.margin)
+    state = rng.bit_generator.state
+    hits = []
+    for p in (GO, DEFER, BRAKE):
+        sim = copy.copy(pf)
+        sim.pose, sim.mode, sim.belief = pf.pose.copy(), pf.mode.copy(), pf.belief.copy()
+        sim.has_belief, sim.intent, sim.theta = pf.has_belief.copy(), pf.intent.copy(), pf.theta.copy()
+        sim.rng = np.random.Generator(type(rng.bit_generator)())
+        sim.rng.bit_generator.state = state
+        obstacle_car = widened(sim.obstacle, rule.config.margin)
+        ego = route_poses(layout.route_ego, plans[p])
+        speed = np.diff(np.concatenate([[rule.map.ego_arc(ego_pose)], plans[p]])) / rule._dt
+        ego[:, 3] = speed
+        hit = np.zeros(sim.n, dtype=bool)
+        current = np.asarray(ego_pose, dtype=float)
+        for k in range(plans.shape[1]):
+            sim.predict(np.stack([current, current]))  # the obstacle row is not read by predict
+            current = ego[k]
+            hit |= boxes_overlap(obstacle_car.footprint(sim.pose),
+                                 np.broadcast_to(ego_car.footprint(current), (sim.n, 4, 2)))
+        hits.append(hit)
+    w = pf.weights
+    go, deferred, brake = hits[0], hits[0] & hits[1], hits[2]
+    return Assessment(go=float(w[go].sum()), deferred=float(w[deferred].sum()), brake=float(w[brake].sum()),
+                      inside=rule.map.inside(rule.map.ego_arc(ego_pose)))

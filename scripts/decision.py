@@ -1,0 +1,269 @@
+#!/usr/bin/env python3
+"""The decision rules compared: each predictor with the paper's threshold rule and with the
+risk rule, on held-out seeds first, then on the scenario presets, then on the
+development seeds.
+
+Runs (resumable, with :func:`~cdf_mj.experiments.experiment.run_experiment`, into
+``OUT/PART``) and writes a Markdown page (default docs/DECISION_RESULTS.md):
+
+- ``held-out``: the default scenario on seeds 100000-100999 (never used for tuning);
+- one part per preset on seeds 1000-1199 (held out as well);
+- ``development``: the default scenario on seeds 0-199, where the risk rule's threshold
+  was chosen (scripts/tune_risk.py), labelled as such.
+
+For every planner: Cutoff recall (braked in Cutoff episodes), avoided (ours and the
+paper's formula, where a collision of any label counts), false alarms per episode and
+per Yield episode, the false-discovery rate of its predicted Cutoffs (braked episodes
+not labelled Cutoff), collisions in Yield and Right episodes, time lost; then ``cdf``
+against every other planner seed by seed (exact McNemar tests on collisions of any label
+and on false alarms), and the issue's targets::
+
+    python scripts/decision.py                          # all parts (about 15 min on 2 cores)
+    python scripts/decision.py --parts held-out --episodes 20 --out /tmp/d --doc /tmp/d.md
+
+Bad input (an unknown part or planner, a result directory of other settings) is one line
+``decision: error: ...`` and exit status 2, before anything runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import shlex
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NoReturn
+
+from cdf_mj.analysis.metrics import PlannerMetrics, mcnemar_exact, paired_counts, planner_metrics
+from cdf_mj.analysis.tables import format_number, format_rate
+from cdf_mj.config import CDFConfig, ScenarioConfig
+from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
+from cdf_mj.planners.base import PLANNERS
+from cdf_mj.presets import load_preset, preset_names
+from cdf_mj.records import completed, record_field
+
+PROG = "decision"
+PLANNERS_DEFAULT = ("cdf", "cdf-threshold", "imm-risk", "imm", "cv-risk", "reactive")
+PRESET_PLANNERS = ("cdf", "cdf-threshold", "imm-risk", "reactive")
+
+
+@dataclass(frozen=True)
+class Part:
+    """One evaluation: a scenario on a range of seeds."""
+
+    name: str
+    title: str
+    config: ScenarioConfig
+    seeds: range
+    planners: tuple[str, ...]
+    held_out: bool
+
+
+def _parts(episodes: int | None) -> dict[str, Part]:
+    n_main, n_preset, n_dev = (episodes or 1000), (episodes or 200), (episodes or 200)
+    parts = {"held-out": Part("held-out", "Default scenario, held-out seeds", ScenarioConfig(),
+                              range(100000, 100000 + n_main), PLANNERS_DEFAULT, True)}
+    for name in preset_names():
+        if name == "default":
+            continue
+        parts[name] = Part(name, f"Preset `{name}`, held-out seeds", load_preset(name),
+                           range(1000, 1000 + n_preset), PRESET_PLANNERS, True)
+    parts["development"] = Part("development", "Default scenario, development seeds (the threshold was "
+                                "chosen here)", ScenarioConfig(), range(0, n_dev), PLANNERS_DEFAULT, False)
+    return parts
+
+
+def _percent(share: float) -> str:
+    return "-" if math.isnan(share) else f"{100 * share:.1f} %"
+
+
+def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
+    def row(cells: Sequence[str]) -> str:
+        return "| " + " | ".join(cells) + " |"
+    return [row(header), "|" + "---|" * len(header), *map(row, rows)]
+
+
+def planner_rows(metrics: dict[str, PlannerMetrics]) -> list[str]:
+    """Markdown: one row per planner with the counts of the module docstring."""
+    header = ["planner", "Cutoff recall", "avoided (95 % CI)", "paper's formula", "false alarms / episodes",
+              "false alarms / Yield episodes", "false discovery (of braked)", "collisions Yield, Right",
+              "time lost [s]"]
+    rows = [[m.planner, format_rate(m.recall), format_rate(m.avoided),
+             f"{_percent(m.paper_avoided)} ({m.imminent - m.collisions}/{m.imminent})",
+             format_rate(m.false_alarms), format_rate(m.false_alarms_yield), format_rate(m.false_discovery),
+             f"{m.collisions_yield}, {m.collisions_right}", format_number(m.time_lost)]
+            for m in metrics.values()]
+    return _table(header, rows)
+
+
+def paired_rows(records: Sequence[dict[str, Any]], first: str, others: Sequence[str]) -> list[str]:
+    """Markdown: ``first`` against each of ``others`` seed by seed (exact McNemar tests)."""
+    rows = []
+    for other in others:
+        c = paired_counts(records, first, other)
+        rows.append([f"{first} / {other}", str(c.seeds), str(c.hit_only_first), str(c.hit_only_second),
+                     f"{mcnemar_exact(c.hit_only_first, c.hit_only_second):.3g}", str(c.false_alarm_only_first),
+                     str(c.false_alarm_only_second),
+                     f"{mcnemar_exact(c.false_alarm_only_first, c.false_alarm_only_second):.3g}"])
+    return _table(["pair", "seeds", f"collision only {first}", "only the other", "McNemar p",
+                   f"false alarm only {first}", "only the other", "McNemar p"], rows)
+
+
+def _verdict(ok: bool) -> str:
+    return "met" if ok else "**missed**"
+
+
+def targets(metrics: dict[str, PlannerMetrics]) -> list[str]:
+    """The issue's targets for the default scenario, judged on the point estimates."""
+    cdf = metrics.get("cdf")
+    if cdf is None:
+        return []
+    lines = ["Targets (default scenario, point estimates):", ""]
+    fa, fay = cdf.false_alarms, cdf.false_alarms_yield
+    lines += [f"- recall 100 %: {format_rate(cdf.recall)}: {_verdict(cdf.recall.k == cdf.recall.n)}",
+              f"- avoided, paper's formula, >= 99 %: {_percent(cdf.paper_avoided)}: "
+              f"{_verdict(cdf.paper_avoided >= 0.99)}",
+              f"- false alarms <= 1.0 % of episodes: {format_rate(fa)}: {_verdict(fa.value <= 0.01)}",
+              f"- false alarms <= 3 % of Yield episodes: {format_rate(fay)}: {_verdict(fay.value <= 0.03)}"]
+    if "reactive" in metrics:
+        r = metrics["reactive"]
+        lines.append(f"- collisions in Yield episodes no more than reactive's: {cdf.collisions_yield} vs "
+                     f"{r.collisions_yield}: {_verdict(cdf.collisions_yield <= r.collisions_yield)}")
+    if "cdf-threshold" in metrics:
+        t = metrics["cdf-threshold"]
+        lines.append(f"- less time lost than the threshold rule: {format_number(cdf.time_lost)} s vs "
+                     f"{format_number(t.time_lost)} s: {_verdict(cdf.time_lost < t.time_lost)}")
+    return [*lines, ""]
+
+
+def beats(records: Sequence[dict[str, Any]], metrics: dict[str, PlannerMetrics], other: str) -> str:
+    """Whether ``cdf`` beats ``other`` on both collisions (paper's count) and false alarms."""
+    if "cdf" not in metrics or other not in metrics:
+        return ""
+    c = paired_counts(records, "cdf", other)
+    fewer_hits = metrics["cdf"].collisions <= metrics[other].collisions
+    fewer_alarms = metrics["cdf"].false_alarms.k < metrics[other].false_alarms.k
+    p_hit = mcnemar_exact(c.hit_only_first, c.hit_only_second)
+    p_fa = mcnemar_exact(c.false_alarm_only_first, c.false_alarm_only_second)
+    return (f"cdf against {other} (same rule, other predictor): collisions {metrics['cdf'].collisions} vs "
+            f"{metrics[other].collisions} (McNemar p = {p_hit:.3g}), false alarms "
+            f"{metrics['cdf'].false_alarms.k} vs {metrics[other].false_alarms.k} (p = {p_fa:.3g}): "
+            f"{'beats it on both' if fewer_hits and fewer_alarms else 'does not beat it on both'}.")
+
+
+def section(part: Part, records: Sequence[dict[str, Any]], failed: int) -> list[str]:
+    """Markdown of one part."""
+    good = completed(records)
+    metrics = planner_metrics(good)
+    seeds = sorted({record_field(r, "seed") for r in good})
+    span = f"seeds {seeds[0]}-{seeds[-1]}" if seeds else "no seeds"
+    labels = {lab: sum(1 for r in good if record_field(r, "planner") == part.planners[0]
+                       and record_field(r, "label") == lab) for lab in ("Cutoff", "Yield", "Right")}
+    lines = [f"## {part.title}", "", f"{span}; labels {labels['Cutoff']} Cutoff, {labels['Yield']} Yield, "
+             f"{labels['Right']} Right" + (f"; {failed} failed episode(s) left out" if failed else "") + ".", ""]
+    if not metrics:
+        return [*lines, "No completed episode.", ""]
+    lines += [*planner_rows(metrics), ""]
+    if "cdf" in metrics:
+        lines += [*paired_rows(good, "cdf", [p for p in metrics if p != "cdf"]), ""]
+        verdict = beats(good, metrics, "imm-risk")
+        if verdict:
+            lines += [verdict, ""]
+    if part.name in ("held-out", "development"):
+        lines += targets(metrics)
+    return lines
+
+
+def markdown(sections: list[list[str]], command: str, small: bool) -> str:
+    """The whole page."""
+    lines = [
+        "# Decision rules compared",
+        "",
+        f"Generated by `{command}`; the rules and how the threshold was chosen: docs/DECISION.md.",
+        "",
+        "- `cdf`: the CDF filter with the risk rule; `cdf-threshold`: the same filter with the paper's",
+        "  rule (brake once P(cutoff) >= tau, held); `imm-risk`, `cv-risk`: the intent-only IMM and the",
+        "  constant-velocity predictors with the same risk rule; `imm`: the IMM with its own threshold",
+        "  rule; `reactive`: brakes once the obstacle is in the ego's lane.",
+        "- **Cutoff recall**: Cutoff episodes in which the planner braked. **avoided**: Cutoff episodes",
+        "  without a collision with the obstacle. **paper's formula**: (Cutoff episodes - collisions with",
+        "  the obstacle of any label) / Cutoff episodes. **false alarms**: braked in an episode not",
+        "  labelled Cutoff, of all episodes and of the Yield episodes. **false discovery**: of the episodes",
+        "  in which it braked (predicted Cutoff), those not labelled Cutoff. **time lost**: mean over",
+        "  episodes without a collision.",
+        "- 95 % Wilson intervals; paired tables count the seeds on which only one planner collides (any",
+        "  label) or false-alarms, with the exact two-sided McNemar test on those discordant seeds.",
+        "",
+    ]
+    if small:
+        lines += ["**Few seeds: a check that the evaluation runs, not a result.**", ""]
+    for sec in sections:
+        lines += sec
+    return "\n".join(lines).rstrip() + "\n"
+
+
+def _fail(message: str) -> NoReturn:
+    print(f"{PROG}: error: {' '.join(message.split())}", file=sys.stderr)
+    raise SystemExit(2)
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> NoReturn:  # one line, status 2
+        _fail(message)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the evaluation; returns the exit status (1 if some episodes failed)."""
+    p = _Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--parts", default=None, help="comma-separated parts (default: held-out, every preset "
+                                                 "but default, development)")
+    p.add_argument("--episodes", type=int, default=None, help="seeds per part (default 1000 held out, 200 "
+                                                              "per preset and development)")
+    p.add_argument("--workers", type=int, default=None, help="worker processes (default: the CPU count)")
+    p.add_argument("--out", default="results/decision", help="result directory (default results/decision)")
+    p.add_argument("--doc", default="docs/DECISION_RESULTS.md", help="Markdown page written")
+    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    args = p.parse_args(argv)
+    if (args.episodes is not None and args.episodes < 1) or (args.workers is not None and args.workers < 1):
+        _fail("--episodes and --workers must be at least 1")
+    parts = _parts(args.episodes)
+    names = [n.strip() for n in args.parts.split(",") if n.strip()] if args.parts else list(parts)
+    unknown = [n for n in names if n not in parts]
+    if unknown or not names:
+        _fail(f"unknown part(s) {', '.join(unknown) or '(none)'}: choose from {', '.join(parts)}")
+    missing = sorted({q for n in names for q in parts[n].planners} - set(PLANNERS))
+    if missing:
+        _fail(f"planner(s) {', '.join(missing)} not registered")
+    sections, failed = [], 0
+    for i, name in enumerate(names, start=1):
+        part = parts[name]
+        if not args.quiet:
+            print(f"[{i}/{len(names)}] {name}: seeds {part.seeds.start}-{part.seeds.stop - 1}, "
+                  f"{','.join(part.planners)}", file=sys.stderr)
+        try:
+            run = run_experiment(Path(args.out) / name, part.seeds, part.planners, part.config, CDFConfig(),
+                                 progress=not args.quiet, workers=args.workers, resume=True)
+        except SettingsMismatchError as exc:
+            _fail(f"{exc} with --out, or remove {Path(args.out) / name}")
+        except ValueError as exc:
+            _fail(str(exc))
+        failed += run.failed
+        sections.append(section(part, run.records, run.failed))
+    command = "python scripts/decision.py" + "".join(
+        f" {flag} {shlex.quote(str(v))}" for flag, v in (("--parts", args.parts), ("--episodes", args.episodes))
+        if v is not None)
+    doc = Path(args.doc)
+    doc.parent.mkdir(parents=True, exist_ok=True)
+    doc.write_text(markdown(sections, command, small=args.episodes is not None and args.episodes < 100))
+    if not args.quiet:
+        print(f"wrote {doc}; records in {args.out}/<part>/episodes.jsonl", file=sys.stderr)
+    if failed:
+        print(f"{PROG}: {failed} episode(s) failed; their records hold the error and traceback", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
