@@ -87,6 +87,7 @@ def main(argv: list[str] | None = None) -> int:
             slow.append(t2 - t1)
             if max(a.deferred, r.deferred) > 0.01:
                 if args.verbose:
+                    a = rule.assess(m.poses[0], pf.futures(rule.react_ticks), exact=True)
                     print(f"seed {seed} t {m.t:.1f}: compiled go {a.go:.3f} deferred {a.deferred:.3f} "
                           f"brake {a.brake:.3f}; rollout go {r.go:.3f} deferred {r.deferred:.3f} brake {r.brake:.3f}")
                 diffs.append(abs(a.deferred - r.deferred))

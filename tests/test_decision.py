@@ -163,12 +163,13 @@ def test_a_standing_car_at_the_line_is_no_risk_and_a_car_in_the_lane_is(scene: S
         one = np.ones(1)
         return Futures(weight=one, s=one * s, v=one * v, accel=one * 0.0, v_max=one * v, delay=one * delay)
 
-    standing = rule.assess(ego, futures(0.0, 0.0))
+    standing = rule.assess(ego, futures(0.0, 0.0), exact=True)
     assert standing.go == standing.deferred == standing.brake == 0.0
-    crossing = rule.assess(ego, futures(s_conflict - 3.0, 4.0))
+    crossing = rule.assess(ego, futures(s_conflict - 3.0, 4.0), exact=True)
     assert crossing.go == 1.0  # going on meets it; braking now (20 m for an 18.4 m stop) does not
     assert crossing.brake == 0.0
-    assert rule.assess(ego, Futures.empty()).go == 0.0
+    assert rule.assess(ego, Futures.empty(), exact=True).go == 0.0
+    assert math.isnan(rule.assess(ego, futures(s_conflict - 3.0, 4.0)).go)  # only when asked for
 
 
 class _StubRule:
@@ -268,7 +269,7 @@ def test_the_rollout_reference_reads_the_same_risk(scene: Scene) -> None:
         else:
             pf.update(m.poses)
         if 2.3 <= world.t <= 2.7:
-            fast = rule.assess(m.poses[0], pf.futures(rule.react_ticks))
+            fast = rule.assess(m.poses[0], pf.futures(rule.react_ticks), exact=True)
             slow = rollout_assessment(pf, rule, m.poses[0], np.random.default_rng(0))
             assert abs(fast.deferred - slow.deferred) <= 0.15, (world.t, fast, slow)
             assert abs(fast.go - slow.go) <= 0.15, (world.t, fast, slow)
@@ -276,3 +277,55 @@ def test_the_rollout_reference_reads_the_same_risk(scene: Scene) -> None:
         pf.predict(m.poses)
         world.step(np.array([0.0, 0.0]))
     assert compared == 5
+
+
+def _futures_reference(pf: Any, react_ticks: int) -> Futures:
+    """The filter's futures in NumPy from the driver's own clear rule (road_clear)."""
+    from cdf_mj.model.driver import DriverParams, Mode, road_clear
+
+    left = np.flatnonzero((pf.intent == 0) & (pf.weights > 0.0))
+    w, mode, s, theta = pf.weights[left].copy(), pf.mode[left], pf.left_arc()[left], pf.theta[left]
+    v, delay = pf.pose[left, 3].copy(), np.zeros(left.size)
+    held = (mode == Mode.WAITING) | (mode == Mode.YIELDING)
+    waiting = mode == Mode.WAITING
+    v[held] = 0.0
+    params = DriverParams(accel=0.0, turn_speed=0.0, yield_brake=0.0, critical_gap=theta[:, 3],
+                          clear_distance=theta[:, 4])
+    clear = road_clear(pf.model, pf.belief[left], pf.has_belief[left], pf.intent[left], params)
+    b = pf.belief[left]
+    ahead = (pf.model.conflict[0] - b[:, 0]) * np.cos(b[:, 2]) + (pf.model.conflict[1] - b[:, 1]) * np.sin(b[:, 2])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        passes = np.where(b[:, 3] > 0.1, (ahead + pf.model.config.passed_margin) / b[:, 3], np.inf)
+    delay[held] = np.where(clear, 0.0, np.maximum(passes, 0.0))[held]
+    delay[waiting] += pf.scenario.dt
+    w *= np.where(waiting, 1.0 - (1.0 - theta[:, 6]) ** react_ticks, 1.0)
+    u = (mode != Mode.COMMITTED) & pf.sees_ego()[left]
+    remaining = np.maximum(pf.model.s_commit[0] - s, 0.0)
+    t_commit = (np.sqrt(v * v + 2.0 * theta[:, 0] * remaining) - v) / theta[:, 0]
+    w[u] *= (1.0 - theta[u, 5]) ** np.ceil(t_commit[u] / pf.scenario.dt - 1e-9)
+    keep = np.isfinite(delay) & (w > 0.0)
+    return Futures(w[keep], s[keep], v[keep], theta[keep, 0], theta[keep, 1], delay[keep])
+
+
+def test_the_filter_futures_follow_the_drivers_clear_rule(scene: Scene) -> None:
+    """On every tick of drivers who go at once and who wait 1-2 s (seeds 0-3), the compiled
+    futures equal a NumPy reference built on :func:`cdf_mj.model.driver.road_clear`."""
+    from cdf_mj.model.driver import ego_control
+
+    compared = 0
+    for config in (ScenarioConfig(), ScenarioConfig(stop_dwell=(1.0, 2.0), ego_start_spread=(-30.0, -20.0))):
+        for seed in range(4):
+            world = World(scene, config)
+            world.reset(seed)
+            planner = CDFPlanner(CDFConfig(n_particles=200))
+            planner.reset(world.layout, config, world.rng["planner"])
+            while not world.done:
+                m = world.measure()
+                brake = planner.brake(PlannerInput(t=m.t, poses=m.poses, obstacle_in_lane=m.obstacle_in_lane))
+                got, want = planner.filter.futures(2), _futures_reference(planner.filter, 2)
+                for a, b in zip((got.weight, got.s, got.v, got.accel, got.v_max, got.delay),
+                                (want.weight, want.s, want.v, want.accel, want.v_max, want.delay), strict=True):
+                    np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-12)
+                compared += got.weight.size
+                world.step(ego_control(world.driver, world.layout.ego, m.poses[0], brake))
+    assert compared > 10000

@@ -53,6 +53,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
+import numba
 import numpy as np
 
 from cdf_mj.config import CDFConfig, DriverPrior, ScenarioConfig
@@ -65,7 +66,6 @@ from cdf_mj.model.driver import (
     Mode,
     bicycle_step,
     obstacle_control,
-    road_clear,
     update_belief,
 )
 from cdf_mj.model.geometry import OrientedBox, wrap_angle
@@ -120,6 +120,54 @@ class Posterior:
     def to_dict(self) -> dict[str, float]:
         """JSON-serialisable view."""
         return asdict(self)
+
+
+@numba.njit(cache=True, nogil=True)
+def _left_futures(weights: np.ndarray, intent: np.ndarray, mode: np.ndarray, arc: np.ndarray, speed: np.ndarray,
+                  theta: np.ndarray, belief: np.ndarray, has_belief: np.ndarray, sees: np.ndarray,
+                  conflict_x: float, conflict_y: float, passed_margin: float, s_commit: float, dt: float,
+                  react_ticks: int) -> tuple[np.ndarray, ...]:  # pragma: no cover - compiled
+    """:meth:`ParticleFilter.futures` in one pass over the particles: the weight, arc length
+    [m], speed [m/s], acceleration [m/s^2], cruise speed [m/s] and delay [s] of every
+    left-turner that may go on (a finite delay and a positive weight). "Held back until
+    the believed ego has passed" is the driver's own clear rule
+    (:func:`cdf_mj.model.driver.road_clear`: passed, or far by distance and gap), per
+    particle; tests/test_decision.py checks the two agree."""
+    n = weights.shape[0]
+    w_out, s_out, v_out = np.empty(n), np.empty(n), np.empty(n)
+    a_out, vm_out, d_out = np.empty(n), np.empty(n), np.empty(n)
+    m = 0
+    for i in range(n):
+        w = weights[i]
+        if intent[i] != _LEFT or w <= 0.0:
+            continue
+        md = mode[i]
+        v = speed[i]
+        a = theta[i, 0]
+        delay = 0.0
+        if md in (_WAITING, _YIELDING):
+            v = 0.0
+            if has_belief[i]:
+                bx, by, bth, bv = belief[i, 0], belief[i, 1], belief[i, 2], belief[i, 3]
+                ahead = (conflict_x - bx) * math.cos(bth) + (conflict_y - by) * math.sin(bth)
+                passed = ahead < -passed_margin
+                far = ahead > theta[i, 4] and ahead > theta[i, 3] * max(bv, 0.0)
+                if not (passed or far):  # held back until the believed ego has passed
+                    if bv <= 0.1:
+                        continue
+                    delay = max((ahead + passed_margin) / bv, 0.0)
+            if md == _WAITING:  # and it leaves at its hazard: within the reaction window, or later
+                delay += dt
+                w *= 1.0 - (1.0 - theta[i, 6]) ** react_ticks
+        if md != _COMMITTED and sees[i]:  # looks ahead of it before its commit point
+            remaining = max(s_commit - arc[i], 0.0)
+            t_commit = (math.sqrt(v * v + 2.0 * a * remaining) - v) / a
+            w *= (1.0 - theta[i, 5]) ** math.ceil(t_commit / dt - 1e-9)
+        if w <= 0.0:
+            continue
+        w_out[m], s_out[m], v_out[m], a_out[m], vm_out[m], d_out[m] = w, arc[i], v, a, theta[i, 1], delay
+        m += 1
+    return w_out[:m], s_out[:m], v_out[:m], a_out[:m], vm_out[:m], d_out[:m]
 
 
 class ParticleFilter:
@@ -393,46 +441,11 @@ class ParticleFilter:
 
         Its own acceleration and turn speed, from its current speed (0 once held back).
         """
-        left = np.flatnonzero((self.intent == _LEFT) & (self.weights > 0.0))
-        if left.size == 0:
-            return Futures.empty()
-        dt = self.scenario.dt
-        w = self.weights[left]  # a copy (fancy indexing): scaled in place below
-        mode = self.mode[left]
-        s = self.left_arc()[left]
-        theta = self.theta[left]
-        accel, v_max = theta[:, 0], theta[:, 1]
-        v = self.pose[left, 3].copy()
-        delay = np.zeros(left.size)
-        held = (mode == _WAITING) | (mode == _YIELDING)
-        waiting = mode == _WAITING
-        if held.any():
-            v[held] = 0.0
-            rows = left[held]
-            params = DriverParams(accel=0.0, turn_speed=0.0, yield_brake=0.0,
-                                  critical_gap=self.theta[rows, 3], clear_distance=self.theta[rows, 4])
-            clear = road_clear(self.model, self.belief[rows], self.has_belief[rows], self.intent[rows], params)
-            b = self.belief[rows]
-            ahead = ((self.model.conflict[0] - b[:, 0]) * np.cos(b[:, 2])
-                     + (self.model.conflict[1] - b[:, 1]) * np.sin(b[:, 2]))  # [m] believed ego to conflict
-            speed = b[:, 3]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                passes = np.where(speed > 0.1, (ahead + self.model.config.passed_margin) / speed, np.inf)
-            delay[held] = np.where(clear, 0.0, np.maximum(passes, 0.0))
-            delay[waiting] += dt
-            w = w * np.where(waiting, 1.0 - (1.0 - theta[:, 6]) ** react_ticks, 1.0)
-        # Looks ahead of it before its commit point (none once committed).
-        uncommitted = np.flatnonzero(mode != _COMMITTED)
-        if uncommitted.size:
-            u = uncommitted
-            remaining = np.maximum(self.model.s_commit[_LEFT] - s[u], 0.0)  # [m]
-            t_commit = (np.sqrt(v[u] * v[u] + 2.0 * accel[u] * remaining) - v[u]) / accel[u]
-            ticks = np.ceil(t_commit / dt - 1e-9)
-            look = theta[u, 5] * self.sees_ego()[left[u]]
-            w[u] *= (1.0 - look) ** ticks
-        keep = np.isfinite(delay) & (w > 0.0)
-        return Futures(weight=w[keep], s=s[keep], v=v[keep], accel=accel[keep], v_max=v_max[keep],
-                       delay=delay[keep])
+        out = _left_futures(self.weights, self.intent, self.mode, self.left_arc(), self.pose[:, 3], self.theta,
+                            self.belief, self.has_belief, self.sees_ego(), float(self.model.conflict[0]),
+                            float(self.model.conflict[1]), float(self.model.config.passed_margin),
+                            float(self.model.s_commit[_LEFT]), self.scenario.dt, react_ticks)
+        return Futures(*out)
 
     # ------------------------------------------------------------------ one tick
     def predict(self, system_pose: np.ndarray | None = None) -> None:
@@ -556,7 +569,14 @@ class ParticleFilter:
         not the departure hazard), and a fraction ``intent_floor`` of the particles
         still held back (waiting or yielding) redraw their intent from the prior."""
         keep = stratified_resample(self.weights, self.rng)
+        arc = self._arc if self._arc_of is self.pose else None
+        sight = self._sight_of[1] if self._sight_of is not None and self._sight_of[0] is self.pose else None
         self.pose, self.mode, self.belief = self.pose[keep], self.mode[keep], self.belief[keep]
+        # The resampled particles' arc lengths and lines of sight are their ancestors'.
+        if arc is not None:
+            self._arc, self._arc_of = arc[keep], self.pose
+        if sight is not None:
+            self._sight, self._sight_of = self._sight[keep], (self.pose, sight)
         self.has_belief, self.intent, self.theta = self.has_belief[keep], self.intent[keep], self.theta[keep]
         self.logw = np.zeros(self.n)
         if self.cdf.param_jitter > 0.0:  # static parameters would collapse onto one ancestor

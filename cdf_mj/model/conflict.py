@@ -23,7 +23,7 @@ the hypotheses are looped over once, with an early exit. ::
     cmap = conflict_map(layout, margin=0.3)
     plans = ego_plans(cmap.ego_arc(ego_pose), v, v_nom, gain, a_max, b, n_defer, n_steps, dt)
     masses = collision_masses(f.weight, f.s, f.v, f.accel, f.v_max, f.delay, plans, dt,
-                              cmap.ds, cmap.q_lo, cmap.q_hi, cmap.q_lo_ahead)
+                              cmap.ds, cmap.q_lo, cmap.q_hi, cmap.q_lo_ahead, GO, DEFER)
 
 World frame (x east, y north), metres, seconds, radians; poses are rear-axle
 ``[x, y, theta, v]``.
@@ -225,8 +225,8 @@ def ego_plans(q0: float, v0: float, v_nominal: float, gain: float, max_accel: fl
 @numba.njit(cache=True, nogil=True)
 def collision_masses(weight: np.ndarray, s0: np.ndarray, v0: np.ndarray, accel: np.ndarray,
                      v_max: np.ndarray, delay: np.ndarray, plans: np.ndarray, dt: float, ds: float,
-                     q_lo: np.ndarray, q_hi: np.ndarray,
-                     q_lo_ahead: np.ndarray) -> np.ndarray:  # pragma: no cover - compiled
+                     q_lo: np.ndarray, q_hi: np.ndarray, q_lo_ahead: np.ndarray,
+                     lazy: int = -1, gate: int = -1) -> np.ndarray:  # pragma: no cover - compiled
     """Total weight of the hypotheses (:class:`Futures` arrays) by the plans they collide
     with: ``out[m]`` for the bit mask ``m`` (bit ``p`` set: it collides with plan row ``p``
     of ``plans``, the ego's arc lengths ``(P, K)`` at ticks ``1..K`` of ``dt`` [s]).
@@ -236,11 +236,21 @@ def collision_masses(weight: np.ndarray, s0: np.ndarray, v0: np.ndarray, accel: 
     arc length puts the ego's inside ``[q_lo, q_hi]`` of the table (``ds`` [m] apart).
     Past the table's end nothing collides. ``q_lo_ahead[j]`` is the least ``q_lo`` from
     ``j`` on: once it lies beyond a plan's furthest arc length, that plan can no longer
-    collide with the hypothesis (its arc length never decreases), which ends its roll."""
+    collide with the hypothesis (its arc length never decreases), which ends its roll.
+
+    With plan rows ``lazy`` and ``gate`` (not -1), plan ``lazy`` is followed only for the
+    hypotheses that collide with plan ``gate``: the others' ``lazy`` bit stays unset, so
+    only the masses with the ``gate`` bit set are exact for ``lazy`` (the risk rule reads
+    GO only together with DEFER, and going on is the plan whose rolls are longest)."""
     n_plans, n_steps = plans.shape
     full = (1 << n_plans) - 1
+    lazy_bit = (1 << lazy) if lazy >= 0 else 0
+    gate_bit = (1 << gate) if gate >= 0 else 0
     out = np.zeros(1 << n_plans)
     n_table = q_lo.shape[0]
+    first = 0  # the first table entry with an overlap: before it nothing can collide
+    while first < n_table and not q_lo[first] <= q_hi[first]:
+        first += 1
     for i in range(weight.shape[0]):
         w = weight[i]
         if w <= 0.0:
@@ -260,6 +270,8 @@ def collision_masses(weight: np.ndarray, s0: np.ndarray, v0: np.ndarray, accel: 
             j = int(s / ds + 0.5)
             if j >= n_table:
                 break
+            if j < first:
+                continue
             ahead = q_lo_ahead[j]
             lo, hi = q_lo[j], q_hi[j]
             for p in range(n_plans):
@@ -272,7 +284,8 @@ def collision_masses(weight: np.ndarray, s0: np.ndarray, v0: np.ndarray, accel: 
                     done |= bit
                 elif ahead > plans[p, n_steps - 1]:
                     done |= bit
-            if done == full:
+            settled = done | lazy_bit if (done & gate_bit) and not (mask & gate_bit) else done
+            if settled == full:
                 break
         out[mask] += w
     return out

@@ -12,8 +12,8 @@ RiskRule          brake at the last safe moment: when the probability of a colli
                   deferring the brake by one more decision interval (plus a latency
                   margin) would make unavoidable reaches ``RiskConfig.brake``; release the
                   brake, back to the nominal speed, once that risk of going on is below
-                  ``RiskConfig.release`` (inside the conflict zone: once going on is no
-                  riskier than staying there)
+                  ``RiskConfig.release`` (inside the conflict zone: once going on is
+                  less risky than staying there)
 ================  ==========================================================================
 
 The risk rule rolls the predictor's hypotheses forward
@@ -55,18 +55,25 @@ from cdf_mj.model.geometry import boxes_overlap
 from cdf_mj.model.layout import Layout
 from cdf_mj.planners.base import DecisionRule, Predictor, ThresholdRule
 
+#: Bit masks of :func:`collision_masses`' index: the masses that collide going on and when
+#: deferring (unavoidable if deferred), when braking now, and going on.
+_INDEX = np.arange(1 << 3)
+_DEFERRED = (_INDEX & ((1 << GO) | (1 << DEFER))) == ((1 << GO) | (1 << DEFER))
+_BRAKES = (_INDEX & (1 << BRAKE)) != 0
+_GOES = (_INDEX & (1 << GO)) != 0
+
 __all__ = ["Assessment", "DecisionRule", "Predictor", "RiskRule", "ThresholdRule", "rollout_assessment"]
 
 
 @dataclass(frozen=True)
 class Assessment:
     """The risk rule's reading of one tick: probabilities (total weight of the hypotheses)
-    of a collision under each plan, and where the ego is."""
+    of a collision under the ego's plans, and where the ego is."""
 
-    go: float  # the ego goes on at its nominal speed
     deferred: float  # collides both going on and braking after the deferral: unavoidable if deferred
-    brake: float  # the ego brakes now
+    brake: float  # collides when the ego brakes now
     inside: bool  # the ego is inside the conflict zone
+    go: float = math.nan  # collides when the ego goes on (NaN unless assessed with exact=True)
 
 
 class RiskRule:
@@ -114,21 +121,21 @@ class RiskRule:
         return ego_plans(self.map.ego_arc(ego_pose), max(float(ego_pose[3]), 0.0), v_nom, gain, a_max, b,
                          self._defer, self._steps, self._dt)
 
-    def assess(self, ego_pose: np.ndarray, futures: Futures | np.ndarray) -> Assessment:
-        """Collision probabilities of the plans for the predictor's hypotheses."""
+    def assess(self, ego_pose: np.ndarray, futures: Futures | np.ndarray, exact: bool = False) -> Assessment:
+        """Collision probabilities of the plans for the predictor's hypotheses. Going on
+        alone (``go``) is assessed with ``exact`` only: the rule needs it only together
+        with the deferral, and it is the longest roll."""
         plans = self.plans(ego_pose)
         if isinstance(futures, Futures):
+            lazy, gate = (-1, -1) if exact else (GO, DEFER)
             m = collision_masses(futures.weight, futures.s, futures.v, futures.accel, futures.v_max,
                                  futures.delay, plans, self._dt, self.map.ds, self.map.q_lo, self.map.q_hi,
-                                 self.map.q_lo_ahead)
+                                 self.map.q_lo_ahead, lazy, gate)
         else:
             m = self._path_masses(plans, np.asarray(futures, dtype=float))
-        go, deferred, brake = (1 << GO), (1 << GO) | (1 << DEFER), (1 << BRAKE)
-        idx = np.arange(len(m))
-        return Assessment(go=float(m[(idx & go) == go].sum()),
-                          deferred=float(m[(idx & deferred) == deferred].sum()),
-                          brake=float(m[(idx & brake) == brake].sum()),
-                          inside=self.map.inside(self.map.ego_arc(ego_pose)))
+        return Assessment(deferred=float(m[_DEFERRED].sum()), brake=float(m[_BRAKES].sum()),
+                          inside=self.map.inside(self.map.ego_arc(ego_pose)),
+                          go=float(m[_GOES].sum()) if exact else math.nan)
 
     def _path_masses(self, plans: np.ndarray, path: np.ndarray) -> np.ndarray:
         """:func:`collision_masses` for one predicted obstacle path ``(K', 4)`` at ticks 1..K'."""
@@ -147,15 +154,15 @@ class RiskRule:
         return out
 
     def decide(self, predictor: Predictor, ego_pose: np.ndarray, braking: bool) -> bool:
-        """Brake when the deferred risk reaches ``brake`` and braking now lowers the risk.
+        """Brake when the deferred risk reaches ``brake`` and braking now is less risky.
         Once braking, release when that risk is below ``release``; inside the conflict
-        zone, release as soon as going on is no riskier than staying (an ego stopped in
-        the zone waits for whoever crosses it next)."""
+        zone, release as soon as going on is less risky than staying (an ego stopped in
+        the zone waits for whoever crosses it next; where both collide it keeps braking)."""
         a = self.last = self.assess(ego_pose, predictor.futures(self._defer))
         if braking:
-            release = a.go <= a.brake if a.inside else a.deferred < self.config.release
+            release = a.deferred < a.brake if a.inside else a.deferred < self.config.release
             return not release
-        return a.deferred >= self.config.brake and a.brake < a.go
+        return a.deferred >= self.config.brake and a.brake < a.deferred
 
     def values(self) -> dict[str, float]:
         """``risk``: this tick's probability of a collision made unavoidable by deferring."""
