@@ -133,16 +133,17 @@ _workers = _int_in(1, MAX_WORKERS, "processes on one machine")
 _pixels = _int_in(1, 16384, "pixels; MuJoCo's offscreen buffer is smaller")
 
 
-def _finite_float(low: float, high: float, what: str) -> Callable[[str], float]:
-    """An argparse type: a finite number in ``[low, high]`` (``what``: its unit, for the error)."""
+def _finite_float(low: float, high: float, what: str, open_low: bool = False) -> Callable[[str], float]:
+    """An argparse type: a finite number in ``[low, high]`` (``(low, high]`` with ``open_low``;
+    ``what``: its unit, for the error)."""
     def parse(text: str) -> float:
         try:
             value = float(text)
         except ValueError:
             value = float("nan")
-        if not low <= value <= high:  # NaN fails too
-            raise argparse.ArgumentTypeError(f"must be a number from {low:g} to {high:g} {what}, got "
-                                             f"{_shown(text)}")
+        if not (low < value <= high if open_low else low <= value <= high):  # NaN fails too
+            span = f"in ({low:g}, {high:g}]" if open_low else f"from {low:g} to {high:g}"
+            raise argparse.ArgumentTypeError(f"must be a number {span} {what}, got {_shown(text)}")
         return value
     return parse
 
@@ -248,25 +249,48 @@ def add_cdf_arguments(parser: argparse.ArgumentParser, swept: bool = False) -> N
     where = " where not swept" if swept else ""
     parser.add_argument("--particles", type=_particles, default=d.n_particles,
                         help=f"CDF particle count N{where}, 1 to 10^6 (memory) (default {d.n_particles})")
-    parser.add_argument("--tau", type=_finite_float(0.0, 1.0, "(a probability)"), default=d.tau,
+    parser.add_argument("--tau", type=_finite_float(0.0, 1.0, "(a probability)", open_low=True), default=None,
                         help=f"braking threshold on P(cutoff) of cdf-threshold, the paper's rule{where} "
                              f"(default {d.tau})")
-    parser.add_argument("--brake-risk", type=_finite_float(0.0, 1.0, "(a probability)"), default=r.brake,
-                        help=f"risk rule (cdf, imm-risk, cv-risk): brake when P(collision if braking is "
-                             f"deferred) reaches this{where} (default {r.brake})")
-    parser.add_argument("--release-risk", type=_finite_float(0.0, 1.0, "(a probability)"), default=r.release,
-                        help=f"risk rule: release the brake below this risk, at most --brake-risk "
-                             f"(default {r.release})")
-    parser.add_argument("--risk-latency", type=_finite_float(0.0, 10.0, "[s]"), default=r.latency,
+    parser.add_argument("--brake-risk", type=_finite_float(0.0, 1.0, "(a probability)", open_low=True),
+                        default=None, help=f"risk rule (cdf, imm-risk, cv-risk): brake when P(collision if "
+                                           f"braking is deferred) reaches this{where} (default {r.brake})")
+    parser.add_argument("--release-risk", type=_finite_float(0.0, 1.0, "(a probability)", open_low=True),
+                        default=None, help="risk rule: release the brake below this risk, at most --brake-risk "
+                                           "(default: half of --brake-risk)")
+    parser.add_argument("--risk-latency", type=_finite_float(0.0, 10.0, "[s]"), default=None,
                         help=f"risk rule: margin [s] on top of one decision interval (default {r.latency})")
     parser.add_argument("--cutoff-rule", choices=("predictive", "paper"), default=d.cutoff_rule,
                         help=f"how P(cutoff) is computed (default {d.cutoff_rule}; see docs/RESULTS.md)")
 
 
-def cdf_from_args(args: argparse.Namespace) -> CDFConfig:
-    """The :class:`cdf_mj.config.CDFConfig` of :func:`add_cdf_arguments` (validated)."""
-    risk = RiskConfig(brake=args.brake_risk, release=args.release_risk, latency=args.risk_latency)
-    return CDFConfig(n_particles=args.particles, tau=args.tau, cutoff_rule=args.cutoff_rule, risk=risk)
+#: The planners that read ``--tau`` and the risk rule's flags.
+_THRESHOLD_PLANNERS = ("cdf-threshold",)
+_RISK_PLANNERS = ("cdf", "imm-risk", "cv-risk")
+
+
+def cdf_from_args(args: argparse.Namespace, planners: Sequence[str] | None = None) -> CDFConfig:
+    """The :class:`cdf_mj.config.CDFConfig` of :func:`add_cdf_arguments` (validated). With
+    ``planners``, a flag that none of them reads is refused (``--tau`` without
+    ``cdf-threshold``; a risk flag without ``cdf``, ``imm-risk`` or ``cv-risk``), since it
+    would change nothing."""
+    d = CDFConfig()
+    if planners is not None:
+        given = [f for f, v in (("--tau", args.tau),) if v is not None]
+        if given and not set(planners) & set(_THRESHOLD_PLANNERS):
+            raise CLIError(f"--tau is the threshold of the paper's rule, which none of the planners "
+                           f"{','.join(planners)} uses: add cdf-threshold to them")
+        given = [f for f, v in (("--brake-risk", args.brake_risk), ("--release-risk", args.release_risk),
+                                ("--risk-latency", args.risk_latency)) if v is not None]
+        if given and not set(planners) & set(_RISK_PLANNERS):
+            raise CLIError(f"{given[0]} sets the risk rule, which none of the planners {','.join(planners)} "
+                           f"uses: add one of {', '.join(_RISK_PLANNERS)}")
+    brake = args.brake_risk if args.brake_risk is not None else d.risk.brake
+    release = args.release_risk if args.release_risk is not None else brake / 2
+    latency = args.risk_latency if args.risk_latency is not None else d.risk.latency
+    risk = RiskConfig(brake=brake, release=release, latency=latency)
+    return CDFConfig(n_particles=args.particles, tau=args.tau if args.tau is not None else d.tau,
+                     cutoff_rule=args.cutoff_rule, risk=risk)
 
 
 def _print_json(obj: Any) -> None:
@@ -342,7 +366,7 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
     from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
 
     config = config_from_args(args)
-    cdf = cdf_from_args(args)
+    cdf = cdf_from_args(args, args.planners)
     seeds = _seed_range(args.seed0, args.episodes)
     if args.retry_failed and args.force:
         raise CLIError("--force starts over, so --retry-failed has nothing to retry: give one of them")
@@ -455,7 +479,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     from cdf_mj.experiments.sweep import VizUnavailableError, run_sweep
 
     config = config_from_args(args)
-    cdf = cdf_from_args(args)
+    cdf = cdf_from_args(args, args.planners)
     seeds = _seed_range(args.seed0, args.episodes)
     if args.values is not None and len(args.sweeps) > 1:
         raise CLIError("--values applies to one sweep at a time; name a single sweep")
@@ -554,7 +578,8 @@ def _cmd_render(args: argparse.Namespace) -> int:
         return _cmd_render_trace(args)
     config = config_from_args(args)
     scene = scene_from_args(args, config)
-    cdf = cdf_from_args(args)
+    cdf = cdf_from_args(args, [n.strip() for n in args.compare.split(",")] if args.compare
+                        else [args.planner or "cdf"])
     args.seed = DEFAULT_SEED if args.seed is None else args.seed
     if args.compare is not None:
         return _cmd_render_compare(args, config, scene, cdf)

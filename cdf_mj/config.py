@@ -320,9 +320,9 @@ class RiskConfig:
     decision interval plus ``latency`` and then braking at its maximum rate, and braking
     now. The ego brakes when the probability of a collision that deferring would make
     unavoidable (it collides whether the ego goes on or brakes after the deferral)
-    reaches ``brake``, provided braking now lowers the risk; a braking ego releases (and
+    reaches ``brake``, provided braking now is no riskier; a braking ego releases (and
     returns to its nominal speed) once that risk of going on is below ``release`` or,
-    inside the conflict zone, once going on is less risky than staying there. ValueError
+    inside the conflict zone, below the risk of staying there (braking on). ValueError
     naming the field for a threshold outside (0, 1], ``release > brake``, a negative
     latency or a horizon outside (0, 30] s. ``brake`` was chosen on seeds 0-199 only, by a
     rule fixed beforehand (scripts/tune_risk.py, docs/DECISION.md); ``release`` is half of it.

@@ -30,6 +30,7 @@ from __future__ import annotations
 import argparse
 import math
 import shlex
+import statistics
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -42,7 +43,7 @@ from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
 from cdf_mj.planners.base import PLANNERS
 from cdf_mj.presets import load_preset, preset_names
-from cdf_mj.records import completed, record_field
+from cdf_mj.records import completed, is_false_alarm, record_field
 
 PROG = "decision"
 PLANNERS_DEFAULT = ("cdf", "cdf-threshold", "imm-risk", "imm", "cv-risk", "reactive")
@@ -138,19 +139,46 @@ def targets(metrics: dict[str, PlannerMetrics]) -> list[str]:
     return [*lines, ""]
 
 
+def _compare(a: int, b: int) -> str:
+    return "fewer" if a < b else "as many" if a == b else "more"
+
+
 def beats(records: Sequence[dict[str, Any]], metrics: dict[str, PlannerMetrics], other: str) -> str:
-    """Whether ``cdf`` beats ``other`` on both collisions (paper's count) and false alarms."""
+    """``cdf`` against ``other`` on collisions (the paper's count) and false alarms."""
     if "cdf" not in metrics or other not in metrics:
         return ""
     c = paired_counts(records, "cdf", other)
-    fewer_hits = metrics["cdf"].collisions <= metrics[other].collisions
-    fewer_alarms = metrics["cdf"].false_alarms.k < metrics[other].false_alarms.k
+    hits, other_hits = metrics["cdf"].collisions, metrics[other].collisions
+    alarms, other_alarms = metrics["cdf"].false_alarms.k, metrics[other].false_alarms.k
     p_hit = mcnemar_exact(c.hit_only_first, c.hit_only_second)
     p_fa = mcnemar_exact(c.false_alarm_only_first, c.false_alarm_only_second)
-    return (f"cdf against {other} (same rule, other predictor): collisions {metrics['cdf'].collisions} vs "
-            f"{metrics[other].collisions} (McNemar p = {p_hit:.3g}), false alarms "
-            f"{metrics['cdf'].false_alarms.k} vs {metrics[other].false_alarms.k} (p = {p_fa:.3g}): "
-            f"{'beats it on both' if fewer_hits and fewer_alarms else 'does not beat it on both'}.")
+    both = hits < other_hits and alarms < other_alarms
+    neither_worse = hits <= other_hits and alarms <= other_alarms
+    verdict = ("better on both" if both else "no worse on either, better on one" if neither_worse
+               and (hits, alarms) != (other_hits, other_alarms) else "the same" if neither_worse
+               else "worse on at least one")
+    return (f"cdf against {other} (same rule, other predictor): collisions {hits} vs {other_hits} "
+            f"({_compare(hits, other_hits)}; McNemar p = {p_hit:.3g}), false alarms {alarms} vs {other_alarms} "
+            f"({_compare(alarms, other_alarms)}; p = {p_fa:.3g}): {verdict}.")
+
+
+def false_alarm_brakes(records: Sequence[dict[str, Any]], planner: str) -> str:
+    """How long ``planner`` braked in the episodes not labelled Cutoff in which it braked
+    (all its brakes together, to their release or the end) and what they cost."""
+    alarms = [r for r in records if record_field(r, "planner") == planner and is_false_alarm(r)]
+    if not alarms:
+        return ""
+
+    def brakes(r: dict[str, Any]) -> list[list[float | None]]:
+        info = r.get("planner_info") or {}
+        return info.get("brakes") or [[r["brake_time"], None]]  # a held brake: to the end
+
+    held = [sum((end if end is not None else r["end_time"]) - start for start, end in brakes(r)) for r in alarms]
+    released = sum(1 for r in alarms if brakes(r)[-1][1] is not None)
+    plural = "s" if len(alarms) != 1 else ""
+    return (f"{planner}'s {len(alarms)} false alarm{plural}: {released} released by the end; braked for "
+            f"{min(held):.1f}-{max(held):.1f} s in all (median {statistics.median(held):.1f} s); time lost in "
+            f"those episodes {statistics.fmean(r['time_lost'] for r in alarms):.2f} s on average.")
 
 
 def section(part: Part, records: Sequence[dict[str, Any]], failed: int) -> list[str]:
@@ -171,6 +199,8 @@ def section(part: Part, records: Sequence[dict[str, Any]], failed: int) -> list[
         verdict = beats(good, metrics, "imm-risk")
         if verdict:
             lines += [verdict, ""]
+        lines += [f"- {line}" for p in ("cdf", "cdf-threshold") if (line := false_alarm_brakes(good, p))]
+        lines.append("")
     if part.name in ("held-out", "development"):
         lines += targets(metrics)
     return lines

@@ -21,7 +21,7 @@ group         writes (under ``--docs``, default ``docs/img``)
               (held out), then :func:`cdf_mj.experiments.sweep.comparison_figures`
 ``sweeps``    ``analysis/{tau,beta,noise,obs-noise,particles}.png``: ``cdf-mj sweep`` on
               ``--sweep-episodes`` seeds per point
-``frame``     ``frame.png``: seed 1, the CDF, the top camera at 1.5 s, 480 x 360
+``frame``     ``frame.png``: seed 1, the CDF, the default view at 3.0 s, 480 x 360
 ``gif``       ``episode.gif``: the first 4 s of seed 1 with the CDF, 320 x 240 at 10
               frames/s (the README's top picture)
 ============  ============================================================================
@@ -137,7 +137,7 @@ def make_sweeps(opts: Options) -> None:
 
 def make_frame(opts: Options) -> None:
     """docs/img/frame.png: one rendered frame (needs an OpenGL backend: EGL or OSMesa)."""
-    cdf_mj(["render", "--seed", "1", "--planner", "cdf", "--frame", "1.5", "--width", "480",
+    cdf_mj(["render", "--seed", "1", "--planner", "cdf", "--frame", "3.0", "--width", "480",
             "--height", "360", "--out", str(opts.docs / "frame.png")], opts)
 
 

@@ -93,7 +93,7 @@ def test_registered_and_summaries(scene):
     assert rec.planner == "imm"
     assert set(rec.planner_info) >= {"prediction", "decision_time", "history"}
     rec = run_episode(ScenarioConfig(), seed=1, planner="cv", scene=scene, label=False)
-    assert set(rec.planner_info) == {"rule", "decision_time", "release_time", "predicted_conflict_in"}
+    assert set(rec.planner_info) == {"rule", "decision_time", "release_time", "brakes", "predicted_conflict_in"}
     assert rec.planner_info["rule"] == "threshold" and rec.planner_info["release_time"] is None
 
 

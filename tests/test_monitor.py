@@ -177,7 +177,15 @@ def test_trace_round_trip_and_damaged_files(tmp_path: Path):
     np.testing.assert_allclose(trace.poses[3], [monitor.trace[3]["ego"], monitor.trace[3]["obstacle"]])
     assert trace.brake_time == monitor.brake_time and trace.tau == monitor.cdf.tau
     assert trace.ego.wheelbase == 2.7 and trace.posterior["p_cutoff"][-1] == monitor.trace[-1]["posterior"]["p_cutoff"]
+    assert trace.rule == "risk" and trace.threshold == monitor.cdf.risk.brake
+    np.testing.assert_allclose(trace.posterior["risk"], monitor.planner.history["risk"], atol=1e-5)  # 5 decimals
+    np.testing.assert_array_equal(trace.brake, [row["brake"] for row in monitor.trace])
     lines = path.read_text().splitlines()
+    old = tmp_path / "old.jsonl"  # a trace written before the risk rule: no rule, no risk
+    header = {k: v for k, v in json.loads(lines[0]).items() if k not in ("rule", "threshold")}
+    old.write_text("\n".join([json.dumps(header), *(json.dumps({k: v for k, v in json.loads(x).items() if k != "risk"})
+                                                    for x in lines[1:])]) + "\n")
+    assert read_trace(old).rule == "threshold" and read_trace(old).threshold == monitor.cdf.tau
     bad = tmp_path / "bad.jsonl"
     for text, fragment in (
         ("\n".join([lines[0], lines[1], lines[2][:30]]), "bad.jsonl:3: not JSON"),
@@ -189,6 +197,10 @@ def test_trace_round_trip_and_damaged_files(tmp_path: Path):
         ("\n".join([_edit(lines[0], tau=float("nan")), lines[1]]),
          r"bad.jsonl:1: the header's 'tau' must be in \(0, 1\]"),
         ("\n".join([_edit(lines[0], tau=-5), lines[1]]), r"bad.jsonl:1: the header's 'tau' must be in \(0, 1\]"),
+        ("\n".join([_edit(lines[0], threshold=1.5), lines[1]]),
+         r"bad.jsonl:1: the header's 'threshold' must be in \(0, 1\]"),
+        ("\n".join([_edit(lines[0], rule="often"), lines[1]]), "bad.jsonl:1: the header's 'rule' must be"),
+        ("\n".join([lines[0], _edit(lines[1], risk=2.0)]), "bad.jsonl:2: 'posterior' has risk out of range"),
         ("\n".join([_edit(lines[0], names={"nosuch": "x"}), lines[1]]),
          "bad.jsonl:1: the header's 'names' has unknown key.s. nosuch; valid: ego_prefix"),
         ("\n".join([lines[0], _edit(lines[1], posterior={**json.loads(lines[1])["posterior"], "p_left": 7.0})]),

@@ -116,7 +116,7 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
     **info** (after reset and every step): ``posterior`` (dict ``p_left``, ``p_right``,
     ``p_seen``, ``p_cutoff``, ``ess`` of the CDF filter watching the episode, or None with
     ``run_filter=False``; on a collision step it is the one of the previous step),
-    ``brake`` (the CDF would brake: P(cut-off) has reached ``tau``), ``collision``
+    ``brake`` (the CDF would brake now, by its decision rule: ``CDFConfig.decision``), ``collision``
     (None, ``"obstacle"`` or ``"building"``), ``label`` (``Cutoff``/``Yield``/``Right``
     from the constant-speed counterfactual of the same seed, None with ``label=False``),
     ``intent`` (``left``/``right``), ``t`` [s], ``obstacle_in_lane``, ``gap`` [m] between

@@ -73,6 +73,10 @@ class SettingsMismatchError(ValueError):
     differing keys. Nothing is run."""
 
 
+#: Planners built from the experiment's :class:`CDFConfig` (the CDF's filter or its risk rule).
+CDF_CONFIGURED = ("cdf", "cdf-threshold", "imm-risk", "cv-risk")
+
+
 def _factory(name: str, cdf: CDFConfig | None) -> Callable[[], Planner]:
     """A picklable zero-argument planner factory: the CDF with its configuration
     (``cdf-threshold`` with the paper's rule), the ``-risk`` baselines with the CDF's risk

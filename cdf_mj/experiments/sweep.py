@@ -20,8 +20,9 @@ obs-noise   observation noise: ``obs_noise_pos``, ``_heading``,   0.5 1 2 4
 Every point is one :func:`cdf_mj.experiments.experiment.run_experiment` call in its own directory
 ``OUT/<sweep>/<value>/`` (so a point that finished is reused by a later call with the same
 settings, and an interrupted one resumes), on the same seeds for every point (common
-random numbers). Settings that only the CDF reads (``particles``, ``tau``, ``risk``) run the other
-planners once, as references, in ``OUT/<sweep>/reference/`` (reported at the first point),
+random numbers). Settings that only the CDF reads (``particles``, ``tau``, ``risk``) run the
+planners that do not read the CDF's settings (all but ``cdf``, ``cdf-threshold``,
+``imm-risk`` and ``cv-risk``) once, as references, in ``OUT/<sweep>/reference/`` (reported at the first point),
 so that a point's directory holds the same settings whatever the other values are. Each
 sweep writes ``OUT/<sweep>.csv``, ``OUT/<sweep>.md`` (the metrics of
 :func:`cdf_mj.analysis.metrics.planner_metrics` per point and planner) and
@@ -70,6 +71,7 @@ from cdf_mj.analysis.metrics import (
 )
 from cdf_mj.analysis.tables import format_number, format_rate
 from cdf_mj.config import CDFConfig, ScenarioConfig
+from cdf_mj.experiments.experiment import CDF_CONFIGURED
 from cdf_mj.experiments.store import write_atomic
 from cdf_mj.extras import require
 from cdf_mj.records import (
@@ -280,10 +282,13 @@ def run_sweep(name: str, out_dir: str | Path, seeds: Iterable[int], planners: Se
     table: list[_Point] = []
     failures: list[PointFailures] = []
     records_by_value: dict[float, list[RecordLike]] = {}
-    references = [p for p in planners if p != "cdf"] if spec.cdf_only else []
+    # Planners that read the CDF's settings run at every point; the others, for a setting
+    # only those read, run once as references.
+    varied = [p for p in planners if p in CDF_CONFIGURED] if spec.cdf_only else planners
+    references = [p for p in planners if p not in varied]
     for i, (value, cfg, cdf_v) in enumerate(points):
         point = out / name / _value_text(value)
-        names = ["cdf"] if spec.cdf_only else planners
+        names = varied
         if i == 0 and references and _planners_in(point) == list(planners):
             names, references = planners, []  # an earlier version's layout: every planner here
         recs, wall = _run_point(point, seeds, names, cfg, cdf_v, scene, progress, workers)
@@ -368,10 +373,10 @@ def _markdown(spec: SweepSpec, table: list[_Point], extra: dict[str, Any], failu
                  format_number(m.time_lost), format_number(m.brier_left, 3), format_number(m.brier_seen, 3),
                  str(p.failed), format_number(p.wall, 1)]
         lines.append("| " + " | ".join(cells) + " |")
-    others = sorted({_value_text(p.value) for p in table if p.metrics.planner != "cdf"})
+    others = sorted({_value_text(p.value) for p in table if p.metrics.planner not in CDF_CONFIGURED})
     if spec.cdf_only and others:
-        lines += ["", (f"Planners other than `cdf` do not read this setting: they ran once and are "
-                       f"listed at {spec.name} = {', '.join(others)}.")]
+        lines += ["", (f"Planners other than {', '.join(f'`{n}`' for n in CDF_CONFIGURED)} do not read this "
+                       f"setting: they ran once and are listed at {spec.name} = {', '.join(others)}.")]
     if failures:
         lines += ["", f"**{sum(f.failed for f in failures)} episodes failed** and are not in the metrics "
                       "(each failed record holds its error and traceback):"]

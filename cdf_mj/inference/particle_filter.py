@@ -126,7 +126,7 @@ class Posterior:
 def _left_futures(weights: np.ndarray, intent: np.ndarray, mode: np.ndarray, arc: np.ndarray, speed: np.ndarray,
                   theta: np.ndarray, belief: np.ndarray, has_belief: np.ndarray, sees: np.ndarray,
                   conflict_x: float, conflict_y: float, passed_margin: float, s_commit: float, dt: float,
-                  react_ticks: int) -> tuple[np.ndarray, ...]:  # pragma: no cover - compiled
+                  react_ticks: int, ego: np.ndarray) -> tuple[np.ndarray, ...]:  # pragma: no cover - compiled
     """:meth:`ParticleFilter.futures` in one pass over the particles: the weight, arc length
     [m], speed [m/s], acceleration [m/s^2], cruise speed [m/s] and delay [s] of every
     left-turner that may go on (a finite delay and a positive weight). "Held back until
@@ -134,6 +134,9 @@ def _left_futures(weights: np.ndarray, intent: np.ndarray, mode: np.ndarray, arc
     (:func:`cdf_mj.model.driver.road_clear`: passed, or far by distance and gap), per
     particle; tests/test_decision.py checks the two agree."""
     n = weights.shape[0]
+    # Where the ego is, as a driver who looks now would judge it (the clear rule's terms).
+    ego_ahead = (conflict_x - ego[0]) * math.cos(ego[2]) + (conflict_y - ego[1]) * math.sin(ego[2])
+    ego_passed = ego_ahead < -passed_margin
     w_out, s_out, v_out = np.empty(n), np.empty(n), np.empty(n)
     a_out, vm_out, d_out = np.empty(n), np.empty(n), np.empty(n)
     m = 0
@@ -157,9 +160,11 @@ def _left_futures(weights: np.ndarray, intent: np.ndarray, mode: np.ndarray, arc
                         continue
                     delay = max((ahead + passed_margin) / bv, 0.0)
             if md == _WAITING:  # and it leaves at its hazard: within the reaction window, or later
-                delay += dt
                 w *= 1.0 - (1.0 - theta[i, 6]) ** react_ticks
-        if md != _COMMITTED and sees[i]:  # looks ahead of it before its commit point
+        # Looks ahead of it before its commit point stop it only if it would then judge the
+        # ego not clear (a far or passed ego is no reason to yield).
+        seen_clear = ego_passed or (ego_ahead > theta[i, 4] and ego_ahead > theta[i, 3] * max(ego[3], 0.0))
+        if md != _COMMITTED and sees[i] and not seen_clear:
             remaining = max(s_commit - arc[i], 0.0)
             t_commit = (math.sqrt(v * v + 2.0 * a * remaining) - v) / a
             w *= (1.0 - theta[i, 5]) ** math.ceil(t_commit / dt - 1e-9)
@@ -432,19 +437,21 @@ class ParticleFilter:
 
         - committed: goes on (probability 1, now);
         - going: unless it sees the ego on one of the ticks before its commit point,
-          ``(1 - beta_i visible_i)^r``, from now;
+          ``(1 - beta_i visible_i)^r``, from now (a look stops it only where its clear rule
+          would find the ego it sees not clear);
         - yielding with a clear belief: goes again now, with the same looks ahead of it;
         - held back by a belief of an ego coming: goes once that believed (dead-reckoned)
           ego is past the conflict point by ``passed_margin``;
-        - waiting at the line: as the last two, but leaving within the ``react_ticks``
-          ticks after it may (departure hazard), before the ego could react to it.
+        - waiting at the line: as the last two, leaving within the ``react_ticks`` ticks
+          after it may (its departure hazard; the tick it leaves on it moves), before the
+          ego could react to it.
 
         Its own acceleration and turn speed, from its current speed (0 once held back).
         """
         out = _left_futures(self.weights, self.intent, self.mode, self.left_arc(), self.pose[:, 3], self.theta,
                             self.belief, self.has_belief, self.sees_ego(), float(self.model.conflict[0]),
                             float(self.model.conflict[1]), float(self.model.config.passed_margin),
-                            float(self.model.s_commit[_LEFT]), self.scenario.dt, react_ticks)
+                            float(self.model.s_commit[_LEFT]), self.scenario.dt, react_ticks, self._ego_pose())
         return Futures(*out)
 
     # ------------------------------------------------------------------ one tick

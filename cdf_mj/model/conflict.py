@@ -6,11 +6,12 @@ collision boxes overlap depends only on two arc lengths: ``s`` of the obstacle o
 left route and ``q`` of the ego on its route. :class:`ConflictMap` tabulates, for every
 ``s`` (0.1 m apart, the route extended straight past its end), the interval
 ``[q_lo(s), q_hi(s)]`` of the ego's arc lengths at which the boxes (each widened by a
-margin) overlap: one table per junction and pair of cars, built once (tens of ms) and
-cached. The *conflict zone* is the stretch of the ego's route that the obstacle sweeps
-while it turns in: the ego's arc lengths at which its box overlaps the obstacle's
-anywhere from the obstacle's first overlap with the ego's path until its rear axle
-reaches the conflict point.
+margin) overlap: one table per junction and pair of cars, built once (about half a
+second for the package's junction, whose routes run 150 m on) and cached per layout. The
+*conflict zone* is the stretch of the ego's route that the obstacle sweeps while it
+turns in: the ego's arc lengths at which its box overlaps the obstacle's anywhere from
+the obstacle's first overlap with the ego's path until its rear axle reaches the
+conflict point.
 
 :class:`Futures` are weighted hypotheses of the obstacle's motion along that route
 (arc length, speed, acceleration up to a cruise speed, a delay before it moves), as a
@@ -83,10 +84,16 @@ def route_poses(route: Polyline, s: np.ndarray, window: float = 0.5) -> np.ndarr
     return out
 
 
-def _reach(car: CarGeometry, margin: float) -> float:
-    """[m] the furthest a corner of the widened box lies from the rear axle."""
-    return float(np.hypot(np.abs(car.hull_offset[0]) + car.hull_half[0] + margin,
-                          np.abs(car.hull_offset[1]) + car.hull_half[1] + margin))
+def _reach_centre(car: CarGeometry) -> float:
+    """[m] half the diagonal of the car's collision box."""
+    return float(np.hypot(*car.hull_half))
+
+
+def _centres(car: CarGeometry, poses: np.ndarray) -> np.ndarray:
+    """Centres ``(len(poses), 2)`` [m] of the car's collision box at rear-axle poses."""
+    c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+    ox, oy = car.hull_offset
+    return np.column_stack([poses[:, 0] + c * ox - s * oy, poses[:, 1] + s * ox + c * oy])
 
 
 @dataclass(frozen=True, eq=False)
@@ -120,13 +127,15 @@ class ConflictMap:
         obs, ego = route_poses(left, s), route_poses(ego_route, q)
         wide_obs = widened(layout.obstacle, margin)
         wide_ego = widened(layout.ego, margin)
-        # Candidate pairs: rear axles within both reaches; then the exact box test on those.
-        reach = _reach(layout.obstacle, margin) + _reach(layout.ego, margin)
+        # Candidate pairs: box centres within the sum of the half diagonals; then the exact
+        # box test on those.
+        reach = _reach_centre(wide_obs) + _reach_centre(wide_ego)
+        obs_c, ego_c = _centres(wide_obs, obs), _centres(wide_ego, ego)
         q_lo = np.full(len(s), np.inf)
         q_hi = np.full(len(s), -np.inf)
         for start in range(0, len(s), 256):  # (256, len(q)) distances at a time
             block = obs[start:start + 256]
-            d2 = ((block[:, None, :2] - ego[None, :, :2]) ** 2).sum(-1)
+            d2 = ((obs_c[start:start + 256, None, :] - ego_c[None, :, :]) ** 2).sum(-1)
             js, is_ = np.nonzero(d2 <= reach * reach)
             if js.size == 0:
                 continue

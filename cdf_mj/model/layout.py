@@ -93,7 +93,10 @@ class Layout:
 
     def with_cars(self, ego: CarGeometry | None = None,
                   obstacle: CarGeometry | None = None) -> Layout:
-        """This junction with other cars (``None`` keeps a car's geometry)."""
+        """This junction with other cars (``None`` keeps a car's geometry; both ``None``: this
+        very layout, so that what is cached per layout stays cached)."""
+        if ego is None and obstacle is None:
+            return self
         return dataclasses.replace(self, ego=ego if ego is not None else self.ego,
                                    obstacle=obstacle if obstacle is not None else self.obstacle)
 

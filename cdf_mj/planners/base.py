@@ -35,13 +35,15 @@ import importlib
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, ClassVar, Protocol
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol
 
 import numpy as np
 
 from cdf_mj.config import ScenarioConfig
-from cdf_mj.model.conflict import Futures
 from cdf_mj.model.layout import Layout
+
+if TYPE_CHECKING:  # annotations only: registering a planner imports no compiled kernel
+    from cdf_mj.model.conflict import Futures
 
 __all__ = ["PLANNERS", "DecidingPlanner", "DecisionRule", "LazyPlanner", "Planner", "PlannerInput",
            "Predictor", "ThresholdRule", "make_planner", "predicted_label", "register"]
@@ -156,7 +158,8 @@ class DecidingPlanner(Planner):
     :class:`~cdf_mj.planners.decision.RiskRule`). ``rule`` decides from them each tick
     (:mod:`cdf_mj.planners.decision`). A rule that releases (``rule.releases``) may end a
     brake it started; otherwise the first brake is held to the end. ``decision_time`` [s]
-    is the first tick that braked, ``release_time`` [s] the first that released.
+    is the first tick that braked; ``brakes`` lists each brake as ``[start, end]`` [s]
+    (``end`` None while it lasts), ``release_time`` is the last end.
     """
 
     #: Per-tick values kept in ``history`` besides the time ``t`` (and the rule's own).
@@ -173,7 +176,7 @@ class DecidingPlanner(Planner):
     def reset(self, layout: Layout, config: ScenarioConfig, rng: np.random.Generator) -> None:
         """Forget the last episode: no decision, an empty history; the rule reset on ``layout``."""
         self.decision_time: float | None = None
-        self.release_time: float | None = None
+        self.brakes: list[list[float | None]] = []  # [start, end] [s] of each brake; end None while braking
         self.braking = False
         self.rule.reset(layout, config)
         self.history: dict[str, list[float]] = {
@@ -205,10 +208,17 @@ class DecidingPlanner(Planner):
             wants = wants or self.braking
         if wants and self.decision_time is None:
             self.decision_time = obs.t
-        if self.braking and not wants and self.release_time is None:
-            self.release_time = obs.t
+        if wants and not self.braking:
+            self.brakes.append([obs.t, None])
+        elif self.braking and not wants:
+            self.brakes[-1][1] = obs.t
         self.braking = wants
         return wants
+
+    @property
+    def release_time(self) -> float | None:
+        """[s] when the last brake was released; None if the ego never braked or brakes now."""
+        return self.brakes[-1][1] if self.brakes else None
 
     def record(self, t: float, **values: float) -> None:
         """Append one tick to ``history``: time ``t`` [s] and each of ``history_keys``,
@@ -219,10 +229,10 @@ class DecidingPlanner(Planner):
 
     def summary(self) -> dict[str, Any]:
         """The prediction (:func:`predicted_label` from the recorded ``p_left``), the decision
-        rule, the decision and release times and the history."""
+        rule, the decision and (last) release times, the brakes and the history."""
         return {"prediction": predicted_label(self.decision_time, self.history.get("p_left", [])),
                 "rule": self.rule.name, "decision_time": self.decision_time,
-                "release_time": self.release_time, "history": self.history}
+                "release_time": self.release_time, "brakes": self.brakes, "history": self.history}
 
 
 def predicted_label(decision_time: float | None, p_left: Sequence[float]) -> str:

@@ -14,8 +14,10 @@ imm         intent-only estimator: filterpy's ``IMMEstimator`` over one Kalman f
 ==========  ===========================================================================
 
 Both see what every planner sees (:class:`cdf_mj.planners.PlannerInput`: the measured
-system pose), predict the ego holding its speed along its heading, and latch their
-decision (:class:`cdf_mj.planners.base.DecidingPlanner`). Their parameters are the frozen
+system pose), predict the ego holding its speed along its heading, and hold their
+brake once decided (:class:`cdf_mj.planners.base.DecidingPlanner` with the threshold
+rule); ``cv-risk`` and ``imm-risk`` decide with the risk rule instead
+(:mod:`cdf_mj.planners.decision`). Their parameters are the frozen
 dataclasses :class:`CVConfig` and :class:`IMMConfig`; the defaults were chosen on seeds
 0-199 only (docs/ANALYSIS.md says how). :mod:`cdf_mj.planners.base` registers both names
 (this module, and filterpy, load on first use), so ``cdf-mj experiment --planners
@@ -227,6 +229,7 @@ class CVPlanner(DecidingPlanner):
     def observe(self, obs: PlannerInput) -> None:
         """Predict the conflict (until the decision, for the threshold rule); keep the
         obstacle's pose for its straight-line future."""
+        self.record(obs.t)
         self._obstacle_pose = obs.poses[1]
         if self.decision_time is None and not self.rule.releases:
             self.conflict_in = self.time_to_conflict(obs.poses)
@@ -242,9 +245,11 @@ class CVPlanner(DecidingPlanner):
         return straight_path(self._obstacle_pose, np.arange(1, n + 1) * self._dt)
 
     def summary(self) -> dict[str, Any]:
-        """Rule, decision and release times [s] and the time to conflict [s] predicted then."""
-        return {"rule": self.rule.name, "decision_time": self.decision_time,
-                "release_time": self.release_time, "predicted_conflict_in": self.conflict_in}
+        """Rule, decision and release times [s], the brakes, the time to conflict [s]
+        predicted at the decision (threshold rule) and, with the risk rule, its history."""
+        info = {"rule": self.rule.name, "decision_time": self.decision_time, "release_time": self.release_time,
+                "brakes": self.brakes, "predicted_conflict_in": self.conflict_in}
+        return {**info, "history": self.history} if self.rule.releases else info
 
 
 class CVRiskPlanner(CVPlanner):

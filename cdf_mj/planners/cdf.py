@@ -82,7 +82,9 @@ class CDFPlanner(DecidingPlanner):
     def futures(self, react_ticks: int) -> Futures:
         """The filter's futures of this tick (taken before the particles moved on)."""
         if self._futures is None:
-            raise RuntimeError("no filter tick yet: call brake() first")
+            raise RuntimeError("no futures: they are taken for the risk rule, after a filter tick (brake())"
+                               if self.rule.releases else
+                               "no futures: this CDF decides with the threshold rule, which reads P(cutoff)")
         return self._futures
 
     def summary(self) -> dict[str, Any]:

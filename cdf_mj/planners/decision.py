@@ -10,10 +10,11 @@ ThresholdRule     the paper's rule: brake once the predictor's own alarm probabi
                   reaches a threshold, and hold the brake to the end
 RiskRule          brake at the last safe moment: when the probability of a collision that
                   deferring the brake by one more decision interval (plus a latency
-                  margin) would make unavoidable reaches ``RiskConfig.brake``; release the
+                  margin) would make unavoidable reaches ``RiskConfig.brake`` and braking
+                  now is no riskier; release the
                   brake, back to the nominal speed, once that risk of going on is below
-                  ``RiskConfig.release`` (inside the conflict zone: once going on is
-                  less risky than staying there)
+                  ``RiskConfig.release``, or, inside the conflict zone, once it is below
+                  the risk of staying there
 ================  ==========================================================================
 
 The risk rule rolls the predictor's hypotheses forward
@@ -22,8 +23,8 @@ predicted path of poses) against three plans of the ego on its route: going on
 (``GO``), going on for ``n_defer`` ticks then braking (``DEFER``), braking now
 (``BRAKE``). A hypothesis is *unavoidable if deferred* when it collides under both GO
 and DEFER: the ego could neither pass first nor stop in time after waiting. The ego
-brakes when the weight of those reaches ``brake`` and braking now collides with less
-weight than going on. Any predictor that gives futures runs with it, so a comparison
+brakes when the weight of those reaches ``brake`` and braking now collides with no more
+weight. Any predictor that gives futures runs with it, so a comparison
 of ``cdf`` with ``imm-risk`` isolates the prediction.
 
 Frames and units: world frame, metres, seconds; probabilities in [0, 1].
@@ -61,6 +62,11 @@ _INDEX = np.arange(1 << 3)
 _DEFERRED = (_INDEX & ((1 << GO) | (1 << DEFER))) == ((1 << GO) | (1 << DEFER))
 _BRAKES = (_INDEX & (1 << BRAKE)) != 0
 _GOES = (_INDEX & (1 << GO)) != 0
+
+def _unit(total: float) -> float:
+    """A probability summed from weights, clipped into [0, 1] against rounding."""
+    return min(max(float(total), 0.0), 1.0)
+
 
 __all__ = ["Assessment", "DecisionRule", "Predictor", "RiskRule", "ThresholdRule", "rollout_assessment"]
 
@@ -111,8 +117,13 @@ class RiskRule:
         self._dt = config.dt
         self._steps = max(1, math.ceil(cfg.horizon / config.dt - 1e-9))
         self._defer = 1 + math.ceil(cfg.latency / config.dt - 1e-9)
-        self._nominal = (config.ego_speed, config.ego_speed_gain, layout.ego.max_accel,
-                         self.ego_brake if self.ego_brake is not None else layout.ego.max_brake)
+        brake = self.ego_brake if self.ego_brake is not None else layout.ego.max_brake
+        self._nominal = (config.ego_speed, config.ego_speed_gain, layout.ego.max_accel, brake)
+        need = self._defer * config.dt + config.ego_speed / brake  # [s] to defer, then stop from v_nominal
+        if cfg.horizon < need:
+            raise ValueError(f"RiskConfig.horizon={cfg.horizon:g} s is shorter than the {need:.2f} s the ego "
+                             f"needs to defer and then stop from {config.ego_speed:g} m/s: collisions after "
+                             "the horizon would go unseen; give a longer horizon")
         self.last = None
 
     def plans(self, ego_pose: np.ndarray) -> np.ndarray:
@@ -133,9 +144,9 @@ class RiskRule:
                                  self.map.q_lo_ahead, lazy, gate)
         else:
             m = self._path_masses(plans, np.asarray(futures, dtype=float))
-        return Assessment(deferred=float(m[_DEFERRED].sum()), brake=float(m[_BRAKES].sum()),
+        return Assessment(deferred=_unit(m[_DEFERRED].sum()), brake=_unit(m[_BRAKES].sum()),
                           inside=self.map.inside(self.map.ego_arc(ego_pose)),
-                          go=float(m[_GOES].sum()) if exact else math.nan)
+                          go=_unit(m[_GOES].sum()) if exact else math.nan)
 
     def _path_masses(self, plans: np.ndarray, path: np.ndarray) -> np.ndarray:
         """:func:`collision_masses` for one predicted obstacle path ``(K', 4)`` at ticks 1..K'."""
@@ -154,15 +165,16 @@ class RiskRule:
         return out
 
     def decide(self, predictor: Predictor, ego_pose: np.ndarray, braking: bool) -> bool:
-        """Brake when the deferred risk reaches ``brake`` and braking now is less risky.
-        Once braking, release when that risk is below ``release``; inside the conflict
-        zone, release as soon as going on is less risky than staying (an ego stopped in
-        the zone waits for whoever crosses it next; where both collide it keeps braking)."""
+        """Brake when the deferred risk reaches ``brake`` and braking now is no riskier (where
+        every hypothesis collides whatever the ego does, braking at least lowers the speed).
+        Once braking, release when that risk is below ``release``, or, inside the conflict
+        zone, as soon as it is below the risk of staying (braking on): an ego stopped in
+        the zone waits for whoever crosses it next. Where both are certain it brakes on."""
         a = self.last = self.assess(ego_pose, predictor.futures(self._defer))
         if braking:
-            release = a.deferred < a.brake if a.inside else a.deferred < self.config.release
+            release = a.deferred < self.config.release or (a.inside and a.deferred < a.brake)
             return not release
-        return a.deferred >= self.config.brake and a.brake < a.deferred
+        return a.deferred >= self.config.brake and a.brake <= a.deferred
 
     def values(self) -> dict[str, float]:
         """``risk``: this tick's probability of a collision made unavoidable by deferring."""

@@ -215,8 +215,9 @@ class CDFMonitor:
         self.decision = Decision(t=t, poses=poses, posterior=post, brake=brake,
                                  brake_time=self.brake_time)
         if self.record_trace:
-            self.trace.append({"t": t, "ego": poses[0].tolist(), "obstacle": poses[1].tolist(),
-                               "posterior": post.to_dict(), "brake": self.decision.brake})
+            row = {"t": t, "ego": poses[0].tolist(), "obstacle": poses[1].tolist(),
+                   "posterior": post.to_dict(), "brake": self.decision.brake}
+            self.trace.append(row | {k: float(v) for k, v in self.planner.rule.values().items()})
         return self.decision
 
     @property
@@ -251,16 +252,21 @@ class CDFMonitor:
 
     # ------------------------------------------------------------------ trace
     def trace_header(self) -> dict[str, Any]:
-        """The first line of a trace file: format, scene names, configs, car geometries."""
+        """The first line of a trace file: format, scene names, configs, the decision rule and
+        the threshold of what it brakes on (``risk`` for the risk rule, P(cutoff) for the
+        threshold rule), car geometries."""
         return {"format": TRACE_FORMAT, "names": _jsonable(self.scenario.names),
                 "scenario": _jsonable(self.scenario), "cdf": _jsonable(self.cdf),
-                "tau": float(self.cdf.tau), "ego": self.layout.ego.to_dict(),
+                "tau": float(self.cdf.tau), "rule": self.planner.rule.name,
+                "threshold": float(self.cdf.risk.brake if self.cdf.decision == "risk" else self.cdf.tau),
+                "ego": self.layout.ego.to_dict(),
                 "obstacle": self.layout.obstacle.to_dict()}
 
     def save_trace(self, path: str | Path) -> Path:
         """Write the trace since the last :meth:`reset` as JSON lines: the header
         (:meth:`trace_header`), then one object per observation ``{"t", "ego", "obstacle",
-        "posterior", "brake"}``. The file appears complete or not at all."""
+        "posterior", "brake"}`` (and ``"risk"`` with the risk rule). The file appears complete
+        or not at all."""
         path = Path(path)
         lines = [json.dumps(self.trace_header(), allow_nan=False)]
         lines += [json.dumps(row, allow_nan=False) for row in self.trace]
@@ -460,7 +466,9 @@ class MonitorTrace:
 
     ``times`` (K,) [s]; ``poses`` (K, 2, 4) rear-axle ``[x m, y m, yaw rad, v m/s]`` of ego
     and obstacle, world frame; ``posterior`` maps ``t`` and each probability (``p_left``,
-    ``p_right``, ``p_seen``, ``p_cutoff``, ``ess``) to (K,) arrays.
+    ``p_right``, ``p_seen``, ``p_cutoff``, ``ess``, and ``risk`` for the risk rule) to (K,)
+    arrays. ``rule`` is the decision rule (``threshold`` for traces written before the
+    risk rule) and ``threshold`` the value at which it brakes on its quantity.
     """
 
     path: Path
@@ -472,7 +480,9 @@ class MonitorTrace:
     times: np.ndarray
     poses: np.ndarray
     posterior: dict[str, np.ndarray]
-    brake: np.ndarray  # (K,) bool: latched brake decision per observation
+    brake: np.ndarray  # (K,) bool: the brake decision per observation
+    rule: str = "threshold"
+    threshold: float = math.nan
 
     @property
     def brake_time(self) -> float | None:
@@ -524,20 +534,26 @@ def read_trace(path: str | Path) -> MonitorTrace:
         raise TraceError(f"{path}:{no}: the header lacks {exc.args[0]!r}") from None
     except (TypeError, ValueError) as exc:
         raise TraceError(f"{path}:{no}: bad header: {' '.join(str(exc).split())}") from None
-    if not (math.isfinite(tau) and 0.0 < tau <= 1.0):
-        raise TraceError(f"{path}:{no}: the header's 'tau' must be in (0, 1], got {header['tau']!r}")
+    rule, threshold = header.get("rule", "threshold"), header.get("threshold", tau)
+    for key, value in (("tau", tau), ("threshold", threshold)):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+                math.isfinite(value) and 0.0 < value <= 1.0):
+            raise TraceError(f"{path}:{no}: the header's {key!r} must be in (0, 1], got {header.get(key, value)!r}")
+    if rule not in ("threshold", "risk"):
+        raise TraceError(f"{path}:{no}: the header's 'rule' must be 'threshold' or 'risk', got {rule!r}")
+    keys = (*_POSTERIOR_KEYS, "risk") if rule == "risk" else _POSTERIOR_KEYS
     if len(rows) < 2:
         raise TraceError(f"{path}:{no}: the trace has no observation after its header")
     times: list[float] = []
     poses: list[np.ndarray] = []
     brake: list[bool] = []
-    post: dict[str, list[float]] = {k: [] for k in _POSTERIOR_KEYS}
+    post: dict[str, list[float]] = {k: [] for k in keys}
     for no, row in rows[1:]:
         try:
             t = float(row["t"])
             pose = np.array([row["ego"], row["obstacle"]], dtype=float)
-            p = row["posterior"]
-            values = [float(p[k]) for k in _POSTERIOR_KEYS]
+            p = {**row["posterior"], **({"risk": row["risk"]} if rule == "risk" else {})}
+            values = [float(p[k]) for k in keys]
             b = row["brake"]
         except KeyError as exc:
             raise TraceError(f"{path}:{no}: the observation lacks {exc.args[0]!r}") from None
@@ -550,7 +566,7 @@ def read_trace(path: str | Path) -> MonitorTrace:
             raise TraceError(f"{path}:{no}: time {t:g} s does not follow {times[-1]:g} s")
         if not isinstance(b, bool):
             raise TraceError(f"{path}:{no}: 'brake' must be true or false, got {b!r}")
-        bad = [k for k, v in zip(_POSTERIOR_KEYS, values, strict=True)
+        bad = [k for k, v in zip(keys, values, strict=True)
                if not math.isfinite(v) or (v < 0.0 if k == "ess" else not 0.0 <= v <= 1.0)]
         if bad:
             raise TraceError(f"{path}:{no}: 'posterior' has {', '.join(bad)} out of range "
@@ -558,9 +574,9 @@ def read_trace(path: str | Path) -> MonitorTrace:
         times.append(t)
         poses.append(pose)
         brake.append(b)
-        for k, v in zip(_POSTERIOR_KEYS, values, strict=True):
+        for k, v in zip(keys, values, strict=True):
             post[k].append(v)
     posterior = {"t": np.array(times)} | {k: np.array(v) for k, v in post.items()}
     return MonitorTrace(path=path, header=header, names=names, ego=ego, obstacle=obstacle, tau=tau,
                         times=np.array(times), poses=np.array(poses), posterior=posterior,
-                        brake=np.array(brake, dtype=bool))
+                        brake=np.array(brake, dtype=bool), rule=rule, threshold=float(threshold))

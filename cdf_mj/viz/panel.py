@@ -399,7 +399,7 @@ class SidePanel:
             if self.replay.tau is not None:
                 y = self.rows_prob[len(self.keys)]
                 x = self._swatch(img, pad, y, _rgb(self.keys[-1]) // 2 + 60, dashed=True)
-                items.append((x, y, f"tau {self.replay.tau:g}: brakes when {_LABELS[self.keys[-1]]} "
+                items.append((x, y, f"threshold {self.replay.tau:g}: brakes when {_LABELS[self.keys[-1]]} "
                                     "reaches it", _TEXT, "lm"))
             self._axes(img, self.prob_box, [(0.0, "0"), (0.5, "0.5"), (1.0, "1")], 1.0, items)
         else:

@@ -137,8 +137,9 @@ def _replay(trace: MonitorTrace) -> Replay:
     k = len(trace.times)
     return Replay(record=record, label=None, times=times, poses=poses, seen=np.zeros(k, dtype=bool),
                   belief=np.zeros((k, 4)), particles=None,
-                  posterior={key: trace.posterior[key] for key in ("t", "p_left", "p_seen", "p_cutoff")},
-                  tau=trace.tau)
+                  posterior={key: trace.posterior[key] for key in ("t", "p_left", "p_seen", "p_cutoff", "risk")
+                             if key in trace.posterior},
+                  tau=trace.threshold)
 
 
 def render_trace(trace: str | Path, scene: str | Path, out: str | Path, *,
