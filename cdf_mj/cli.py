@@ -451,6 +451,7 @@ def _add_reproduce(subparsers: argparse._SubParsersAction) -> None:
     p = _command(
         subparsers, "reproduce", summary="the paper's experiment: 1000 episodes, CDF and reactive",
         description="The paper's experiment with the default settings: seeds 0-999, the CDF "
+                    "(with its risk rule; --planners cdf-threshold,reactive for the paper's rule) "
                     "and the reactive planner on the same seeds, both tables. The same command "
                     "again continues an interrupted run, or only prints the tables of a finished one.")
     _add_experiment_arguments(p, episodes=1000, out="results/reproduce")

@@ -328,8 +328,8 @@ class RiskConfig:
     rule fixed beforehand (scripts/tune_risk.py, docs/DECISION.md); ``release`` is half of it.
     """
 
-    brake: float = 0.3  # brake when P(collision if braking is deferred) >= this, in (0, 1]
-    release: float = 0.15  # release when that risk falls below this, in (0, brake]
+    brake: float = 0.5  # brake when P(collision if braking is deferred) >= this, in (0, 1]
+    release: float = 0.25  # release when that risk falls below this, in (0, brake]
     latency: float = 0.1  # [s] margin on top of one decision interval before the brake acts
     horizon: float = 5.0  # [s] look-ahead of the rollouts
     margin: float = 0.3  # [m] added to each half size of both collision boxes

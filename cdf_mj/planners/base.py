@@ -184,7 +184,9 @@ class DecidingPlanner(Planner):
 
     def observe(self, obs: PlannerInput) -> None:
         """One prediction tick on this tick's measurement."""
-        raise NotImplementedError
+        raise NotImplementedError(f"{type(self).__name__} must implement observe(obs) and alarm() (a "
+                                  "DecidingPlanner is a predictor; its rule decides: the decide(obs) hook "
+                                  "of version 0.1 became observe(obs) + alarm() >= the rule's threshold)")
 
     def alarm(self) -> float:
         """The predictor's own probability [0, 1] that the obstacle cuts the ego off, now."""

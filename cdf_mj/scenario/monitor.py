@@ -140,6 +140,12 @@ class CDFMonitor:
             layout's, which is our car's for a layout built by hand).
         source: where :meth:`step` reads time and poses (set by :func:`attach`).
 
+    The decision rule assumes that its decisions are carried out: the ego brakes at its
+    car's maximum rate when ``Decision.brake`` is true and otherwise holds or regains its
+    nominal speed (``scenario.ego_speed``); its release and its plans reason about that
+    ego. An ego that does not follow them makes the risk estimates of later ticks those of
+    an ego it is not.
+
     :meth:`observe` must be called every ``scenario.dt`` of simulated time (to
     :data:`TIME_TOLERANCE`): the filter's dynamics assume that tick, so a simulation whose
     timestep does not divide ``dt`` is refused, not followed. After resetting your
