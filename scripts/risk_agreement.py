@@ -23,25 +23,11 @@ import time
 import numpy as np
 
 from cdf_mj.config import CDFConfig, ScenarioConfig
-from cdf_mj.model.conflict import Futures
 from cdf_mj.model.driver import ego_control
 from cdf_mj.planners.cdf import CDFPlanner
-from cdf_mj.planners.decision import RiskRule, rollout_assessment
+from cdf_mj.planners.decision import GivenFutures, RiskRule, rollout_assessment
 from cdf_mj.scenario.world import World
 from cdf_mj.sim.scene import Scene
-
-
-class _Fixed:
-    """A predictor that gives the futures it was made with (the filter's of this tick)."""
-
-    def __init__(self, futures: Futures) -> None:
-        self._futures = futures
-
-    def alarm(self) -> float:
-        return 0.0
-
-    def futures(self, react_ticks: int) -> Futures:
-        return self._futures
 
 
 def _seeds(text: str) -> range:
@@ -77,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
             else:
                 pf.update(m.poses)
             t0 = time.perf_counter()
-            braking = rule.decide(_Fixed(pf.futures(rule.react_ticks)), m.poses[0], braking)
+            braking = rule.decide(GivenFutures(pf.futures(rule.react_ticks)), m.poses[0], braking)
             t1 = time.perf_counter()
             a = rule.last
             assert a is not None

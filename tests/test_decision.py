@@ -22,7 +22,7 @@ from cdf_mj.model.geometry import boxes_overlap
 from cdf_mj.model.layout import Layout
 from cdf_mj.planners import CDFPlanner
 from cdf_mj.planners.base import PLANNERS, DecidingPlanner, PlannerInput, ThresholdRule, make_planner
-from cdf_mj.planners.decision import RiskRule, rollout_assessment
+from cdf_mj.planners.decision import GivenFutures, RiskRule, rollout_assessment
 from cdf_mj.scenario.episode import run_episode
 from cdf_mj.scenario.world import World
 from cdf_mj.sim.scene import Scene
@@ -376,19 +376,6 @@ def test_the_decision_report_runs_end_to_end_and_refuses_bad_parts(tmp_path: Pat
     assert not (tmp_path / "r2").exists() and not (tmp_path / "D2.md").exists()
 
 
-class _Given:
-    """A predictor whose futures are given."""
-
-    def __init__(self, futures: Futures) -> None:
-        self._futures = futures
-
-    def alarm(self) -> float:
-        return 0.0
-
-    def futures(self, react_ticks: int) -> Futures:
-        return self._futures
-
-
 def _one(s: float, v: float, accel: float = 0.0, v_max: float | None = None) -> Futures:
     one = np.ones(1)
     return Futures(weight=one, s=one * s, v=one * v, accel=one * accel, v_max=one * (v if v_max is None else v_max),
@@ -406,7 +393,7 @@ def test_decide_brakes_at_the_last_safe_moment_and_releases(layouts: dict[str, L
     rule.reset(layout, ScenarioConfig())
     q_conflict = float(layout.route_ego.project(layout.conflict)[0])
     s_conflict = float(layout.route_left.project(layout.conflict)[0])
-    crossing = _Given(_one(s_conflict - 4.0, 3.0, accel=2.0, v_max=8.0))
+    crossing = GivenFutures(_one(s_conflict - 4.0, 3.0, accel=2.0, v_max=8.0))
 
     def ego_at(q: float, v: float) -> np.ndarray:
         pose = route_poses(layout.route_ego, np.array([q]))[0]
@@ -418,13 +405,13 @@ def test_decide_brakes_at_the_last_safe_moment_and_releases(layouts: dict[str, L
     assert all(not brake for d, brake in decisions if d > first + 1e-9)
     a = rule.assess(ego_at(q_conflict - first, 13.4), crossing.futures(1), exact=True)
     assert a.deferred >= RiskConfig().brake and a.brake == 0.0 and a.go == 1.0, (first, a)
-    nothing = _Given(Futures.empty())
+    nothing = GivenFutures(Futures.empty())
     assert not rule.decide(nothing, ego_at(q_conflict - first, 13.4), True)  # released outside the zone
     inside = rule.map.zone[0] + 0.5
     assert rule.map.inside(inside)
     assert not rule.decide(nothing, ego_at(inside, 0.0), True)  # released inside the zone
     s_ahead = s_conflict + 12.0  # a car standing in the lane, just ahead of the stopped ego
-    standing = _Given(_one(s_ahead, 0.0))
+    standing = GivenFutures(_one(s_ahead, 0.0))
     blocked = rule.map.q_lo[int(s_ahead / rule.map.ds + 0.5)]
     a = rule.assess(ego_at(blocked - 10.0, 13.4), standing.futures(1), exact=True)
     assert a.deferred == a.brake == a.go == 1.0  # too close to stop: every plan hits it

@@ -68,7 +68,7 @@ def _unit(total: float) -> float:
     return min(max(float(total), 0.0), 1.0)
 
 
-__all__ = ["Assessment", "DecisionRule", "Predictor", "RiskRule", "ThresholdRule", "rollout_assessment"]
+__all__ = ["Assessment", "DecisionRule", "GivenFutures", "Predictor", "RiskRule", "ThresholdRule", "rollout_assessment"]
 
 
 @dataclass(frozen=True)
@@ -80,6 +80,23 @@ class Assessment:
     brake: float  # collides when the ego brakes now
     inside: bool  # the ego is inside the conflict zone
     go: float = math.nan  # collides when the ego goes on (NaN unless assessed with exact=True)
+
+
+class GivenFutures:
+    """A predictor whose futures are given: to ask a rule what it decides for hypotheses
+    of your own (tests, scripts, another estimator). ``alarm()`` is 0 (it predicts no
+    cut-off of its own for the threshold rule)."""
+
+    def __init__(self, futures: Futures | np.ndarray) -> None:
+        self._futures = futures
+
+    def alarm(self) -> float:
+        """No alarm of its own."""
+        return 0.0
+
+    def futures(self, react_ticks: int) -> Futures | np.ndarray:
+        """The futures it was given."""
+        return self._futures
 
 
 class RiskRule:
