@@ -18,10 +18,11 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import shapely
 
 from cdf_mj.config import ScenarioConfig
 from cdf_mj.model.driver import DriverModel, Intent, Mode, obstacle_control, road_clear, update_belief
+from cdf_mj.model.geometry import box_corners_one, box_gap
+from cdf_mj.model.vehicle import CarGeometry
 from cdf_mj.sim.scene import Scene, SimulationDivergedError
 from cdf_mj.sim.visibility import ego_visible
 
@@ -69,6 +70,24 @@ def _streams(seed: int) -> dict[str, np.random.Generator]:
     # the first four streams, and so every earlier seed's draws, as they were.
     names = ("scenario", "obstacle", "ego", "planner", "departure")
     return {n: np.random.Generator(np.random.PCG64(s)) for n, s in zip(names, ss.spawn(len(names)), strict=True)}
+
+
+def _hull_box(car: CarGeometry) -> tuple[float, float, float, float]:
+    """The collision box's centre in the chassis frame and half sizes, ``(ox, oy, hx, hy)``
+    [m], as Python floats for :func:`_hull`."""
+    (ox, oy), (hx, hy) = car.hull_offset.tolist(), car.hull_half.tolist()
+    return ox, oy, hx, hy
+
+
+def _hull(box: tuple[float, float, float, float], x: float, y: float,
+          theta: float) -> list[tuple[float, float]]:
+    """Corners ``(x, y)`` [m, world frame] of a car's collision box (``box`` from
+    :func:`_hull_box`) at rear-axle pose ``x, y`` [m], ``theta`` [rad]: what
+    :meth:`~cdf_mj.model.vehicle.CarGeometry.footprint` gives, the same operations on
+    Python floats (a few microseconds less per call, twice a tick)."""
+    ox, oy, hx, hy = box
+    c, s = math.cos(theta), math.sin(theta)
+    return box_corners_one(x + c * ox - s * oy, y + s * ox + c * oy, c, s, hx, hy)
 
 
 def _substeps(scene: Scene, config: ScenarioConfig) -> int:
@@ -128,6 +147,7 @@ class World:
         self._obs_std = np.array([config.obs_noise_pos, config.obs_noise_pos,
                                   config.obs_noise_heading, config.obs_noise_speed])
         self._nu_std = np.array([config.noise_accel, config.noise_steer])
+        self._ego_box, self._obstacle_box = _hull_box(layout.ego), _hull_box(layout.obstacle)
         self._s0 = layout.route_ego.project(layout.ego_start[:2])[0]
         self._s_conflict = layout.route_ego.project(layout.conflict)[0]
         if config.hesitation > 0.0:  # a stop past the commit point would never happen
@@ -209,12 +229,14 @@ class World:
             return self._measured
         scene = self.scene
         poses = scene.poses()
-        if not np.all(np.isfinite(poses)):
+        (ex, ey, eth, _), (ox, oy, oth, _) = values = poses.tolist()
+        if not all(math.isfinite(v) for v in (*values[0], *values[1])):
             raise NonFiniteStateError(f"non-finite system pose at t={self.t:.1f} s "
-                                      f"(seed {self.seed}): {poses.tolist()}")
-        hull = self.layout.obstacle.footprint(poses[1])
-        in_lane = bool(self.layout.ego_lane.contains(hull).any())
-        self._hull = hull
+                                      f"(seed {self.seed}): {values}")
+        # Both collision boxes: the obstacle's for the lane test, both for the gap in step().
+        self._hull = _hull(self._obstacle_box, ox, oy, oth)
+        self._ego_hull = _hull(self._ego_box, ex, ey, eth)
+        in_lane = self.layout.ego_lane.contains_any(self._hull)
         self._measured = Measurement(t=self.t, poses=poses, obstacle_in_lane=in_lane)
         return self._measured
 
@@ -233,13 +255,21 @@ class World:
         dt = config.dt
 
         # The obstacle looks (draws are made every tick, whatever is visible: CRN).
-        scene.sync()
         u_look = rng["obstacle"].random()
         noise = rng["obstacle"].standard_normal(4) * self._obs_std
         nu1 = rng["obstacle"].standard_normal(2) * self._nu_std
         nu2 = rng["ego"].standard_normal(2) * self._nu_std
         u_depart = rng["departure"].random()
-        observed = bool(u_look < config.beta) and ego_visible(scene, obs, ego)
+        visible: bool | None = None  # the line of sight, cast at most once a tick
+
+        def sees_ego() -> bool:
+            nonlocal visible
+            if visible is None:
+                scene.sync()  # geoms where qpos puts them, for the rays
+                visible = ego_visible(scene, obs, ego)
+            return visible
+
+        observed = bool(u_look < config.beta) and sees_ego()
         self._belief, self._has_belief = update_belief(
             self._belief, self._has_belief, np.array([observed]), (ego + noise)[None], dt,
             layout.obstacle.wheelbase)
@@ -253,7 +283,7 @@ class World:
         if (not observed and may_go and u_depart < config.departure_look
                 and int(self._mode[0]) == Mode.WAITING
                 and road_clear(self.driver, self._belief, self._has_belief, self._intents)[0]
-                and ego_visible(scene, obs, ego)):
+                and sees_ego()):
             # It would leave now: it looks once more, and sees the ego.
             observed = True
             self._belief, self._has_belief = update_belief(
@@ -273,8 +303,7 @@ class World:
         self.yielded |= mode in _HELD_BACK and (may_go or mode != Mode.WAITING)
         if m.obstacle_in_lane and self.entered_lane is None:
             self.entered_lane = t
-        hulls = shapely.polygons(np.stack([layout.ego.footprint(ego), self._hull]))  # one call for both
-        gap = float(shapely.distance(hulls[0], hulls[1]))
+        gap = box_gap(self._ego_hull, self._hull)
         self.min_gap = min(self.min_gap, gap)
 
         scene.set_controls("obstacle", *(u1[0] + nu1))
@@ -293,7 +322,7 @@ class World:
             self.min_gap = 0.0
             self.end_reason = "collision"
         # The ego's rear axle is 20 m past the conflict point: nothing more can happen to it.
-        elif layout.route_ego.project(scene.pose(scene.ego)[:2])[0] > self._s_conflict + 20.0:
+        elif layout.route_ego.project_point(*scene.pose(scene.ego)[:2].tolist())[0] > self._s_conflict + 20.0:
             self.end_reason = "passed"
         elif self._k >= config.n_ticks:
             self.end_reason = "duration"

@@ -36,6 +36,10 @@ from cdf_mj.sim.checks import SceneError, check_drive, check_regular_files, subs
 __all__ = ["DEFAULT_SCENE", "Car", "Scene", "SceneError", "SimulationDivergedError", "car_geometry",
            "read_layout"]
 
+# Where data.warning counts MuJoCo's "unstable simulation" warnings (plain ints: read every tick).
+_BADQPOS, _BADQVEL, _BADQACC = (int(w) for w in (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
+                                                 mujoco.mjtWarning.mjWARN_BADQACC))
+
 
 class SimulationDivergedError(FloatingPointError):
     """MuJoCo found a NaN, Inf or huge value in the state (and reset it)."""
@@ -326,17 +330,21 @@ class Scene:
 
     def pose(self, car: Car) -> np.ndarray:
         """Current pose ``[x, y, theta, v]`` of one car, from its joints (exact after a step)."""
-        d = self.data
-        qx, qy, qyaw = d.qpos[car.qpos]
-        vx, vy, _ = d.qvel[car.qvel]
-        c, s = math.cos(car.frame_yaw), math.sin(car.frame_yaw)
-        v = vx * math.cos(qyaw) + vy * math.sin(qyaw)
-        return np.array([car.frame_pos[0] + c * qx - s * qy, car.frame_pos[1] + s * qx + c * qy,
-                         math.remainder(car.frame_yaw + qyaw, 2 * math.pi), v])
+        return np.array(self._pose(car))
 
     def poses(self) -> np.ndarray:
         """System pose ``S_t`` as ``(2, 4)``: row 0 the ego, row 1 the obstacle."""
-        return np.stack([self.pose(self.ego), self.pose(self.obstacle)])
+        return np.array([self._pose(self.ego), self._pose(self.obstacle)])
+
+    def _pose(self, car: Car) -> list[float]:
+        """:meth:`pose` as Python floats (read every tick: NumPy scalars would cost more)."""
+        d = self.data
+        qx, qy, qyaw = d.qpos[car.qpos].tolist()
+        vx, vy, _ = d.qvel[car.qvel].tolist()
+        fx, fy = car.frame_pos.tolist()
+        c, s = math.cos(car.frame_yaw), math.sin(car.frame_yaw)
+        v = vx * math.cos(qyaw) + vy * math.sin(qyaw)
+        return [fx + c * qx - s * qy, fy + s * qx + c * qy, math.remainder(car.frame_yaw + qyaw, 2 * math.pi), v]
 
     def set_controls(self, which: str, accel: float, steer: float) -> None:
         """Command a car: acceleration [m/s^2] and steering angle [rad], clipped to the
@@ -372,9 +380,8 @@ class Scene:
                 f"qvel or qacc) in {self.source}; it reset the state, so the run is void")
 
     def _instability_count(self) -> int:
-        w = self.data.warning
-        return (w[mujoco.mjtWarning.mjWARN_BADQPOS].number + w[mujoco.mjtWarning.mjWARN_BADQVEL].number
-                + w[mujoco.mjtWarning.mjWARN_BADQACC].number)
+        n = self.data.warning.number  # (mjNWARNING,) counts, one array read
+        return int(n[_BADQPOS] + n[_BADQVEL] + n[_BADQACC])
 
     def _ego_contact(self) -> str | None:
         d = self.data
