@@ -741,8 +741,8 @@ def _add_bench(subparsers: argparse._SubParsersAction) -> None:
                     "(pin to one core with taskset -c 0 for the single-core rows).")
     p.add_argument("--episodes", type=_episodes, default=30,
                    help="episodes timed per planner (default 30)")
-    p.add_argument("--particles", type=_int_list(_particles), default=[250, 1000, 4000],
-                   help="filter sizes N to time, each 1 to 10^6 (default 250,1000,4000)")
+    p.add_argument("--particles", type=_int_list(_particles), default=[250, 1000, 10000],
+                   help="filter sizes N to time, each 1 to 10^6 (default 250,1000,10000)")
     p.add_argument("--env-seconds", type=_positive_seconds, default=1.0,
                    help="seconds of each of the 3 timed runs of the Gymnasium env per setting (default 1)")
     p.add_argument("--reproduce", action="store_true",

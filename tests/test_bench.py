@@ -12,7 +12,7 @@ def test_bench_prints_filter_planner_and_scaling_rows(capsys):
     assert main(["bench", "--episodes", "1", "--particles", "100", "--env-seconds", "0.05", "--reproduce",
                  "--reproduce-episodes", "3", "--workers", "1,2", "--quiet"]) == 0
     out = capsys.readouterr().out
-    assert "| filter tick N=100 " in out and "|   act (driver h" in out
+    assert "| filter tick + decision N=100 " in out and "|   predict (look, believe, act, move" in out
     for name in PLANNERS:
         assert f"| episode, {name} (no counterfactual) |" in out
     for what in ("no filter", "with the filter", "defaults: filter and labels"):

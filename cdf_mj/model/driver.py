@@ -29,14 +29,15 @@ draws its own from the filter's prior (:class:`cdf_mj.config.DriverPrior`).
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import IntEnum
 
 import numpy as np
 
 from cdf_mj.config import ScenarioConfig
+from cdf_mj.model import kernels
 from cdf_mj.model.geometry import Polyline
+from cdf_mj.model.kernels import RouteTable, pack_driver
 from cdf_mj.model.layout import Layout
 from cdf_mj.model.vehicle import CarGeometry
 
@@ -73,7 +74,9 @@ class Intent(IntEnum):
 @dataclass(frozen=True)
 class DriverModel:
     """Everything the drivers need: the layout's routes and points, the obstacle car's
-    limits as plain floats (for the per-tick code), and the config's behaviour."""
+    limits as plain floats (for the per-tick code), and the config's behaviour; and the
+    same packed for the compiled kernels (:mod:`cdf_mj.model.kernels`): ``table`` holds
+    the routes left, right, ego (route indexes 0, 1, 2) and ``cfg`` the driver's floats."""
 
     routes: tuple[Polyline, Polyline]  # obstacle route per Intent
     route_ego: Polyline
@@ -84,6 +87,17 @@ class DriverModel:
     max_brake: float  # [m/s^2], positive
     max_accel: float  # [m/s^2]
     config: ScenarioConfig
+    table: RouteTable = field(init=False, repr=False, compare=False)
+    cfg: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        c = self.config
+        cfg = pack_driver(c.dt, self.wheelbase, self.max_steer, self.max_brake, c.lookahead, c.lookahead_gain,
+                          c.passed_margin, np.asarray(self.conflict, dtype=float),
+                          np.asarray(self.s_commit, dtype=float))
+        cfg.flags.writeable = False
+        object.__setattr__(self, "table", RouteTable.of((*self.routes, self.route_ego)))
+        object.__setattr__(self, "cfg", cfg)
 
     @property
     def params(self) -> DriverParams:
@@ -102,6 +116,10 @@ class DriverModel:
                    max_brake=car.max_brake, max_accel=car.max_accel, config=config)
 
 
+#: Route index of the ego's route in ``DriverModel.table``.
+EGO_ROUTE = 2
+
+
 @dataclass(frozen=True)
 class DriverParams:
     """A driver's behaviour: floats (one driver) or ``(N,)`` arrays (one per particle)."""
@@ -112,6 +130,14 @@ class DriverParams:
     critical_gap: float | np.ndarray  # [s] the believed ego's time to arrive must exceed it
     clear_distance: float | np.ndarray  # [m] a believed ego nearer the conflict point is never clear
 
+    def rows(self, n: int) -> np.ndarray:
+        """The behaviour as an ``(n, 5)`` array, columns in field order (for the kernels)."""
+        out = np.empty((n, 5))
+        for j, value in enumerate((self.accel, self.turn_speed, self.yield_brake, self.critical_gap,
+                                   self.clear_distance)):
+            out[:, j] = value
+        return out
+
     @classmethod
     def from_config(cls, config: ScenarioConfig) -> DriverParams:
         """The simulated obstacle's behaviour: the scenario's values."""
@@ -120,84 +146,69 @@ class DriverParams:
                    clear_distance=config.clear_distance)
 
 
+def _rows(a: np.ndarray, width: int) -> np.ndarray:
+    """``a`` as C-contiguous float rows ``(M, width)``."""
+    return np.ascontiguousarray(np.asarray(a, dtype=float).reshape(-1, width))
+
+
 def bicycle_step(x: np.ndarray, u: np.ndarray, dt: float, wheelbase: float) -> np.ndarray:
     """The paper's kinematic bicycle ``f``: one explicit Euler step of length ``dt`` [s].
 
     ``x`` is ``(..., 4)`` = [x, y, theta, v] (rear axle, world frame); ``u`` is ``(..., 2)`` =
-    [acceleration m/s^2, steering angle rad], noise already added. Speed stays >= 0,
-    as the cars' actuators cannot reverse.
+    [acceleration m/s^2, steering angle rad], noise already added (the two broadcast).
+    Speed stays >= 0, as the cars' actuators cannot reverse.
     """
     x = np.asarray(x, dtype=float)
-    px, py, th, v = x[..., 0], x[..., 1], x[..., 2], x[..., 3]
-    step = v * dt
-    out = np.empty(np.broadcast_shapes(x.shape, (*u.shape[:-1], 4)))
-    out[..., 0] = px + step * np.cos(th)
-    out[..., 1] = py + step * np.sin(th)
-    out[..., 2] = th + step / wheelbase * np.tan(u[..., 1])
-    out[..., 3] = np.maximum(v + u[..., 0] * dt, 0.0)
+    u = np.asarray(u, dtype=float)
+    lead = np.broadcast_shapes(x.shape[:-1], u.shape[:-1])
+    xs = _rows(np.broadcast_to(x, (*lead, 4)), 4)
+    us = _rows(np.broadcast_to(u, (*lead, 2)), 2)
+    out: np.ndarray = kernels.bicycle_rows(xs, us, float(dt), float(wheelbase)).reshape((*lead, 4))
     return out
 
 
 def pure_pursuit(route: Polyline, pose: np.ndarray, s: np.ndarray, lookahead: np.ndarray,
                  wheelbase: float, max_steer: float) -> np.ndarray:
     """Steering angle(s) [rad] that point the rear axle at the route point ``lookahead``
-    metres ahead of arc length ``s``. ``pose`` is ``(..., 4)``."""
-    target = route.point_at(s + lookahead)
-    dx = target[..., 0] - pose[..., 0]
-    dy = target[..., 1] - pose[..., 1]
-    alpha = np.arctan2(dy, dx) - pose[..., 2]
-    dist = np.maximum(np.hypot(dx, dy), 1e-6)
-    steer: np.ndarray = np.clip(np.arctan(2.0 * wheelbase * np.sin(alpha) / dist), -max_steer, max_steer)
+    metres ahead of arc length ``s``. ``pose`` is ``(..., 4)``; ``s`` and ``lookahead``
+    broadcast to its leading shape."""
+    pose = np.asarray(pose, dtype=float)
+    lead = pose.shape[:-1]
+    table = RouteTable.of((route,))
+    s_rows = np.ascontiguousarray(np.broadcast_to(np.asarray(s, dtype=float), lead)).reshape(-1)
+    ahead = np.ascontiguousarray(np.broadcast_to(np.asarray(lookahead, dtype=float), lead)).reshape(-1)
+    seg = np.full(s_rows.size, -1, dtype=np.int64)
+    steer: np.ndarray = kernels.steer_rows(table.table, table.nseg, table.ends, 0, _rows(pose, 4), s_rows,
+                                           ahead, float(wheelbase), float(max_steer), seg).reshape(lead)
     return steer
 
 
-# Plain ints for the hot paths (IntEnum attribute access costs a Python call each time).
-_WAITING, _GOING, _YIELDING, _COMMITTED = (int(m) for m in Mode)
-_LEFT, _RIGHT = int(Intent.LEFT), int(Intent.RIGHT)
-
-
-def _by_intent(intent: np.ndarray, n_routes: int) -> Iterator[tuple[int, slice | np.ndarray]]:
-    """``(k, rows)`` per route with samples: ``rows`` is ``slice(None)`` when every sample
-    has intent ``k`` (no gather needed: one car, or particles of one intent), else a mask."""
-    for k in range(n_routes):
-        mask = intent == k
-        if mask.all():
-            yield k, slice(None)
-            return
-        if mask.any():
-            yield k, mask
-
-
-def _project_by_intent(model: DriverModel, xy: np.ndarray, intent: np.ndarray) -> np.ndarray:
-    """Arc length on each sample's own route [m]."""
-    s = np.empty(xy.shape[:-1])
-    for k, rows in _by_intent(intent, len(model.routes)):
-        s[rows] = model.routes[k].project(xy[rows])[0]
-    return s
+def _int_rows(a: np.ndarray | bool | int, n: int) -> np.ndarray:
+    """An integer (or bool) per row as an ``(n,)`` int64 array."""
+    return np.ascontiguousarray(np.broadcast_to(np.asarray(a), (n,)), dtype=np.int64)
 
 
 def road_clear(model: DriverModel, belief: np.ndarray, has_belief: np.ndarray,
                intent: np.ndarray, params: DriverParams | None = None) -> np.ndarray:
     """Whether each driver believes it may pull out (see the module docstring).
 
-    ``params`` gives the critical gap [s] and clear distance [m] (float or ``(N,)``);
-    default: the model's scenario. An ego nearer than the clear distance is never clear,
-    so a slow or stopped ego near the conflict point (time to arrive ``ahead / v`` long)
-    is not taken for a gap.
+    ``belief`` ``(N, 4)``; ``params`` gives the critical gap [s] and clear distance [m]
+    (float or ``(N,)``); default: the model's scenario. An ego nearer than the clear
+    distance is never clear, so a slow or stopped ego near the conflict point (time to
+    arrive ``ahead / v`` long) is not taken for a gap.
     """
-    p = params or model.params
-    dx = model.conflict[0] - belief[..., 0]
-    dy = model.conflict[1] - belief[..., 1]
-    ahead = dx * np.cos(belief[..., 2]) + dy * np.sin(belief[..., 2])  # [m] to the conflict
-    passed = ahead < -model.config.passed_margin
-    far = (ahead > p.clear_distance) & (ahead > p.critical_gap * np.maximum(belief[..., 3], 0.0))
-    clear: np.ndarray = (~has_belief) | passed | far | (intent == _RIGHT)
+    belief = _rows(belief, 4)
+    n = len(belief)
+    p = (params or model.params).rows(n)
+    clear: np.ndarray = kernels.clear_rows(model.cfg, belief, _int_rows(has_belief, n).astype(bool),
+                                           _int_rows(intent, n), p)
     return clear
 
 
 def obstacle_control(model: DriverModel, pose: np.ndarray, mode: np.ndarray, belief: np.ndarray,
                      has_belief: np.ndarray, intent: np.ndarray, params: DriverParams | None = None,
-                     may_go: np.ndarray | bool = True) -> tuple[np.ndarray, np.ndarray]:
+                     may_go: np.ndarray | bool = True,
+                     segment: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The obstacle driver ``h(x1, B, I)`` for ``N`` samples at once.
 
     Args:
@@ -209,57 +220,41 @@ def obstacle_control(model: DriverModel, pose: np.ndarray, mode: np.ndarray, bel
         params: behaviour, floats or ``(N,)`` arrays (default: the model's scenario).
         may_go: ``(N,)`` or one bool: whether a WAITING driver's stop is over on this tick
             (it then goes if its belief says clear); yielding drivers go again when clear.
+        segment: ``(N,)`` int64, each car's route segment from its last call, updated in
+            place (the projection tracks from it, :mod:`cdf_mj.model.kernels`); default:
+            the full search.
 
     Returns:
         ``u`` ``(N, 2)`` = [acceleration m/s^2, steering rad] without process noise, and the
         new mode ``(N,)``.
     """
-    cfg = model.config
-    p = params or model.params
-    s = _project_by_intent(model, pose[:, :2], intent)
-    clear = road_clear(model, belief, has_belief, intent, p)
-    past_commit = s >= model.s_commit[intent]
-
-    new = mode.copy()
-    going = mode == _GOING
-    new[(((mode == _WAITING) & may_go) | (mode == _YIELDING)) & clear] = _GOING
-    new[(new == _GOING) & past_commit] = _COMMITTED  # before yielding: past it, no yield
-    new[going & ~clear & ~past_commit] = _YIELDING
-
-    v = pose[:, 3]
-    u = np.empty((len(v), 2))
-    accel = u[:, 0]
-    # Moving (going or committed): towards the turn speed within the car's limits.
-    np.clip((p.turn_speed - v) / cfg.dt, -model.max_brake, p.accel, out=accel)
-    yielding = new == _YIELDING
-    if yielding.any():
-        brake = p.yield_brake
-        accel[yielding] = -(brake[yielding] if isinstance(brake, np.ndarray) else brake)
-    accel[new == _WAITING] = -model.max_brake
-
-    lookahead = cfg.lookahead + cfg.lookahead_gain * v
-    for k, rows in _by_intent(intent, len(model.routes)):
-        u[rows, 1] = pure_pursuit(model.routes[k], pose[rows], s[rows], lookahead[rows],
-                                  model.wheelbase, model.max_steer)
+    pose = _rows(pose, 4)
+    n = len(pose)
+    if segment is None:
+        segment = np.full(n, -1, dtype=np.int64)
+    tab = model.table
+    u, new = kernels.obstacle_control_rows(tab.table, tab.nseg, tab.ends, model.cfg, pose, _int_rows(mode, n),
+                                           _rows(belief, 4), _int_rows(has_belief, n).astype(bool),
+                                           _int_rows(intent, n), (params or model.params).rows(n),
+                                           _int_rows(may_go, n).astype(bool), segment)
     return u, new
 
 
 def update_belief(belief: np.ndarray, has_belief: np.ndarray, observed: np.ndarray,
                   observation: np.ndarray, dt: float, wheelbase: float) -> tuple[np.ndarray, np.ndarray]:
     """The belief update ``g(B, O)``: take the observation where there is one, else carry
-    the old belief forward by dead reckoning at its believed speed and heading.
+    the old belief forward by dead reckoning at its believed speed and heading (the
+    bicycle of ``wheelbase`` [m] with no control: the heading stays).
 
-    Shapes: ``belief``/``observation`` ``(N, 4)``, ``has_belief``/``observed`` ``(N,)``.
+    Shapes: ``belief``/``observation`` ``(N, 4)`` (one observation ``(4,)`` is shared),
+    ``has_belief``/``observed`` ``(N,)``. Returns new arrays.
     """
-    new = belief.copy()
-    if observation.shape != belief.shape:  # one observation for every driver
-        observation = np.broadcast_to(observation, belief.shape)
-    carry = has_belief & ~observed  # only these are dead-reckoned; the rest are replaced or kept
-    if carry.any():
-        rows = belief[carry]
-        new[carry] = bicycle_step(rows, np.zeros((*rows.shape[:-1], 2)), dt, wheelbase)
-    new[observed] = observation[observed]
-    return new, has_belief | observed
+    new = np.array(belief, dtype=float, copy=True).reshape(-1, 4)
+    n = len(new)
+    has = _int_rows(has_belief, n).astype(bool)
+    obs = _rows(np.broadcast_to(np.asarray(observation, dtype=float), (n, 4)), 4)
+    kernels.believe_rows(new, has, _int_rows(observed, n).astype(bool), obs, float(dt))
+    return new, has
 
 
 def ego_control(model: DriverModel, car: CarGeometry, pose: np.ndarray,
@@ -273,9 +268,14 @@ def ego_control(model: DriverModel, car: CarGeometry, pose: np.ndarray,
     """
     cfg = model.config
     pose = np.asarray(pose, dtype=float)
-    s, _ = model.route_ego.project(pose[..., :2])
-    steer = pure_pursuit(model.route_ego, pose, s, cfg.lookahead + cfg.lookahead_gain * pose[..., 3],
-                         car.wheelbase, car.max_steer)
+    rows = _rows(pose, 4)
+    n = len(rows)
+    tab = model.table
+    seg = np.full(n, -1, dtype=np.int64)
+    s = kernels.project_rows(tab.table, tab.nseg, np.full(n, EGO_ROUTE, dtype=np.int64), rows[:, :2], seg)
+    steer = kernels.steer_rows(tab.table, tab.nseg, tab.ends, EGO_ROUTE, rows, s,
+                               cfg.lookahead + cfg.lookahead_gain * rows[:, 3], car.wheelbase, car.max_steer,
+                               seg).reshape(pose.shape[:-1])
     accel = np.clip(cfg.ego_speed_gain * (cfg.ego_speed - pose[..., 3]), -car.max_brake,
                     car.max_accel)
     accel = np.where(brake, -car.max_brake, accel)

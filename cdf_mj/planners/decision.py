@@ -143,17 +143,20 @@ class RiskRule:
                              "the horizon would go unseen; give a longer horizon")
         self.last = None
 
-    def plans(self, ego_pose: np.ndarray) -> np.ndarray:
-        """The ego's arc lengths [m] ``(3, K)`` at ticks ``1..K`` under GO, DEFER and BRAKE."""
+    def plans(self, ego_pose: np.ndarray, q: float | None = None) -> np.ndarray:
+        """The ego's arc lengths [m] ``(3, K)`` at ticks ``1..K`` under GO, DEFER and BRAKE,
+        from its pose (and its arc length ``q`` [m] on its route, if known)."""
         v_nom, gain, a_max, b = self._nominal
-        return ego_plans(self.map.ego_arc(ego_pose), max(float(ego_pose[3]), 0.0), v_nom, gain, a_max, b,
-                         self._defer, self._steps, self._dt)
+        q0 = self.map.ego_arc(ego_pose) if q is None else q
+        return ego_plans(q0, max(float(ego_pose[3]), 0.0), v_nom, gain, a_max, b, self._defer, self._steps,
+                         self._dt)
 
     def assess(self, ego_pose: np.ndarray, futures: Futures | np.ndarray, exact: bool = False) -> Assessment:
         """Collision probabilities of the plans for the predictor's hypotheses. Going on
         alone (``go``) is assessed with ``exact`` only: the rule needs it only together
         with the deferral, and it is the longest roll."""
-        plans = self.plans(ego_pose)
+        q = self.map.ego_arc(ego_pose)
+        plans = self.plans(ego_pose, q)
         if isinstance(futures, Futures):
             lazy, gate = (-1, -1) if exact else (GO, DEFER)
             m = collision_masses(futures.weight, futures.s, futures.v, futures.accel, futures.v_max,
@@ -162,8 +165,7 @@ class RiskRule:
         else:
             m = self._path_masses(plans, np.asarray(futures, dtype=float))
         return Assessment(deferred=_unit(m[_DEFERRED].sum()), brake=_unit(m[_BRAKES].sum()),
-                          inside=self.map.inside(self.map.ego_arc(ego_pose)),
-                          go=_unit(m[_GOES].sum()) if exact else math.nan)
+                          inside=self.map.inside(q), go=_unit(m[_GOES].sum()) if exact else math.nan)
 
     def _path_masses(self, plans: np.ndarray, path: np.ndarray) -> np.ndarray:
         """:func:`collision_masses` for one predicted obstacle path ``(K', 4)`` at ticks 1..K'."""

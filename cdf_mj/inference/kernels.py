@@ -1,0 +1,517 @@
+"""The particle filter's compiled kernels: one pass over the particles per stage.
+
+:class:`cdf_mj.inference.particle_filter.ParticleFilter` keeps its particles in NumPy
+arrays and calls these Numba functions (``cache=True``: compiled once per install, then
+loaded from the cache) for its stages:
+
+- :func:`predict`: per particle, the observation event (its beta draw, then its line of
+  sight only if it looks), the belief update ``g``, the driver ``h`` (the same compiled
+  state machine and pure pursuit as the simulated obstacle, :mod:`cdf_mj.model.kernels`),
+  the mode jumps, process noise, the bicycle ``f`` and the projection of the new pose
+  onto its route, tracked from the segment it was on;
+- :func:`weigh`: likelihood, normalised weights and the effective sample size;
+- :func:`posterior`: P(left), P(seen) and P(cutoff);
+- :func:`resample`: stratified resampling, gather, parameter jitter and intent floor;
+- :func:`left_futures`: the left-turners' futures for the risk decision rule.
+
+Random numbers come from the filter's own ``numpy.random.Generator``, passed in: Numba
+draws from the same bit generator with NumPy's algorithms, so a filter's stream is fixed
+by its seed alone (the same records with 1, 2 or Ray workers). Draws are made only where
+they matter (the observation noise of a driver who looks and sees, the departure draw
+of a driver free to go), particle by particle, in index order.
+
+Lines of sight are cached per particle (``sight``: -1 not yet known, 0 hidden, 1 seen)
+for one pose array and one ego pose: P(cutoff), the futures and the next tick's looks
+need the same answers and compute each once. The occluders are the buildings'
+footprints (:class:`cdf_mj.model.occlusion.Occluders`) packed by :func:`pack_boxes`; the
+test is the same separating-axis test as :meth:`Occluders.visible` (touching blocks).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from cdf_mj.model import kernels as drv
+from cdf_mj.model.kernels import COMMITTED, GOING, LEFT, RIGHT, WAITING, YIELDING, helper
+from cdf_mj.model.occlusion import Occluders
+
+__all__ = ["FILTER_FIELDS", "pack_boxes"]
+
+#: Entries of the filter's float vector ``cfg`` after the driver's (:data:`cdf_mj.model.kernels.DRIVER_FIELDS`).
+FILTER_FIELDS = ("mode_jump", "accel_lo", "accel_hi", "steer_lo", "steer_hi", "nu_accel", "nu_steer",
+                 "obs_pos", "obs_heading", "obs_speed", "eye_x", "eye_y", "s_enter", "stop_margin",
+                 "clear_margin", "ego_brake", "ego_latency", "t_slowest", "paper_rule", "reinit_maha2")
+(F_JUMP, F_ACC_LO, F_ACC_HI, F_STEER_LO, F_STEER_HI, F_NU_A, F_NU_S, F_OBS_POS, F_OBS_HEAD, F_OBS_SPEED,
+ F_EYE_X, F_EYE_Y, F_S_ENTER, F_STOP_MARGIN, F_CLEAR_MARGIN, F_EGO_BRAKE, F_EGO_LATENCY, F_T_SLOWEST, F_PAPER,
+ F_REINIT) = range(11, 31)
+# Columns of the per-particle parameters theta (cdf_mj.inference.particle_filter.THETA).
+T_ACCEL, T_TURN, T_YIELD, T_GAP, T_CLEAR, T_BETA, T_PGO = range(7)
+
+_TWO_PI = 2.0 * math.pi
+_BELOW_ONE = np.nextafter(1.0, 0.0)
+
+
+def pack_boxes(occluders: Occluders, eye_height: float) -> np.ndarray:
+    """The buildings for the kernels: rows ``[cos, sin, cx, cy, hx, hy, active]`` (heading
+    of the box's x axis, centre in the box frame, half sizes [m]; active: it spans the
+    eye's height [m] and so can block a sight line)."""
+    c, s = np.cos(occluders.heading), np.sin(occluders.heading)
+    cx = c * occluders.center[:, 0] + s * occluders.center[:, 1]
+    cy = -s * occluders.center[:, 0] + c * occluders.center[:, 1]
+    active = (occluders.bottom <= eye_height) & (occluders.top >= eye_height)
+    return np.ascontiguousarray(np.column_stack([c, s, cx, cy, occluders.half, active.astype(float)]))
+
+
+# ---------------------------------------------------------------------------------- sight
+@numba.njit(cache=True, nogil=True)
+def sight_prep(boxes: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The ego's sight targets ``(K, 2)`` in every box frame ``(B, K, 2)``, and per box
+    whether all of them lie beyond its +x, -x, +y, -y side ``(B, 4)``."""
+    nb, k = boxes.shape[0], targets.shape[0]
+    loc = np.empty((nb, k, 2))
+    beyond = np.ones((nb, 4), dtype=np.bool_)
+    for b in range(nb):
+        c, s, hx, hy = boxes[b, 0], boxes[b, 1], boxes[b, 4], boxes[b, 5]
+        for j in range(k):
+            x = c * targets[j, 0] + s * targets[j, 1] - boxes[b, 2]
+            y = -s * targets[j, 0] + c * targets[j, 1] - boxes[b, 3]
+            loc[b, j, 0], loc[b, j, 1] = x, y
+            beyond[b, 0] &= x > hx
+            beyond[b, 1] &= x < -hx
+            beyond[b, 2] &= y > hy
+            beyond[b, 3] &= y < -hy
+    return loc, beyond
+
+
+@helper
+def eye_sees(ex: float, ey: float, boxes: np.ndarray, loc: np.ndarray, beyond: np.ndarray) -> bool:
+    """Whether an eye at (ex, ey) [m] sees any of the targets of :func:`sight_prep`: one
+    whose sight segment meets no active box."""
+    nb, k = loc.shape[0], loc.shape[1]
+    for j in range(k):
+        blocked = False
+        for b in range(nb):
+            if boxes[b, 6] == 0.0:
+                continue
+            c, s, hx, hy = boxes[b, 0], boxes[b, 1], boxes[b, 4], boxes[b, 5]
+            ax = c * ex + s * ey - boxes[b, 2]
+            ay = -s * ex + c * ey - boxes[b, 3]
+            if ((ax > hx and beyond[b, 0]) or (ax < -hx and beyond[b, 1]) or (ay > hy and beyond[b, 2])
+                    or (ay < -hy and beyond[b, 3])):
+                continue  # the eye and every target beyond the same side: it blocks nothing
+            bx, by = loc[b, j, 0], loc[b, j, 1]
+            if (ax > hx and bx > hx) or (ax < -hx and bx < -hx) or (ay > hy and by > hy) or (
+                    ay < -hy and by < -hy):
+                continue
+            if abs(ax * by - ay * bx) > hx * abs(by - ay) + hy * abs(bx - ax):
+                continue  # the segment's line passes the box
+            blocked = True
+            break
+        if not blocked:
+            return True
+    return False
+
+
+@helper
+def _sees(i: int, pose: np.ndarray, cfg: np.ndarray, boxes: np.ndarray, loc: np.ndarray, beyond: np.ndarray,
+          sight: np.ndarray) -> bool:
+    """Particle ``i``'s line of sight to the ego, from the cache or computed into it."""
+    known = int(sight[i])
+    if known >= 0:
+        return known == 1
+    c, s = math.cos(pose[i, 2]), math.sin(pose[i, 2])
+    ex = pose[i, 0] + c * cfg[F_EYE_X] - s * cfg[F_EYE_Y]
+    ey = pose[i, 1] + s * cfg[F_EYE_X] + c * cfg[F_EYE_Y]
+    seen = eye_sees(ex, ey, boxes, loc, beyond)
+    sight[i] = 1 if seen else 0
+    return seen
+
+
+@numba.njit(cache=True, nogil=True)
+def sight_rows(pose: np.ndarray, cfg: np.ndarray, boxes: np.ndarray, targets: np.ndarray,
+               sight: np.ndarray) -> np.ndarray:
+    """Every particle's line of sight ``(N,)`` bool, filling the cache ``sight``."""
+    loc, beyond = sight_prep(boxes, targets)
+    out = np.empty(pose.shape[0], dtype=np.bool_)
+    for i in range(pose.shape[0]):
+        out[i] = _sees(i, pose, cfg, boxes, loc, beyond, sight)
+    return out
+
+
+# ------------------------------------------------------------------------------- arcs
+@helper
+def _arc(i: int, table: np.ndarray, nseg: np.ndarray, pose: np.ndarray, intent: np.ndarray, s: np.ndarray,
+         seg: np.ndarray, s_route: np.ndarray) -> float:
+    """Particle ``i``'s arc length [m] on its own route: kept, or (new pose, new intent)
+    projected by the full search."""
+    if seg[i] < 0 or s_route[i] != intent[i]:
+        s[i], seg[i] = drv.project(table, nseg, intent[i], pose[i, 0], pose[i, 1], -1)
+        s_route[i] = intent[i]
+    return float(s[i])
+
+
+@numba.njit(cache=True, nogil=True)
+def arcs(table: np.ndarray, nseg: np.ndarray, pose: np.ndarray, intent: np.ndarray, s: np.ndarray,
+         seg: np.ndarray, s_route: np.ndarray) -> None:
+    """Every particle's arc length on its own route, into ``s`` (see :func:`_arc`)."""
+    for i in range(pose.shape[0]):
+        _arc(i, table, nseg, pose, intent, s, seg, s_route)
+
+
+# ------------------------------------------------------------------------------- ego
+@helper
+def ego_terms(cfg: np.ndarray, ego: np.ndarray) -> tuple[float, float]:
+    """[s] until the ego, holding its speed, has cleared the obstacle's path (0 once it
+    has, ``inf`` if stopped), and the ticks left before its last chance to brake and
+    stop short of it (``inf`` if (nearly) stopped, 0 once too late)."""
+    v = ego[3]
+    ahead = (cfg[drv.C_CX] - ego[0]) * math.cos(ego[2]) + (cfg[drv.C_CY] - ego[1]) * math.sin(ego[2])
+    rest = ahead + cfg[F_CLEAR_MARGIN]
+    t_clear = 0.0 if rest <= 0.0 else rest / v if v > 0.1 else math.inf
+    if v < 0.1:
+        return t_clear, math.inf
+    slack = ahead - cfg[F_STOP_MARGIN] - v * v / (2.0 * cfg[F_EGO_BRAKE])  # [m] before braking
+    t = slack / v - cfg[F_EGO_LATENCY]
+    return t_clear, float(max(math.ceil(t / cfg[drv.C_DT] - 1e-9), 0.0))
+
+
+@helper
+def arrival(s_enter: float, s: float, v: float, a: float, v_turn: float) -> float:
+    """[s] until a left-turner at arc length ``s`` [m] and speed ``v`` [m/s], accelerating at
+    ``a`` up to ``v_turn``, reaches ``s_enter`` (its first corner in the ego's lane)."""
+    rem = max(s_enter - s, 0.0)
+    t_acc = max(v_turn - v, 0.0) / a
+    d_acc = v * t_acc + 0.5 * a * t_acc * t_acc
+    if rem <= d_acc:
+        return (math.sqrt(v * v + 2.0 * a * rem) - v) / a
+    return t_acc + (rem - d_acc) / max(v_turn, 0.1)
+
+
+# ---------------------------------------------------------------------------- predict
+@numba.njit(cache=True, nogil=True)
+def predict(rng: np.random.Generator, cfg: np.ndarray, table: np.ndarray, nseg: np.ndarray, ends: np.ndarray,
+            boxes: np.ndarray, targets: np.ndarray, ego: np.ndarray, pose: np.ndarray, mode: np.ndarray,
+            belief: np.ndarray, has_belief: np.ndarray, intent: np.ndarray, theta: np.ndarray, s: np.ndarray,
+            seg: np.ndarray, s_route: np.ndarray, sight: np.ndarray) -> np.ndarray:
+    """One tick of every particle (see the module docstring): returns the new poses
+    ``(N, 4)``; updates ``mode``, ``belief``, ``has_belief`` and the arcs ``s``, ``seg``,
+    ``s_route`` (now of the new poses) in place. ``sight`` is the cache of the old poses."""
+    n = pose.shape[0]
+    out = np.empty((n, 4))
+    loc, beyond = sight_prep(boxes, targets)
+    dt = cfg[drv.C_DT]
+    jump_p = cfg[F_JUMP]
+    for i in range(n):
+        # look (k) and believe (g)
+        if rng.random() < theta[i, T_BETA] and _sees(i, pose, cfg, boxes, loc, beyond, sight):
+            belief[i, 0] = ego[0] + rng.standard_normal() * cfg[F_OBS_POS]
+            belief[i, 1] = ego[1] + rng.standard_normal() * cfg[F_OBS_POS]
+            belief[i, 2] = ego[2] + rng.standard_normal() * cfg[F_OBS_HEAD]
+            belief[i, 3] = ego[3] + rng.standard_normal() * cfg[F_OBS_SPEED]
+            has_belief[i] = True
+        elif has_belief[i]:
+            drv.dead_reckon(belief, i, dt)
+        # act (h)
+        r = intent[i]
+        arc = _arc(i, table, nseg, pose, intent, s, seg, s_route)
+        md = mode[i]
+        ok = md == COMMITTED or drv.clear(cfg, r, has_belief[i], belief[i, 0], belief[i, 1], belief[i, 2],
+                                          belief[i, 3], theta[i, T_GAP], theta[i, T_CLEAR])
+        may_go = False
+        if md == WAITING and ok:  # its stop is over by its departure hazard
+            may_go = rng.random() < theta[i, T_PGO]
+        x, y, th, v = pose[i, 0], pose[i, 1], pose[i, 2], pose[i, 3]
+        c, sn = math.cos(th), math.sin(th)
+        a, steer, md = drv.drive(table, nseg, ends, cfg, r, x, y, c, sn, v, arc, seg[i], md, ok, may_go,
+                                 theta[i, T_ACCEL], theta[i, T_TURN], theta[i, T_YIELD])
+        if jump_p > 0.0 and rng.random() < jump_p:
+            if md in (WAITING, YIELDING):
+                md = GOING  # takes the gap whatever it saw
+                has_belief[i] = False
+                a = theta[i, T_ACCEL]
+            elif md == GOING:
+                md = YIELDING  # hesitates for a tick
+                a = -theta[i, T_YIELD]
+        mode[i] = md
+        a = min(max(a + rng.standard_normal() * cfg[F_NU_A], cfg[F_ACC_LO]), cfg[F_ACC_HI])
+        steer = min(max(steer + rng.standard_normal() * cfg[F_NU_S], cfg[F_STEER_LO]), cfg[F_STEER_HI])
+        # move (f), and where that puts it on its route
+        x, y, th, v = drv.bicycle(x, y, th, v, c, sn, a, steer, dt, cfg[drv.C_WHEELBASE])
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = x, y, th, v
+        s[i], seg[i] = drv.project(table, nseg, r, x, y, seg[i])
+    return out
+
+
+# ------------------------------------------------------------------------------ update
+@numba.njit(cache=True, nogil=True)
+def weigh(pose: np.ndarray, meas: np.ndarray, cov_inv: np.ndarray, logw: np.ndarray,
+          reinit_maha2: float) -> tuple[np.ndarray, np.ndarray, float, bool]:
+    """Log-weights times the likelihood of the measured pose ``N(meas | pose, Sigma)``,
+    shifted to a maximum of 0, the normalised weights and the ESS; ``ok`` false (and the
+    arrays empty) when every squared Mahalanobis distance exceeds ``reinit_maha2``."""
+    n = pose.shape[0]
+    out = np.empty(n)
+    nearest = math.inf
+    top = -math.inf
+    d = np.empty(4)
+    for i in range(n):
+        for j in range(4):
+            d[j] = pose[i, j] - meas[j]
+        if not -math.pi <= d[2] < math.pi:
+            d[2] = (d[2] + math.pi) % _TWO_PI - math.pi
+        m2 = 0.0
+        for j in range(4):
+            acc = 0.0
+            for k in range(4):
+                acc += d[k] * cov_inv[k, j]
+            m2 += acc * d[j]
+        nearest = min(nearest, m2)
+        out[i] = logw[i] - 0.5 * m2
+        top = max(top, out[i])
+    if not nearest <= reinit_maha2:
+        return np.empty(0), np.empty(0), 0.0, False
+    w = np.empty(n)
+    total = 0.0
+    for i in range(n):
+        out[i] -= top
+        w[i] = math.exp(out[i])
+        total += w[i]
+    sq = 0.0
+    for i in range(n):
+        w[i] /= total
+        sq += w[i] * w[i]
+    return out, w, min(max(1.0 / sq, 1.0), float(n)), True
+
+
+@numba.njit(cache=True, nogil=True)
+def normalise(logw: np.ndarray) -> tuple[np.ndarray, float]:
+    """Weights ``exp(logw - max)`` normalised, and the ESS."""
+    n = logw.shape[0]
+    top = -math.inf
+    for i in range(n):
+        top = max(top, logw[i])
+    w = np.empty(n)
+    total = 0.0
+    for i in range(n):
+        w[i] = math.exp(logw[i] - top)
+        total += w[i]
+    sq = 0.0
+    for i in range(n):
+        w[i] /= total
+        sq += w[i] * w[i]
+    return w, min(max(1.0 / sq, 1.0), float(n))
+
+
+@helper
+def _cutoff(i: int, cfg: np.ndarray, pose: np.ndarray, mode: np.ndarray, intent: np.ndarray,
+            theta: np.ndarray, arc: float, sees: bool, t_clear: float, ticks_to_stop: float) -> float:
+    """The probability that particle ``i`` cuts the ego off (see
+    :meth:`cdf_mj.inference.particle_filter.ParticleFilter.cutoff_probability`)."""
+    md = mode[i]
+    if intent[i] != LEFT or (md != GOING and md != COMMITTED):
+        return 0.0
+    if cfg[F_PAPER] != 0.0:
+        return 1.0
+    v, a = pose[i, 3], theta[i, T_ACCEL]
+    p = 1.0
+    if md == GOING:
+        remaining = max(cfg[drv.C_COMMIT + LEFT] - arc, 0.0)
+        t_commit = (math.sqrt(v * v + 2.0 * a * remaining) - v) / a
+        ticks = min(math.ceil(t_commit / cfg[drv.C_DT] - 1e-9), ticks_to_stop)
+        beta = theta[i, T_BETA] if sees else 0.0
+        p = (1.0 - beta) ** ticks
+    # Pulls out behind the ego? Only once the ego clears the conflict point sooner than the
+    # slowest driver of the prior could get there.
+    if p > 0.0 and t_clear < cfg[F_T_SLOWEST] and arrival(cfg[F_S_ENTER], arc, v, a, theta[i, T_TURN]) > t_clear:
+        p = 0.0
+    return p
+
+
+@numba.njit(cache=True, nogil=True)
+def cutoff_rows(cfg: np.ndarray, table: np.ndarray, nseg: np.ndarray, boxes: np.ndarray, targets: np.ndarray,
+                ego: np.ndarray, pose: np.ndarray, mode: np.ndarray, intent: np.ndarray, theta: np.ndarray,
+                s: np.ndarray, seg: np.ndarray, s_route: np.ndarray, sight: np.ndarray) -> np.ndarray:
+    """Every particle's cut-off probability ``(N,)``."""
+    loc, beyond = sight_prep(boxes, targets)
+    t_clear, ticks = ego_terms(cfg, ego)
+    n = pose.shape[0]
+    out = np.zeros(n)
+    for i in range(n):
+        md = mode[i]
+        if intent[i] == LEFT and md in (GOING, COMMITTED):
+            arc = _arc(i, table, nseg, pose, intent, s, seg, s_route)
+            sees = md == GOING and theta[i, T_BETA] > 0.0 and _sees(i, pose, cfg, boxes, loc, beyond, sight)
+            out[i] = _cutoff(i, cfg, pose, mode, intent, theta, arc, sees, t_clear, ticks)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def posterior(w: np.ndarray, cfg: np.ndarray, table: np.ndarray, nseg: np.ndarray, boxes: np.ndarray,
+              targets: np.ndarray, ego: np.ndarray, pose: np.ndarray, mode: np.ndarray, has_belief: np.ndarray,
+              intent: np.ndarray, theta: np.ndarray, s: np.ndarray, seg: np.ndarray, s_route: np.ndarray,
+              sight: np.ndarray) -> tuple[float, float, float]:
+    """P(left), P(seen) and P(cutoff) (0 once the ego has cleared the obstacle's path) of
+    the weights ``w``, each clipped into [0, 1] against rounding."""
+    t_clear, ticks = ego_terms(cfg, ego)
+    exposed = t_clear > 0.0
+    loc, beyond = sight_prep(boxes, targets)
+    p_left = p_seen = p_cut = 0.0
+    for i in range(w.shape[0]):
+        wi = w[i]
+        if has_belief[i]:
+            p_seen += wi
+        if intent[i] != LEFT:
+            continue
+        p_left += wi
+        md = mode[i]
+        if exposed and wi > 0.0 and md in (GOING, COMMITTED):
+            arc = _arc(i, table, nseg, pose, intent, s, seg, s_route)
+            sees = md == GOING and theta[i, T_BETA] > 0.0 and _sees(i, pose, cfg, boxes, loc, beyond, sight)
+            p_cut += wi * _cutoff(i, cfg, pose, mode, intent, theta, arc, sees, t_clear, ticks)
+    return min(max(p_left, 0.0), 1.0), min(max(p_seen, 0.0), 1.0), min(max(p_cut, 0.0), 1.0)
+
+
+# ---------------------------------------------------------------------------- resample
+@numba.njit(cache=True, nogil=True)
+def stratified_indexes(w: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Stratified resampling of checked weights ``w`` with the uniforms ``u`` in [0, 1):
+    index ``i`` is the first ``j`` with ``C_j > (i + u_i) / N`` for the cumulative sums
+    ``C`` normalised to end at exactly 1 (``numpy.searchsorted(C, positions, "right")``),
+    positions clamped below 1 (:mod:`cdf_mj.inference.resampling`)."""
+    n = w.shape[0]
+    c = np.cumsum(w)
+    total = c[-1]
+    if total != 1.0:
+        c /= total
+    c[-1] = 1.0
+    out = np.empty(n, dtype=np.intp)
+    j = 0
+    for i in range(n):
+        pos = min((i + u[i]) / n, _BELOW_ONE)
+        while c[j] <= pos:  # positions increase with i: one walk along C
+            j += 1
+        out[i] = j
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def resample(rng: np.random.Generator, w: np.ndarray, jitter_std: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+             intent_floor: float, p_left: float, pose: np.ndarray, mode: np.ndarray, belief: np.ndarray,
+             has_belief: np.ndarray, intent: np.ndarray, theta: np.ndarray, s: np.ndarray, seg: np.ndarray,
+             s_route: np.ndarray, sight: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Stratified resampling (N uniforms), the gather of every particle array, the
+    parameters' jitter (six normals per particle, kept in ``[lo, hi]``), and the intent
+    floor (N uniforms; a held-back particle drawn redraws its intent, one uniform each)."""
+    n = w.shape[0]
+    u = np.empty(n)
+    for i in range(n):
+        u[i] = rng.random()
+    keep = stratified_indexes(w, u)
+    n_theta = theta.shape[1]
+    pose2, belief2, theta2 = np.empty_like(pose), np.empty_like(belief), np.empty_like(theta)
+    mode2, has2, intent2 = np.empty_like(mode), np.empty_like(has_belief), np.empty_like(intent)
+    s2, seg2, route2, sight2 = np.empty_like(s), np.empty_like(seg), np.empty_like(s_route), np.empty_like(sight)
+    jitter = jitter_std.shape[0]
+    for i in range(n):
+        k = keep[i]
+        for j in range(4):
+            pose2[i, j] = pose[k, j]
+            belief2[i, j] = belief[k, j]
+        mode2[i], has2[i], intent2[i] = mode[k], has_belief[k], intent[k]
+        s2[i], seg2[i], route2[i], sight2[i] = s[k], seg[k], s_route[k], sight[k]
+        for j in range(n_theta):
+            theta2[i, j] = theta[k, j]
+    if jitter > 0:
+        for i in range(n):
+            for j in range(jitter):
+                x = theta2[i, j] + rng.standard_normal() * jitter_std[j]
+                theta2[i, j] = min(max(x, lo[j]), hi[j])
+    if intent_floor > 0.0:
+        redraw = np.empty(n, dtype=np.bool_)
+        for i in range(n):
+            redraw[i] = rng.random() < intent_floor and (mode2[i] == WAITING or mode2[i] == YIELDING)
+        for i in range(n):
+            if redraw[i]:
+                intent2[i] = LEFT if rng.random() < p_left else RIGHT
+    return pose2, mode2, belief2, has2, intent2, theta2, s2, seg2, route2, sight2
+
+
+# ----------------------------------------------------------------------------- futures
+@numba.njit(cache=True, nogil=True)
+def left_futures(w: np.ndarray, cfg: np.ndarray, table: np.ndarray, nseg: np.ndarray, boxes: np.ndarray,
+                 targets: np.ndarray, ego: np.ndarray, pose: np.ndarray, mode: np.ndarray, belief: np.ndarray,
+                 has_belief: np.ndarray, intent: np.ndarray, theta: np.ndarray, s: np.ndarray, seg: np.ndarray,
+                 s_route: np.ndarray, sight: np.ndarray,
+                 react_ticks: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:meth:`cdf_mj.inference.particle_filter.ParticleFilter.futures` in one pass: the
+    weight, arc length [m], speed [m/s], acceleration [m/s^2], cruise speed [m/s] and delay
+    [s] of every left-turner that may go on (a finite delay and a positive weight). "Held
+    back until the believed ego has passed" is the driver's own clear rule
+    (:func:`cdf_mj.model.kernels.clear`: passed, or far by distance and gap)."""
+    n = w.shape[0]
+    loc, beyond = sight_prep(boxes, targets)
+    cx, cy, passed_margin, dt = cfg[drv.C_CX], cfg[drv.C_CY], cfg[drv.C_PASSED], cfg[drv.C_DT]
+    # Where the ego is, as a driver who looks now would judge it (the clear rule's terms).
+    ego_ahead = (cx - ego[0]) * math.cos(ego[2]) + (cy - ego[1]) * math.sin(ego[2])
+    ego_passed = ego_ahead < -passed_margin
+    w_out, s_out, v_out = np.empty(n), np.empty(n), np.empty(n)
+    a_out, vm_out, d_out = np.empty(n), np.empty(n), np.empty(n)
+    m = 0
+    for i in range(n):
+        wi = w[i]
+        if intent[i] != LEFT or wi <= 0.0:
+            continue
+        md = mode[i]
+        v = pose[i, 3]
+        a = theta[i, T_ACCEL]
+        delay = 0.0
+        if md in (WAITING, YIELDING):
+            v = 0.0
+            if has_belief[i]:
+                bx, by, bth, bv = belief[i, 0], belief[i, 1], belief[i, 2], belief[i, 3]
+                ahead = (cx - bx) * math.cos(bth) + (cy - by) * math.sin(bth)
+                passed = ahead < -passed_margin
+                far = ahead > theta[i, T_CLEAR] and ahead > theta[i, T_GAP] * max(bv, 0.0)
+                if not (passed or far):  # held back until the believed ego has passed
+                    if bv <= 0.1:
+                        continue
+                    delay = max((ahead + passed_margin) / bv, 0.0)
+            if md == WAITING:  # and it leaves at its hazard: within the reaction window, or later
+                wi *= 1.0 - (1.0 - theta[i, T_PGO]) ** react_ticks
+        arc = _arc(i, table, nseg, pose, intent, s, seg, s_route)
+        # Looks ahead of it before its commit point stop it only if it would then judge the
+        # ego not clear (a far or passed ego is no reason to yield).
+        seen_clear = ego_passed or (ego_ahead > theta[i, T_CLEAR] and ego_ahead > theta[i, T_GAP] * max(ego[3], 0.0))
+        if md != COMMITTED and not seen_clear and _sees(i, pose, cfg, boxes, loc, beyond, sight):
+            remaining = max(cfg[drv.C_COMMIT + LEFT] - arc, 0.0)
+            t_commit = (math.sqrt(v * v + 2.0 * a * remaining) - v) / a
+            wi *= (1.0 - theta[i, T_BETA]) ** math.ceil(t_commit / dt - 1e-9)
+        if wi <= 0.0:
+            continue
+        w_out[m], s_out[m], v_out[m], a_out[m], vm_out[m], d_out[m] = wi, arc, v, a, theta[i, T_TURN], delay
+        m += 1
+    return w_out[:m], s_out[:m], v_out[:m], a_out[:m], vm_out[:m], d_out[:m]
+
+
+@numba.njit(cache=True, nogil=True)
+def sight_targets(cfg_ego: np.ndarray, ego: np.ndarray) -> np.ndarray:
+    """The ego's four hull corners and the hull centre ``(5, 2)`` [m] for its pose ``(4,)``;
+    ``cfg_ego`` = [hull offset x, y, half length, half width] [m]."""
+    c, s = math.cos(ego[2]), math.sin(ego[2])
+    ox, oy, hx, hy = cfg_ego[0], cfg_ego[1], cfg_ego[2], cfg_ego[3]
+    cx = ego[0] + c * ox - s * oy
+    cy = ego[1] + s * ox + c * oy
+    out = np.empty((5, 2))
+    signs = ((1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0))
+    mx = my = 0.0
+    for j in range(4):
+        lx, ly = signs[j][0] * hx, signs[j][1] * hy
+        out[j, 0] = cx + c * lx - s * ly
+        out[j, 1] = cy + s * lx + c * ly
+        mx += out[j, 0]
+        my += out[j, 1]
+    out[4, 0], out[4, 1] = mx / 4.0, my / 4.0
+    return out

@@ -1,0 +1,311 @@
+"""Compiled per-car code of the drivers: route projection, the obstacle driver's state
+machine, pure pursuit, the belief update and the kinematic bicycle, one car at a time.
+
+These Numba functions are the single implementation of the driver model. The array
+functions of :mod:`cdf_mj.model.driver` (one simulated car, or any N) loop over them, and
+the particle filter's fused kernels (:mod:`cdf_mj.inference.kernels`) call them per
+particle, so the world's obstacle and every hypothesis of the filter drive by the same
+code. All are ``numba.njit(cache=True)``: compiled on first use after an install (a few
+seconds, once), then loaded from Numba's cache (``__pycache__`` beside this file, or
+``NUMBA_CACHE_DIR``).
+
+Routes are packed into a :class:`RouteTable`: for route ``r`` and segment ``k``, the row
+``table[r, k] = [x0, y0, ux, uy, length, s0]`` (segment start [m], unit direction, length
+[m], arc length at its start [m]), ``nseg[r]`` segments, ``ends[r]`` the last waypoint.
+
+Projection onto a route *tracks*: a car keeps the index of the segment it was last
+projected on, and the next projection walks from there to the neighbouring segment while
+that one is nearer (a descent on the distance along the route), instead of searching all
+segments. A car near its route, moving less than a segment per tick, gets the same
+closest point as the full search (tests/test_kernels.py checks it over whole episodes);
+a segment index < 0 asks for the full search (the first minimum, as
+:meth:`cdf_mj.model.geometry.Polyline.project`).
+
+World frame (x east, y north), metres, seconds, radians; poses are rear-axle
+``[x, y, theta, v]``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, TypeVar
+
+import numba
+import numpy as np
+
+from cdf_mj.model.geometry import Polyline
+
+__all__ = ["DRIVER_FIELDS", "RouteTable", "helper", "pack_driver"]
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+# The driver's modes and intents as plain ints (cdf_mj.model.driver.Mode / Intent).
+WAITING, GOING, YIELDING, COMMITTED = 0, 1, 2, 3
+LEFT, RIGHT = 0, 1
+
+#: Entries of the float vector ``cfg`` that the driver kernels read (:func:`pack_driver`).
+DRIVER_FIELDS = ("dt", "wheelbase", "max_steer", "max_brake", "lookahead", "lookahead_gain",
+                 "passed_margin", "conflict_x", "conflict_y", "s_commit_left", "s_commit_right")
+C_DT, C_WHEELBASE, C_MAX_STEER, C_MAX_BRAKE, C_LOOKAHEAD, C_GAIN, C_PASSED, C_CX, C_CY, C_COMMIT = range(10)
+
+
+@dataclass(frozen=True, eq=False)
+class RouteTable:
+    """Polylines packed for the kernels: ``table`` ``(R, S, 6)``, ``nseg`` ``(R,)``,
+    ``ends`` ``(R, 2)`` (see the module docstring); rows past ``nseg[r]`` are unused."""
+
+    table: np.ndarray
+    nseg: np.ndarray
+    ends: np.ndarray
+
+    @classmethod
+    def of(cls, routes: tuple[Polyline, ...]) -> RouteTable:
+        """The table of ``routes`` (route ``r`` = ``routes[r]``)."""
+        n = max(len(r.points) - 1 for r in routes)
+        table = np.zeros((len(routes), n, 6))
+        for r, route in enumerate(routes):
+            k = len(route.points) - 1
+            table[r, :k] = np.column_stack([route._x0, route._y0, route._ux, route._uy, route._len,
+                                            route._s0[:-1]])
+        nseg = np.array([len(r.points) - 1 for r in routes], dtype=np.int64)
+        ends = np.array([r.points[-1] for r in routes], dtype=float)
+        for a in (table, nseg, ends):
+            a.flags.writeable = False
+        return cls(table, nseg, ends)
+
+
+def helper(fn: F) -> F:
+    """Compile a per-car helper: ``numba.njit(cache=True, nogil=True)`` without Numba's
+    reference counting (``_nrt=False``). A helper allocates nothing, and a kernel calls it
+    once per particle with array arguments, whose reference counts Numba would otherwise
+    raise and drop on every call: two atomic operations per array, which measured 40 ns
+    per call against 2 ns without (docs/PERFORMANCE.md)."""
+    compile_: Any = numba.njit  # _nrt is a compiler flag that numba's stubs do not list
+    return compile_(cache=True, nogil=True, _nrt=False)(fn)  # type: ignore[no-any-return]
+
+
+def pack_driver(dt: float, wheelbase: float, max_steer: float, max_brake: float, lookahead: float,
+                lookahead_gain: float, passed_margin: float, conflict: np.ndarray,
+                s_commit: np.ndarray) -> np.ndarray:
+    """The float vector ``cfg`` of :data:`DRIVER_FIELDS` (conflict and commit points as
+    given by :class:`cdf_mj.model.driver.DriverModel`); kernels of other modules append
+    their own entries after these."""
+    return np.array([dt, wheelbase, max_steer, max_brake, lookahead, lookahead_gain, passed_margin,
+                     conflict[0], conflict[1], s_commit[0], s_commit[1]], dtype=float)
+
+
+@helper
+def _segment(table: np.ndarray, r: int, k: int, x: float, y: float) -> tuple[float, float]:
+    """Squared distance [m^2] from (x, y) to segment ``k`` of route ``r``, and the arc
+    length [m] of the closest point."""
+    px = x - table[r, k, 0]
+    py = y - table[r, k, 1]
+    ux, uy = table[r, k, 2], table[r, k, 3]
+    t = min(max(px * ux + py * uy, 0.0), table[r, k, 4])
+    px -= t * ux
+    py -= t * uy
+    return px * px + py * py, table[r, k, 5] + t
+
+
+@helper
+def project(table: np.ndarray, nseg: np.ndarray, r: int, x: float, y: float, k0: int) -> tuple[float, int]:
+    """Arc length [m] of the closest point of route ``r`` to (x, y) and its segment,
+    tracking from segment ``k0`` (full search when ``k0 < 0`` or out of range)."""
+    n = nseg[r]
+    if k0 < 0 or k0 >= n:
+        best, s_best, k_best = math.inf, 0.0, 0
+        for k in range(n):
+            d2, s = _segment(table, r, k, x, y)
+            if d2 < best:  # the first minimum, as numpy.argmin
+                best, s_best, k_best = d2, s, k
+        return s_best, k_best
+    best, s_best = _segment(table, r, k0, x, y)
+    k = k0
+    while k + 1 < n:  # walk ahead while nearer
+        d2, s = _segment(table, r, k + 1, x, y)
+        if d2 >= best:
+            break
+        best, s_best, k = d2, s, k + 1
+    if k == k0:
+        while k > 0:  # else back
+            d2, s = _segment(table, r, k - 1, x, y)
+            if d2 >= best:
+                break
+            best, s_best, k = d2, s, k - 1
+    return s_best, k
+
+
+@helper
+def point_at(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, r: int, s: float,
+             k0: int) -> tuple[float, float]:
+    """The point [m] of route ``r`` at arc length ``s`` (clamped to its ends), searching
+    from segment ``k0``."""
+    n = nseg[r]
+    if s >= table[r, n - 1, 5] + table[r, n - 1, 4]:
+        return ends[r, 0], ends[r, 1]
+    k = min(max(k0, 0), n - 1)
+    while k + 1 < n and table[r, k + 1, 5] <= s:
+        k += 1
+    while k > 0 and table[r, k, 5] > s:
+        k -= 1
+    d = max(s - table[r, k, 5], 0.0)
+    return table[r, k, 0] + table[r, k, 2] * d, table[r, k, 1] + table[r, k, 3] * d
+
+
+@helper
+def clear(cfg: np.ndarray, intent: int, has_belief: bool, bx: float, by: float, bth: float, bv: float,
+          critical_gap: float, clear_distance: float) -> bool:
+    """The driver's clear rule (:func:`cdf_mj.model.driver.road_clear`) for one driver."""
+    if intent == RIGHT or not has_belief:
+        return True
+    ahead = (cfg[C_CX] - bx) * math.cos(bth) + (cfg[C_CY] - by) * math.sin(bth)  # [m] to the conflict
+    if ahead < -cfg[C_PASSED]:
+        return True
+    return bool(ahead > clear_distance and ahead > critical_gap * max(bv, 0.0))
+
+
+@helper
+def steer_to(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, r: int, x: float, y: float, c: float,
+             s_th: float, s: float, k: int, lookahead: float, wheelbase: float, max_steer: float) -> float:
+    """Pure pursuit: the steering angle [rad] pointing the rear axle at route ``r``'s point
+    ``lookahead`` [m] ahead of arc length ``s`` (segment ``k``), for a car at (x, y) with
+    heading cosine ``c`` and sine ``s_th`` and the given wheelbase [m]; within
+    +-``max_steer`` [rad]."""
+    tx, ty = point_at(table, nseg, ends, r, s + lookahead, k)
+    dx, dy = tx - x, ty - y
+    dist2 = max(dx * dx + dy * dy, 1e-12)
+    # atan(2 L sin(alpha) / dist) with alpha = atan2(dy, dx) - theta, sin(alpha) = (dy c - dx s) / dist.
+    steer = math.atan(2.0 * wheelbase * (dy * c - dx * s_th) / dist2)
+    return min(max(steer, -max_steer), max_steer)
+
+
+@helper
+def drive(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, cfg: np.ndarray, intent: int, x: float,
+          y: float, c: float, s_th: float, v: float, s: float, k: int, mode: int, is_clear: bool, may_go: bool,
+          accel: float, turn_speed: float, yield_brake: float) -> tuple[float, float, int]:
+    """The obstacle driver ``h`` of one car (:func:`cdf_mj.model.driver.obstacle_control`):
+    its acceleration [m/s^2], steering [rad] and new mode, from its position, the cosine
+    and sine of its heading, its speed, its arc length ``s`` on its own route (segment
+    ``k``), its mode, whether its belief says clear (a committed driver ignores it),
+    whether its stop is over, and its behaviour."""
+    past_commit = s >= cfg[C_COMMIT + intent]
+    new = mode
+    if ((mode == WAITING and may_go) or mode == YIELDING) and is_clear:
+        new = GOING
+    if new == GOING and past_commit:
+        new = COMMITTED  # before yielding: past it, no yield
+    if mode == GOING and not is_clear and not past_commit:
+        new = YIELDING
+    if new == YIELDING:
+        a = -yield_brake
+    elif new == WAITING:
+        a = -cfg[C_MAX_BRAKE]
+    else:  # moving: towards the turn speed within the car's limits
+        a = min(max((turn_speed - v) / cfg[C_DT], -cfg[C_MAX_BRAKE]), accel)
+    steer = steer_to(table, nseg, ends, intent, x, y, c, s_th, s, k,
+                     cfg[C_LOOKAHEAD] + cfg[C_GAIN] * v, cfg[C_WHEELBASE], cfg[C_MAX_STEER])
+    return a, steer, new
+
+
+@numba.njit(cache=True, nogil=True)
+def obstacle_control_rows(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, cfg: np.ndarray,
+                           pose: np.ndarray, mode: np.ndarray, belief: np.ndarray, has_belief: np.ndarray,
+                           intent: np.ndarray, params: np.ndarray, may_go: np.ndarray,
+                           seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`drive` for N cars (``params`` ``(N, 5)``: accel, turn speed, yield brake,
+    critical gap, clear distance); ``seg`` ``(N,)`` is each car's segment, updated."""
+    n = pose.shape[0]
+    u = np.empty((n, 2))
+    new = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        r = intent[i]
+        s, seg[i] = project(table, nseg, r, pose[i, 0], pose[i, 1], seg[i])
+        ok = clear(cfg, r, has_belief[i], belief[i, 0], belief[i, 1], belief[i, 2], belief[i, 3],
+                   params[i, 3], params[i, 4])
+        th = pose[i, 2]
+        u[i, 0], u[i, 1], new[i] = drive(table, nseg, ends, cfg, r, pose[i, 0], pose[i, 1], math.cos(th),
+                                         math.sin(th), pose[i, 3], s, seg[i], mode[i], ok, may_go[i],
+                                         params[i, 0], params[i, 1], params[i, 2])
+    return u, new
+
+
+@numba.njit(cache=True, nogil=True)
+def clear_rows(cfg: np.ndarray, belief: np.ndarray, has_belief: np.ndarray, intent: np.ndarray,
+               params: np.ndarray) -> np.ndarray:
+    """:func:`clear` for N drivers (``params`` as in :func:`obstacle_control_rows`)."""
+    n = belief.shape[0]
+    out = np.empty(n, dtype=np.bool_)
+    for i in range(n):
+        out[i] = clear(cfg, intent[i], has_belief[i], belief[i, 0], belief[i, 1], belief[i, 2],
+                       belief[i, 3], params[i, 3], params[i, 4])
+    return out
+
+
+@helper
+def bicycle(x: float, y: float, th: float, v: float, c: float, s: float, accel: float, steer: float, dt: float,
+            wheelbase: float) -> tuple[float, float, float, float]:
+    """The paper's kinematic bicycle ``f``, one explicit Euler step (speed kept >= 0);
+    ``c`` and ``s`` are the cosine and sine of the heading ``th``."""
+    step = v * dt
+    return x + step * c, y + step * s, th + step / wheelbase * math.tan(steer), max(v + accel * dt, 0.0)
+
+
+@numba.njit(cache=True, nogil=True)
+def bicycle_rows(x: np.ndarray, u: np.ndarray, dt: float, wheelbase: float) -> np.ndarray:
+    """:func:`bicycle` for rows ``x`` ``(M, 4)`` and ``u`` ``(M, 2)``."""
+    out = np.empty_like(x)
+    for i in range(x.shape[0]):
+        th = x[i, 2]
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = bicycle(x[i, 0], x[i, 1], th, x[i, 3], math.cos(th),
+                                                             math.sin(th), u[i, 0], u[i, 1], dt, wheelbase)
+    return out
+
+
+@helper
+def dead_reckon(belief: np.ndarray, i: int, dt: float) -> None:
+    """Carry belief row ``i`` forward one tick at its believed speed and heading (the
+    bicycle with no control: the heading stays)."""
+    step = belief[i, 3] * dt
+    belief[i, 0] += step * math.cos(belief[i, 2])
+    belief[i, 1] += step * math.sin(belief[i, 2])
+    belief[i, 3] = max(belief[i, 3], 0.0)
+
+
+@numba.njit(cache=True, nogil=True)
+def believe_rows(belief: np.ndarray, has_belief: np.ndarray, observed: np.ndarray, observation: np.ndarray,
+                 dt: float) -> None:
+    """The belief update ``g`` in place for N drivers: take the observation where there is
+    one, else dead-reckon a belief held."""
+    for i in range(belief.shape[0]):
+        if observed[i]:
+            for j in range(4):
+                belief[i, j] = observation[i, j]
+            has_belief[i] = True
+        elif has_belief[i]:
+            dead_reckon(belief, i, dt)
+
+
+@numba.njit(cache=True, nogil=True)
+def project_rows(table: np.ndarray, nseg: np.ndarray, r: np.ndarray, xy: np.ndarray,
+                 seg: np.ndarray) -> np.ndarray:
+    """:func:`project` for N points ``xy`` ``(N, 2)`` on their routes ``r``; ``seg`` updated."""
+    out = np.empty(xy.shape[0])
+    for i in range(xy.shape[0]):
+        out[i], seg[i] = project(table, nseg, r[i], xy[i, 0], xy[i, 1], seg[i])
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def steer_rows(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, r: int, pose: np.ndarray,
+               s: np.ndarray, lookahead: np.ndarray, wheelbase: float, max_steer: float,
+               seg: np.ndarray) -> np.ndarray:
+    """:func:`steer_to` for N poses ``(N, 4)`` on route ``r`` at arc lengths ``s`` (``seg``
+    their segments, or < 0) with look-aheads ``lookahead`` [m]."""
+    out = np.empty(pose.shape[0])
+    for i in range(pose.shape[0]):
+        th = pose[i, 2]
+        out[i] = steer_to(table, nseg, ends, r, pose[i, 0], pose[i, 1], math.cos(th), math.sin(th), s[i],
+                          seg[i], lookahead[i], wheelbase, max_steer)
+    return out
