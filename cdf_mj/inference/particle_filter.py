@@ -179,6 +179,7 @@ class ParticleFilter:
         self.skipped_updates = 0  # measurements that were NaN or infinite
         self.reinits = 0  # times every likelihood vanished
         self._ego: np.ndarray | None = None
+        self._ego_values: list[float] = []  # the same as a list, to compare a new pose with
         self._ego_targets = np.zeros((5, 2))
         # The particles (N rows after reset): obstacle pose (N, 4), driver mode (N,), belief
         # (N, 4), whether the driver has seen the ego (N,), intent (N,).
@@ -227,7 +228,7 @@ class ParticleFilter:
         self.has_belief = np.zeros(n, dtype=bool)
         self.theta = draw_parameters(self.prior, n, self.scenario.dt, self.rng)
         self.logw = np.zeros(n)
-        self._ego = None
+        self._ego, self._ego_values = None, []
         self.set_ego(system_pose)
         return self.posterior()
 
@@ -384,9 +385,10 @@ class ParticleFilter:
     def set_ego(self, system_pose: np.ndarray | None) -> None:
         """Take the ego's pose from ``system_pose[0]`` where it is finite."""
         if system_pose is not None:
-            ego = np.asarray(system_pose, dtype=float)[0]
-            if _finite(ego) and (self._ego is None or not np.array_equal(ego, self._ego)):
-                self._ego = ego = np.array(ego, dtype=float)
+            values = np.asarray(system_pose, dtype=float)[0].tolist()
+            if values != self._ego_values and all(math.isfinite(v) for v in values):
+                self._ego_values = values
+                self._ego = ego = np.array(values)
                 self._ego_targets = kernels.sight_targets(self._ego_hull, ego)
 
     def update(self, system_pose: np.ndarray) -> Posterior:

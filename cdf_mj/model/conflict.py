@@ -260,9 +260,14 @@ def collision_masses(weight: np.ndarray, s0: np.ndarray, v0: np.ndarray, accel: 
     gate_bit = (1 << gate) if gate >= 0 else 0
     out = np.zeros(1 << n_plans)
     n_table = q_lo.shape[0]
+    inv_ds, half_dt = 1.0 / ds, 0.5 * dt
     first = 0  # the first table entry with an overlap: before it nothing can collide
     while first < n_table and not q_lo[first] <= q_hi[first]:
         first += 1
+    s_first = (first - 0.5) * ds  # [m] below it, the table index is below first
+    furthest = np.empty(n_plans)  # [m] each plan's last arc length
+    for p in range(n_plans):
+        furthest[p] = plans[p, n_steps - 1]
     for i in range(weight.shape[0]):
         w = weight[i]
         if w <= 0.0:
@@ -277,9 +282,11 @@ def collision_masses(weight: np.ndarray, s0: np.ndarray, v0: np.ndarray, accel: 
         for k in range(n_steps):
             t = (k + 1) * dt
             v_now = min(max(v_start + a * (t - d), 0.0), vm) if t > d else 0.0
-            s += 0.5 * (v_prev + v_now) * dt
+            s += (v_prev + v_now) * half_dt
             v_prev = v_now
-            j = int(s / ds + 0.5)
+            if s < s_first:
+                continue
+            j = int(s * inv_ds + 0.5)
             if j >= n_table:
                 break
             if j < first:
@@ -294,7 +301,7 @@ def collision_masses(weight: np.ndarray, s0: np.ndarray, v0: np.ndarray, accel: 
                 if lo <= q <= hi:
                     mask |= bit
                     done |= bit
-                elif ahead > plans[p, n_steps - 1]:
+                elif ahead > furthest[p]:
                     done |= bit
             settled = done | lazy_bit if (done & gate_bit) and not (mask & gate_bit) else done
             if settled == full:

@@ -104,6 +104,17 @@ class DriverModel:
         """The scenario's driver behaviour (floats), the default of the driver functions."""
         return DriverParams.from_config(self.config)
 
+    def param_rows(self, n: int) -> np.ndarray:
+        """:attr:`params` as ``(n, 5)`` rows for the kernels (one row kept: the world's car)."""
+        if n != 1:
+            return self.params.rows(n)
+        row: np.ndarray | None = self.__dict__.get("_param_row")
+        if row is None:
+            row = self.params.rows(1)
+            row.flags.writeable = False
+            object.__setattr__(self, "_param_row", row)
+        return row
+
     @classmethod
     def from_layout(cls, layout: Layout, config: ScenarioConfig) -> DriverModel:
         """The drivers of a junction: routes, conflict and commit points of ``layout``,
@@ -147,8 +158,19 @@ class DriverParams:
 
 
 def _rows(a: np.ndarray, width: int) -> np.ndarray:
-    """``a`` as C-contiguous float rows ``(M, width)``."""
+    """``a`` as C-contiguous float rows ``(M, width)`` (``a`` itself if it is one)."""
+    if (type(a) is np.ndarray and a.dtype == np.float64 and a.ndim == 2 and a.shape[1] == width
+            and a.flags.c_contiguous):
+        return a
     return np.ascontiguousarray(np.asarray(a, dtype=float).reshape(-1, width))
+
+
+def _per_row(a: np.ndarray | bool | int, n: int, dtype: type) -> np.ndarray:
+    """One value per row as a C-contiguous ``(n,)`` array of ``dtype`` (``a`` itself if it
+    is one: callers that write into it pass a copy)."""
+    if type(a) is np.ndarray and a.dtype == dtype and a.shape == (n,) and a.flags.c_contiguous:
+        return a
+    return np.ascontiguousarray(np.broadcast_to(np.asarray(a), (n,)), dtype=dtype)
 
 
 def bicycle_step(x: np.ndarray, u: np.ndarray, dt: float, wheelbase: float) -> np.ndarray:
@@ -183,11 +205,6 @@ def pure_pursuit(route: Polyline, pose: np.ndarray, s: np.ndarray, lookahead: np
     return steer
 
 
-def _int_rows(a: np.ndarray | bool | int, n: int) -> np.ndarray:
-    """An integer (or bool) per row as an ``(n,)`` int64 array."""
-    return np.ascontiguousarray(np.broadcast_to(np.asarray(a), (n,)), dtype=np.int64)
-
-
 def road_clear(model: DriverModel, belief: np.ndarray, has_belief: np.ndarray,
                intent: np.ndarray, params: DriverParams | None = None) -> np.ndarray:
     """Whether each driver believes it may pull out (see the module docstring).
@@ -199,9 +216,9 @@ def road_clear(model: DriverModel, belief: np.ndarray, has_belief: np.ndarray,
     """
     belief = _rows(belief, 4)
     n = len(belief)
-    p = (params or model.params).rows(n)
-    clear: np.ndarray = kernels.clear_rows(model.cfg, belief, _int_rows(has_belief, n).astype(bool),
-                                           _int_rows(intent, n), p)
+    p = model.param_rows(n) if params is None else params.rows(n)
+    clear: np.ndarray = kernels.clear_rows(model.cfg, belief, _per_row(has_belief, n, np.bool_),
+                                           _per_row(intent, n, np.int64), p)
     return clear
 
 
@@ -233,10 +250,11 @@ def obstacle_control(model: DriverModel, pose: np.ndarray, mode: np.ndarray, bel
     if segment is None:
         segment = np.full(n, -1, dtype=np.int64)
     tab = model.table
-    u, new = kernels.obstacle_control_rows(tab.table, tab.nseg, tab.ends, model.cfg, pose, _int_rows(mode, n),
-                                           _rows(belief, 4), _int_rows(has_belief, n).astype(bool),
-                                           _int_rows(intent, n), (params or model.params).rows(n),
-                                           _int_rows(may_go, n).astype(bool), segment)
+    rows = model.param_rows(n) if params is None else params.rows(n)
+    u, new = kernels.obstacle_control_rows(tab.table, tab.nseg, tab.ends, model.cfg, pose, _per_row(mode, n, np.int64),
+                                           _rows(belief, 4), _per_row(has_belief, n, np.bool_),
+                                           _per_row(intent, n, np.int64), rows, _per_row(may_go, n, np.bool_),
+                                           segment)
     return u, new
 
 
@@ -251,10 +269,15 @@ def update_belief(belief: np.ndarray, has_belief: np.ndarray, observed: np.ndarr
     """
     new = np.array(belief, dtype=float, copy=True).reshape(-1, 4)
     n = len(new)
-    has = _int_rows(has_belief, n).astype(bool)
+    has = np.array(_per_row(has_belief, n, np.bool_), copy=True)
     obs = _rows(np.broadcast_to(np.asarray(observation, dtype=float), (n, 4)), 4)
-    kernels.believe_rows(new, has, _int_rows(observed, n).astype(bool), obs, float(dt))
+    kernels.believe_rows(new, has, _per_row(observed, n, np.bool_), obs, float(dt))
     return new, has
+
+
+_BRAKE, _NO_BRAKE = np.ones(1, dtype=bool), np.zeros(1, dtype=bool)
+for _flag in (_BRAKE, _NO_BRAKE):
+    _flag.flags.writeable = False
 
 
 def ego_control(model: DriverModel, car: CarGeometry, pose: np.ndarray,
@@ -269,14 +292,13 @@ def ego_control(model: DriverModel, car: CarGeometry, pose: np.ndarray,
     cfg = model.config
     pose = np.asarray(pose, dtype=float)
     rows = _rows(pose, 4)
-    n = len(rows)
+    limits = np.array([cfg.lookahead, cfg.lookahead_gain, car.wheelbase, car.max_steer, cfg.ego_speed,
+                       cfg.ego_speed_gain, car.max_brake, car.max_accel])
     tab = model.table
-    seg = np.full(n, -1, dtype=np.int64)
-    s = kernels.project_rows(tab.table, tab.nseg, np.full(n, EGO_ROUTE, dtype=np.int64), rows[:, :2], seg)
-    steer = kernels.steer_rows(tab.table, tab.nseg, tab.ends, EGO_ROUTE, rows, s,
-                               cfg.lookahead + cfg.lookahead_gain * rows[:, 3], car.wheelbase, car.max_steer,
-                               seg).reshape(pose.shape[:-1])
-    accel = np.clip(cfg.ego_speed_gain * (cfg.ego_speed - pose[..., 3]), -car.max_brake,
-                    car.max_accel)
-    accel = np.where(brake, -car.max_brake, accel)
-    return np.stack([accel, steer], axis=-1)
+    if pose.ndim == 1 and isinstance(brake, (bool, np.bool_)):  # one car, the per-tick call
+        brake_rows = _BRAKE if brake else _NO_BRAKE
+    else:
+        brake_rows = _per_row(np.broadcast_to(brake, pose.shape[:-1]).reshape(-1), len(rows), np.bool_)
+    u: np.ndarray = kernels.ego_control_rows(tab.table, tab.nseg, tab.ends, EGO_ROUTE, rows, brake_rows,
+                                             limits).reshape((*pose.shape[:-1], 2))
+    return u

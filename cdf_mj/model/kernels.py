@@ -309,3 +309,21 @@ def steer_rows(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, r: int, po
         out[i] = steer_to(table, nseg, ends, r, pose[i, 0], pose[i, 1], math.cos(th), math.sin(th), s[i],
                           seg[i], lookahead[i], wheelbase, max_steer)
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def ego_control_rows(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, r: int, pose: np.ndarray,
+                     brake: np.ndarray, car: np.ndarray) -> np.ndarray:
+    """The ego's nominal controller for N poses ``(N, 4)`` on route ``r``: pure pursuit
+    and ``speed_gain (v_nominal - v)`` within its limits, or its full braking where
+    ``brake``; ``car`` = [look-ahead m, look-ahead gain s, wheelbase m, max steer rad,
+    nominal speed m/s, speed gain 1/s, max brake m/s^2, max accel m/s^2]. Returns
+    ``(N, 2)`` [acceleration m/s^2, steering rad]."""
+    out = np.empty((pose.shape[0], 2))
+    for i in range(pose.shape[0]):
+        x, y, th, v = pose[i, 0], pose[i, 1], pose[i, 2], pose[i, 3]
+        s, k = project(table, nseg, r, x, y, -1)
+        out[i, 1] = steer_to(table, nseg, ends, r, x, y, math.cos(th), math.sin(th), s, k, car[0] + car[1] * v,
+                             car[2], car[3])
+        out[i, 0] = -car[6] if brake[i] else min(max(car[5] * (car[4] - v), -car[6]), car[7])
+    return out
