@@ -704,20 +704,24 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         bench_filter,
         bench_planners,
         bench_reproduction,
+        bench_startup,
         format_rows,
+        physics_floor,
     )
 
     sizes = tuple(args.particles)
     config = config_from_args(args)
     where = {"scene": args.scene, "config": config}
-    rows = [] if args.only_reproduce else [*bench_core(args.episodes, **where),
+    floor = physics_floor(**where)  # every row's x floor, from this run
+    rows = [] if args.only_reproduce else [*bench_core(args.episodes, floor=floor, **where),
                                            *bench_filter(sizes, **where),
                                            *bench_planners(args.episodes, **where),
-                                           *bench_env(args.env_seconds, **where)]
+                                           *bench_env(args.env_seconds, **where),
+                                           *bench_startup()]
     if args.reproduce or args.only_reproduce:
         rows += bench_reproduction(args.reproduce_episodes, tuple(args.workers), progress=not args.quiet,
                                    **where)
-    print(format_rows(rows))
+    print(format_rows(rows, floor))
     return 0
 
 
@@ -736,9 +740,11 @@ def _int_list(item: Callable[[str], int]) -> Callable[[str], list[int]]:
 
 def _add_bench(subparsers: argparse._SubParsersAction) -> None:
     p = _command(
-        subparsers, "bench", summary="timing table: physics, filter stages, planners, reproduction scaling",
+        subparsers, "bench", summary="timing table: physics, filter stages, planners, startup, reproduction scaling",
         description="Print the benchmark table of docs/PERFORMANCE.md: medians from one run "
-                    "(pin to one core with taskset -c 0 for the single-core rows).")
+                    "(pin to one core with taskset -c 0 for the single-core rows), each beside its "
+                    "ratio to the physics floor of the same run (x floor), and the startup of fresh "
+                    "processes (Numba compiling or loading its cache, a cold cdf-mj episode).")
     p.add_argument("--episodes", type=_episodes, default=30,
                    help="episodes timed per planner (default 30)")
     p.add_argument("--particles", type=_int_list(_particles), default=[250, 1000, 10000],

@@ -5,46 +5,88 @@
 
 Each timing is the median of repeated timings in this process (pin it to one core with
 ``taskset -c 0``); the reproduction rows are wall times of whole runs, with the parallel
-efficiency ``T(1) / (k T(k))`` and the peak resident memory of a worker.
+efficiency ``T(1) / (k T(k))`` and the peak resident memory of a worker. The startup rows
+(:func:`bench_startup`) are wall times of fresh Python processes.
+
+Beside its time, every row shows its ratio to the physics floor measured in the same run
+(:func:`physics_floor`: the median ``mj_step`` time times the physics steps of one planner
+tick), per planner tick: a per-tick row (a filter tick, an env step) or a per-call row (one
+call a tick) as it is, an episode row per tick of its episode, a reproduction row per
+recorded tick, a one-off cost (startup, compiling) as a whole.
 """
 
 from __future__ import annotations
 
+import json
+import os
 import platform
 import statistics
+import subprocess
+import sys
+import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import mujoco
 import numpy as np
 
 from cdf_mj.config import ScenarioConfig
+from cdf_mj.records import EpisodeRecord
 from cdf_mj.scenario.episode import run_episode
+from cdf_mj.sim.checks import substeps
 from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
 from cdf_mj.sim.visibility import ego_visible, isovist
 
 __all__ = [
+    "PhysicsFloor",
+    "Row",
     "bench_core",
     "bench_env",
     "bench_filter",
     "bench_planners",
     "bench_reproduction",
+    "bench_startup",
     "format_rows",
     "median_time",
+    "physics_floor",
 ]
+
+# A row of the table: (what, seconds, note), or with a fourth item, the seconds per planner
+# tick that the "x floor" column divides by the floor (without it, the time itself).
+Row = tuple[str, float, str] | tuple[str, float, str, float]
+_T = TypeVar("_T")
 
 
 def median_time(fn: Callable[[int], object], repeats: int) -> float:
     """Median wall time [s] of ``fn(i)`` for i in range(repeats), after one warm-up call."""
+    return statistics.median(t for t, _ in _timed(fn, repeats))
+
+
+def _timed(fn: Callable[[int], _T], repeats: int) -> list[tuple[float, _T]]:
+    """Wall time [s] and result of ``fn(i)`` for i in range(repeats), after one warm-up call."""
     fn(-1)
-    times = []
+    out = []
     for i in range(repeats):
         t0 = time.perf_counter()
-        fn(i)
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+        result = fn(i)
+        out.append((time.perf_counter() - t0, result))
+    return out
+
+
+def _ticks(end_time: float, dt: float) -> int:
+    """Planner ticks of ``dt`` [s] in an episode that ended at ``end_time`` [s] (at least 1)."""
+    return max(round(end_time / dt), 1)
+
+
+def _median_episode(fn: Callable[[int], EpisodeRecord], repeats: int, dt: float) -> tuple[float, float]:
+    """Median wall time [s] of one episode ``fn(i)`` and median wall time per tick [s] of
+    its episode, for i in range(repeats), after one warm-up call."""
+    timed = _timed(fn, repeats)
+    return (statistics.median(t for t, _ in timed),
+            statistics.median(t / _ticks(rec.end_time, dt) for t, rec in timed))
 
 
 def _setup(scene: str | Path, config: ScenarioConfig | None) -> tuple[Scene, ScenarioConfig]:
@@ -52,49 +94,99 @@ def _setup(scene: str | Path, config: ScenarioConfig | None) -> tuple[Scene, Sce
     return Scene.load(scene, names=cfg.names), cfg
 
 
+def _at_start(world: Scene, cfg: ScenarioConfig) -> None:
+    """Both cars at their start sites, the ego at its nominal speed, the obstacle at rest."""
+    layout = world.layout()
+    ego = layout.ego_start.copy()
+    ego[3] = cfg.ego_speed
+    world.reset(ego, layout.obstacle_start)
+
+
+@dataclass(frozen=True)
+class PhysicsFloor:
+    """What physics alone costs: ``substeps`` MuJoCo steps (``dt / timestep``) per planner
+    tick at the median time of one step, both cars apart and at speed (no contacts)."""
+
+    step: float  # [s] median wall time of one mj_step (two cars)
+    substeps: int  # physics steps per planner tick
+
+    @property
+    def tick(self) -> float:
+        """[s] physics of one planner tick: the floor under any tick of an episode."""
+        return self.step * self.substeps
+
+
+def physics_floor(scene: str | Path = DEFAULT_SCENE, config: ScenarioConfig | None = None,
+                  repeats: int = 2000) -> PhysicsFloor:
+    """The median of ``repeats`` timed ``mj_step`` on ``scene`` with the ego at its start at
+    speed and the obstacle at its start, and the steps per tick of ``config.dt``."""
+    world, cfg = _setup(scene, config)
+    _at_start(world, cfg)
+    step = median_time(lambda i: mujoco.mj_step(world.model, world.data), repeats)
+    return PhysicsFloor(step, substeps(world.model.opt.timestep, cfg.dt, world.source))
+
+
 def bench_core(episodes: int = 60, scene: str | Path = DEFAULT_SCENE,
-               config: ScenarioConfig | None = None) -> list[tuple[str, float, str]]:
-    """Rows ``(what, median seconds, note)`` for the scenario's building blocks, on
-    ``scene`` (an MJCF path) with ``config``."""
+               config: ScenarioConfig | None = None, floor: PhysicsFloor | None = None) -> list[Row]:
+    """Rows ``(what, median seconds, note[, seconds per tick])`` for the scenario's building
+    blocks, on ``scene`` (an MJCF path) with ``config``; ``floor`` (measured if not given)
+    gives the first two rows."""
+    floor = floor or physics_floor(scene, config)
     world, cfg = _setup(scene, config)
     layout = world.layout()
-    rows: list[tuple[str, float, str]] = []
-    ego = layout.ego_start.copy()
-    ego[3] = cfg.ego_speed  # at its start, at speed
-    world.reset(ego, layout.obstacle_start)
-    n_sub = round(cfg.dt / world.model.opt.timestep)
-    rows.append(("mj_step (two cars)", median_time(lambda i: mujoco.mj_step(world.model, world.data), 2000), ""))
+    _at_start(world, cfg)
+    n_sub = floor.substeps
+    rows: list[Row] = [("mj_step (two cars)", floor.step, ""),
+                       (f"physics floor: {n_sub} mj_step per planner tick of {cfg.dt:g} s", floor.tick,
+                        "what the x floor column divides by")]
     rows.append((f"planner tick of physics ({n_sub} steps + contact check)",
                  median_time(lambda i: world.step(n_sub), 300), ""))
-    world.reset(ego, layout.obstacle_start)
+    _at_start(world, cfg)
     world.sync()
     eye = layout.obstacle.eye(layout.obstacle_start)
     rows.append(("ego_visible (5 sight lines, mj_multiRay)", median_time(lambda i: ego_visible(world), 500), ""))
     rows.append(("isovist 360 rays + shapely polygon",
                  median_time(lambda i: isovist(world, eye).polygon, 300), ""))
     seed = lambda i: 1000 + max(i, 0)  # noqa: E731
-    rows.append(("episode, constant (labels itself)",
-                 median_time(lambda i: run_episode(cfg, seed(i), "constant", world), episodes), ""))
-    reactive = median_time(lambda i: run_episode(cfg, seed(i), "reactive", world), episodes)
+    constant, per_tick = _median_episode(lambda i: run_episode(cfg, seed(i), "constant", world), episodes, cfg.dt)
+    rows.append(("episode, constant (labels itself)", constant, "", per_tick))
+    reactive, per_tick = _median_episode(lambda i: run_episode(cfg, seed(i), "reactive", world), episodes, cfg.dt)
     rows.append(("episode, reactive + counterfactual", reactive,
-                 f"target < 50 ms: {'met' if reactive < 0.05 else 'MISSED'}"))
+                 f"target < 50 ms: {'met' if reactive < 0.05 else 'MISSED'}", per_tick))
     return rows
 
 
-def format_rows(rows: list[tuple[str, float, str]]) -> str:
+def _duration(sec: float) -> str:
+    """A time [s] in its most readable unit."""
+    if sec < 1e-3:
+        return f"{sec * 1e6:.1f} µs"
+    if sec < 10:
+        return f"{sec * 1e3:.2f} ms"
+    return f"{sec:.1f} s"
+
+
+def format_rows(rows: Sequence[Row], floor: PhysicsFloor | None = None) -> str:
     """Markdown table of benchmark rows, times in the most readable unit: medians, except
-    the reproduction rows, which are the wall time of one run (their notes say so)."""
+    the reproduction and startup rows, which are the wall time of one run (their notes say
+    so); with ``floor``, an ``x floor`` column: each row's time per planner tick (its fourth
+    item, else its time) over ``floor.tick``, and a line under the table that says so."""
+    head = ["what", "time", *(["x floor"] if floor else []), "note"]
     out = [f"Machine: {platform.processor() or platform.machine()}, Python {platform.python_version()}, "
            f"MuJoCo {mujoco.__version__}, NumPy {np.__version__}", "",
-           "| what | time | note |", "|---|---|---|"]
-    for what, sec, note in rows:
-        if sec < 1e-3:
-            val = f"{sec * 1e6:.1f} µs"
-        elif sec < 10:
-            val = f"{sec * 1e3:.2f} ms"
-        else:
-            val = f"{sec:.1f} s"
-        out.append(f"| {what} | {val} | {note} |")
+           f"| {' | '.join(head)} |", "|" + "---|" * len(head)]
+    for row in rows:
+        what, sec, note = row[:3]
+        cells = [what, _duration(sec)]
+        if floor:
+            ratio = row[3] / floor.tick if len(row) > 3 else sec / floor.tick
+            cells.append(f"{ratio:.2f}x" if ratio < 10 else f"{ratio:.0f}x")
+        out.append(f"| {' | '.join([*cells, note])} |")
+    if floor:
+        out += ["", f"x floor: time per planner tick over the physics floor of this run, {floor.substeps} mj_step "
+                    f"of {_duration(floor.step)} = {_duration(floor.tick)} per tick; episode rows per tick of "
+                    "their episode (median over seeds; a labelling counterfactual's ticks not counted), "
+                    "reproduction rows per recorded tick (wall time, all workers), one-off rows (startup, "
+                    "compiling) whole."]
     return "\n".join(out)
 
 
@@ -174,31 +266,33 @@ class _FilterFutures:
 
 
 def bench_planners(episodes: int = 20, scene: str | Path = DEFAULT_SCENE,
-                   config: ScenarioConfig | None = None) -> list[tuple[str, float, str]]:
+                   config: ScenarioConfig | None = None) -> list[Row]:
     """Median wall time of one episode (no counterfactual) for every registered planner,
     and how many times faster than real time it runs (median over seeds)."""
     from cdf_mj.planners.base import PLANNERS, make_planner
 
     world, cfg = _setup(scene, config)
-    rows = []
+    rows: list[Row] = []
     for name in sorted(PLANNERS):
         run_episode(cfg, 1999, make_planner(name), world, label=False)  # warm-up
-        walls, factors = [], []
+        walls, factors, per_tick = [], [], []
         for i in range(episodes):
             t0 = time.perf_counter()
             ep = run_episode(cfg, 2000 + i, make_planner(name), world, label=False)
             walls.append(time.perf_counter() - t0)
             factors.append(ep.end_time / walls[-1])
+            per_tick.append(walls[-1] / _ticks(ep.end_time, cfg.dt))
         speed = statistics.median(factors)
         note = f"{speed:.0f}x faster than real time (median of {episodes} seeds)"
         if name == "cdf":
             note += f"; target >= 50x: {'met' if speed >= 50 else 'MISSED'}"
-        rows.append((f"episode, {name} (no counterfactual)", statistics.median(walls), note))
+        rows.append((f"episode, {name} (no counterfactual)", statistics.median(walls), note,
+                     statistics.median(per_tick)))
     return rows
 
 
 def bench_env(seconds: float = 1.0, repeats: int = 3, scene: str | Path = DEFAULT_SCENE,
-              config: ScenarioConfig | None = None) -> list[tuple[str, float, str]]:
+              config: ScenarioConfig | None = None) -> list[Row]:
     """Time per step of the Gymnasium environment (one 0.1 s planner tick, seeded random
     actions) without the filter, with it, and with the defaults (filter and the labelling
     counterfactual at each reset): the median over ``repeats`` runs of ``seconds`` each.
@@ -210,7 +304,7 @@ def bench_env(seconds: float = 1.0, repeats: int = 3, scene: str | Path = DEFAUL
     from cdf_mj.envs.t_intersection import TIntersectionEnv
 
     world, cfg = _setup(scene, config)
-    rows = []
+    rows: list[Row] = []
     variants: tuple[tuple[str, dict[str, Any]], ...] = (
         ("no filter", {"run_filter": False, "label": False}), ("with the filter", {"label": False}),
         ("defaults: filter and labels", {}))
@@ -235,7 +329,7 @@ def bench_env(seconds: float = 1.0, repeats: int = 3, scene: str | Path = DEFAUL
 def bench_reproduction(episodes: int = 1000, workers: tuple[int, ...] = (1, 2),
                        planners: tuple[str, ...] = ("cdf", "reactive"),
                        progress: bool = False, scene: str | Path = DEFAULT_SCENE,
-                       config: ScenarioConfig | None = None) -> list[tuple[str, float, str]]:
+                       config: ScenarioConfig | None = None) -> list[Row]:
     """Wall time of the paper's reproduction (``episodes`` seeds from 0, every planner,
     labels included) with each worker count, in fresh temporary directories.
 
@@ -243,11 +337,10 @@ def bench_reproduction(episodes: int = 1000, workers: tuple[int, ...] = (1, 2),
     resident memory of a worker), with the targets of the scaling issue (<= 60 s on this
     2-core machine, efficiency >= 85 %, <= 500 MB per worker).
     """
-    import tempfile
-
     from cdf_mj.experiments.experiment import run_experiment
 
-    rows: list[tuple[str, float, str]] = []
+    dt = (config or ScenarioConfig()).dt
+    rows: list[Row] = []
     base: tuple[int, float] | None = None
     for k in workers:
         with tempfile.TemporaryDirectory(prefix="cdf-mj-bench-") as tmp:
@@ -266,6 +359,87 @@ def bench_reproduction(episodes: int = 1000, workers: tuple[int, ...] = (1, 2),
                          f"(target >= 85 %: {'met' if eff >= 0.85 else 'MISSED'})")
         if k == 2 and episodes == 1000:
             notes.append(f"target <= 60 s: {'met' if wall <= 60 else 'MISSED'}")
+        ticks = sum(_ticks(r["end_time"], dt) for r in result.records if "end_time" in r)
         rows.append((f"reproduction: {episodes} seeds x {'+'.join(planners)}, {k} worker(s)", wall,
-                     "; ".join(notes)))
+                     "; ".join(notes), wall / max(ticks, 1)))
     return rows
+
+
+def bench_startup(planner: str = "cdf", seed: int = 0) -> list[Row]:
+    """What a fresh Python process pays before its first tick runs at speed, on the default
+    scene and scenario: two rows, each a wall time of new processes.
+
+    - ``numba first call``: in a fresh process (``NUMBA_CACHE_DIR`` unset: Numba's cache
+      as installed), one episode of ``planner`` without labels minus a second run of it:
+      compiling the package's Numba kernels, or loading them from the cache (and starting
+      Numba itself). The note says how many kernels were loaded or compiled, and where the
+      cache lives (the directories Numba read or wrote, checked for its ``*.nbi`` index
+      files).
+    - ``cold start``: ``python -m cdf_mj episode --planner planner`` (what ``cdf-mj
+      episode`` runs) with ``NUMBA_CACHE_DIR`` pointing at a new empty directory, so that
+      every kernel compiles; target < 10 s (issue 16).
+    """
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    probe = f"from cdf_mj.experiments.bench import _first_calls; _first_calls({planner!r}, {seed})"
+    t0 = time.perf_counter()
+    done = _run_python(["-c", probe], env)
+    wall = time.perf_counter() - t0
+    first = json.loads(done.stdout.strip().splitlines()[-1])
+    kernels = first["kernels"]
+    hits = sum(k["hits"] for k in kernels.values())
+    misses = sum(k["misses"] for k in kernels.values())
+    paths = sorted({k["cache_path"] for k in kernels.values()})
+    indexed = [p for p in paths if any(Path(p).glob("*.nbi"))]
+    where = ", ".join(indexed) if indexed else "none found (nothing written)"
+    rows: list[Row] = [(
+        f"numba first call (compile or cache load): episode, {planner}, in a fresh process",
+        first["first"] - first["second"],
+        f"first episode minus the second; {len(kernels)} kernels: {hits} loaded from Numba's cache, "
+        f"{misses} compiled; cache: {where}; the process took {wall:.1f} s")]
+
+    with tempfile.TemporaryDirectory(prefix="cdf-mj-numba-") as cache:
+        t0 = time.perf_counter()
+        done = _run_python(["-m", "cdf_mj", "episode", "--planner", planner, "--seed", str(seed)],
+                           {**env, "NUMBA_CACHE_DIR": cache})
+        wall = time.perf_counter() - t0
+        compiled = len(list(Path(cache).rglob("*.nbi")))
+    ticks = _ticks(json.loads(done.stdout)["end_time"], ScenarioConfig().dt)
+    rows.append((f"cold start: cdf-mj episode --planner {planner}, empty Numba cache", wall,
+                 f"wall time of a new process (python -m cdf_mj episode, labels included); {compiled} kernels "
+                 f"compiled into an empty NUMBA_CACHE_DIR; target < 10 s: {'met' if wall < 10 else 'MISSED'}",
+                 wall / ticks))
+    return rows
+
+
+def _run_python(args: list[str], env: dict[str, str]) -> subprocess.CompletedProcess[str]:
+    """Run this Python with ``args`` and ``env``; RuntimeError with its stderr if it fails."""
+    done = subprocess.run([sys.executable, *args], env=env, capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise RuntimeError(f"{' '.join(args)} failed ({done.returncode}): {done.stderr.strip()[-2000:]}")
+    return done
+
+
+def _first_calls(planner: str, seed: int) -> None:
+    """The fresh process of :func:`bench_startup`: print as JSON the wall times [s] of two
+    runs of one episode of ``planner`` (no labels) and the cache path, hits and misses of
+    every Numba kernel of the package that they loaded or compiled."""
+    import numba
+
+    scene = Scene.load()
+    t1 = time.perf_counter()
+    run_episode(None, seed, planner, scene, label=False)
+    t2 = time.perf_counter()
+    run_episode(None, seed, planner, scene, label=False)
+    t3 = time.perf_counter()
+    kernels = {}
+    for name, module in list(sys.modules.items()):
+        if name.split(".")[0] != "cdf_mj":
+            continue
+        for value in vars(module).values():
+            if isinstance(value, numba.core.dispatcher.Dispatcher):
+                stats = value.stats
+                hits, misses = sum(stats.cache_hits.values()), sum(stats.cache_misses.values())
+                if hits or misses:
+                    kernels[f"{value.py_func.__module__}.{value.py_func.__name__}"] = {
+                        "hits": hits, "misses": misses, "cache_path": stats.cache_path}
+    print(json.dumps({"first": t2 - t1, "second": t3 - t2, "kernels": kernels}))
