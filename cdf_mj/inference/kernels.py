@@ -376,21 +376,26 @@ def posterior(w: np.ndarray, cfg: np.ndarray, table: np.ndarray, nseg: np.ndarra
 
 # ---------------------------------------------------------------------------- resample
 @numba.njit(cache=True, nogil=True)
-def stratified_indexes(w: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Stratified resampling of checked weights ``w`` with the uniforms ``u`` in [0, 1):
-    index ``i`` is the first ``j`` with ``C_j > (i + u_i) / N`` for the cumulative sums
-    ``C`` normalised to end at exactly 1 (``numpy.searchsorted(C, positions, "right")``),
-    positions clamped below 1 (:mod:`cdf_mj.inference.resampling`)."""
+def resample_indexes(w: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Resampling of weights ``w`` (finite, >= 0) with the uniforms ``u`` in [0, 1): one
+    per particle (stratified) or one for all (systematic, ``u`` of length 1). Index ``i``
+    is the first ``j`` with ``C_j > (i + u_i) / N`` for the cumulative sums ``C``
+    normalised to end at exactly 1 (``numpy.searchsorted(C, positions, "right")``),
+    positions clamped below 1 (:mod:`cdf_mj.inference.resampling`). ValueError if the
+    weights do not have a positive finite sum."""
     n = w.shape[0]
     c = np.cumsum(w)
     total = c[-1]
+    if not 0.0 < total < math.inf:
+        raise ValueError("weights must have a positive finite sum")
     if total != 1.0:
         c /= total
     c[-1] = 1.0
+    shared = u.shape[0] != n
     out = np.empty(n, dtype=np.intp)
     j = 0
     for i in range(n):
-        pos = min((i + u[i]) / n, _BELOW_ONE)
+        pos = min((i + (u[0] if shared else u[i])) / n, _BELOW_ONE)
         while c[j] <= pos:  # positions increase with i: one walk along C
             j += 1
         out[i] = j
@@ -409,7 +414,7 @@ def resample(rng: np.random.Generator, w: np.ndarray, jitter_std: np.ndarray, lo
     u = np.empty(n)
     for i in range(n):
         u[i] = rng.random()
-    keep = stratified_indexes(w, u)
+    keep = resample_indexes(w, u)
     n_theta = theta.shape[1]
     pose2, belief2, theta2 = np.empty_like(pose), np.empty_like(belief), np.empty_like(theta)
     mode2, has2, intent2 = np.empty_like(mode), np.empty_like(has_belief), np.empty_like(intent)

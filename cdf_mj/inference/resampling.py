@@ -22,7 +22,9 @@ as ``filterpy.monte_carlo`` does), and that element is exactly 1.0. A position
 clamped below 1, so no index runs past the end (filterpy raises IndexError there, as
 it can when its running sum ends an ulp short of 1). The same algorithm as
 ``filterpy.monte_carlo.stratified_resample`` / ``systematic_resample`` (a Python loop
-over NumPy's global random state), vectorised and driven by a ``numpy.random.Generator``::
+over NumPy's global random state), compiled (one walk along ``C``: the search of
+:func:`cdf_mj.inference.kernels.resample_indexes`, which the particle filter's own
+resampling runs) and driven by a ``numpy.random.Generator``::
 
     from cdf_mj.inference.resampling import stratified_resample, effective_sample_size
 
@@ -34,6 +36,8 @@ over NumPy's global random state), vectorised and driven by a ``numpy.random.Gen
 from __future__ import annotations
 
 import numpy as np
+
+from cdf_mj.inference import kernels
 
 __all__ = [
     "effective_sample_size",
@@ -66,38 +70,15 @@ def _raise_bad(w: np.ndarray) -> None:
     raise ValueError(f"weights must have a positive finite sum, got {total!r}")
 
 
-def _cumulative(w: np.ndarray) -> np.ndarray:
-    """Normalised cumulative sum of checked weights, last element exactly 1.0."""
-    with np.errstate(over="ignore"):
-        c = np.cumsum(w)
-    total = c[-1]
-    if not 0.0 < total < np.inf:
-        _raise_bad(w)
-    if total != 1.0:
-        c /= total
-    c[-1] = 1.0  # already exact (x / x == 1), kept as the invariant the search relies on
-    return c
-
-
-# The largest double below 1. A position (i + U) / N rounds to exactly 1.0 when U is
-# within about N ulps of 1 (e.g. 4 + (1 - 2**-53) == 5.0): clamped here, such a position
-# picks the last particle with weight instead of running off the end (filterpy's loop
-# raises IndexError there).
-_BELOW_ONE = np.nextafter(1.0, 0.0)
-
-
-def _search(w: np.ndarray, positions: np.ndarray) -> np.ndarray:
-    # Positions < 1 = cumulative[-1], so every index is < N; side="right" skips the
-    # slices of zero-weight particles (equal consecutive cumulative sums).
-    np.minimum(positions, _BELOW_ONE, out=positions)
-    return np.searchsorted(_cumulative(w), positions, side="right")
-
-
-def _stratified(w: np.ndarray, u: np.ndarray) -> np.ndarray:
-    n = len(w)
-    positions = np.arange(n) + u
-    positions /= n  # as filterpy: (U_i + i) / N, bit for bit
-    return _search(w, positions)
+def _indexes(w: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Indexes for checked weights and uniforms: the compiled search that the particle
+    filter's resampling runs too (:func:`cdf_mj.inference.kernels.resample_indexes`)."""
+    try:
+        out: np.ndarray = kernels.resample_indexes(np.ascontiguousarray(w), np.ascontiguousarray(u, dtype=float))
+    except ValueError:
+        _raise_bad(w)  # says which: not finite, negative, or no positive finite sum
+        raise
+    return out
 
 
 def stratified_indexes_from_uniforms(weights: np.ndarray, uniforms: np.ndarray) -> np.ndarray:
@@ -109,14 +90,14 @@ def stratified_indexes_from_uniforms(weights: np.ndarray, uniforms: np.ndarray) 
         raise ValueError(f"need {len(w)} uniforms, one per weight, got shape {u.shape}")
     if not (np.all(u >= 0.0) and np.all(u < 1.0)):
         raise ValueError("uniforms must lie in [0, 1)")
-    return _stratified(w, u)
+    return _indexes(w, u)
 
 
 def stratified_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     """Stratified (low-variance) resampling: indexes ``(N,)`` of the particles to keep,
     drawing N uniforms from ``rng`` (``rng.random(N)``)."""
     w = _check_weights(weights)
-    return _stratified(w, rng.random(len(w)))
+    return _indexes(w, rng.random(len(w)))
 
 
 def systematic_indexes_from_uniform(weights: np.ndarray, uniform: float) -> np.ndarray:
@@ -125,10 +106,7 @@ def systematic_indexes_from_uniform(weights: np.ndarray, uniform: float) -> np.n
     u = float(uniform)
     if not 0.0 <= u < 1.0:
         raise ValueError(f"the uniform must lie in [0, 1), got {u!r}")
-    n = len(w)
-    positions = u + np.arange(n)
-    positions /= n
-    return _search(w, positions)
+    return _indexes(w, np.array([u]))
 
 
 def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
