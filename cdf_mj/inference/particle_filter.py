@@ -175,6 +175,11 @@ class ParticleFilter:
             float(cdf.cutoff_rule == "paper"), cdf.reinit_mahalanobis ** 2]])
         self._ego_hull = np.array([*ego.hull_offset, *ego.hull_half], dtype=float)
         self._boxes = kernels.pack_boxes(occluders, float(obstacle.eye_offset[2]))
+        # Read-only, as the driver model's own cfg and route table: the kernels they share
+        # (the driver's) are then compiled for one array type, not two.
+        for a in (self._cfg, self._ego_hull, self._boxes, self._cov_inv, self._theta_lo, self._theta_hi,
+                  self._jitter_std):
+            a.flags.writeable = False
         self._routes = model.table
         self.skipped_updates = 0  # measurements that were NaN or infinite
         self.reinits = 0  # times every likelihood vanished
