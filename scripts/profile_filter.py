@@ -2,18 +2,19 @@
 """Where a particle-filter tick (or an episode) spends its time: cProfile shares.
 
 Replays the measured poses of seed 1 (constant planner, a Cutoff) through
-``ParticleFilter.predict`` / ``update`` (the benchmark's ticks), under cProfile, and prints
+``ParticleFilter.predict`` / ``update`` and the risk rule's assessment of the filter's
+futures (the benchmark's ticks), under cProfile, and prints
 each stage's and each hot helper's share of the whole (cumulative time, so nested rows
 overlap their parents), with its calls per tick. The figures of docs/PERFORMANCE.md
 ("Where the time goes") come from::
 
     taskset -c 0 python scripts/profile_filter.py --particles 1000 --replays 20
 
-and ``--episode reactive`` profiles whole episodes of a planner instead (50 seeds, no
+and ``--episode cdf`` profiles whole episodes of a planner instead (50 seeds, no
 counterfactual) and prints the share of ``mj_step`` and of the functions with the most
 time of their own::
 
-    taskset -c 0 python scripts/profile_filter.py --episode reactive
+    taskset -c 0 python scripts/profile_filter.py --episode cdf
 
 cProfile adds its own overhead to every Python call, so shares, not absolute times, are
 what to read.
@@ -30,18 +31,19 @@ import numpy as np
 
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.inference.particle_filter import ParticleFilter
+from cdf_mj.planners.decision import RiskRule
 from cdf_mj.scenario.episode import run_episode
 from cdf_mj.sim.scene import Scene
 
-# (module file, function) rows to report, in the order of a tick.
+# (module file, function) rows to report, in the order of a tick. The compiled kernels
+# (kernels.py, conflict.py) show as one call each: cProfile cannot see inside them.
 PF = "particle_filter.py"
 ROWS = [
-    (PF, "predict"), (PF, "look"), ("occlusion.py", "visible"),
-    (PF, "believe"), (PF, "act"), ("driver.py", "obstacle_control"),
-    ("driver.py", "_project_by_intent"), ("driver.py", "pure_pursuit"), ("geometry.py", "point_at"),
-    ("driver.py", "road_clear"), (PF, "move"), (PF, "update"),
-    (PF, "weigh"), (PF, "posterior"), (PF, "cutoff_probability"),
-    (PF, "resample"), ("resampling.py", "stratified_resample"), ("geometry.py", "project"),
+    (PF, "predict"), ("kernels.py", "predict"), (PF, "set_ego"),
+    (PF, "update"), (PF, "weigh"), ("kernels.py", "weigh"), (PF, "posterior"), ("kernels.py", "posterior"),
+    (PF, "resample"), ("kernels.py", "resample"),
+    ("decision.py", "assess"), (PF, "futures"), ("kernels.py", "left_futures"), ("decision.py", "plans"),
+    ("conflict.py", "ego_plans"), ("conflict.py", "collision_masses"),
 ]
 
 
@@ -62,12 +64,16 @@ def main(argv: list[str] | None = None) -> int:
     pf = ParticleFilter.from_layout(scene.layout(), cfg, CDFConfig(n_particles=args.particles),
                                     np.random.default_rng(0))
 
+    rule = RiskRule(CDFConfig().risk)
+    rule.reset(scene.layout(), cfg)
+
     def replay() -> None:
         for _ in range(args.replays):
             pf.reset(poses[0])
             for k in range(1, len(poses)):
                 pf.predict(poses[k - 1])
                 pf.update(poses[k])
+                rule.assess(poses[k][0], pf.futures(rule.react_ticks))  # the cdf planner's decision
 
     replay()  # warm-up
     profiler = cProfile.Profile()
@@ -81,9 +87,9 @@ def main(argv: list[str] | None = None) -> int:
         key = (path.rsplit("/", 1)[-1], name)
         calls, total = cum.get(key, (0, 0.0))
         cum[key] = (calls + ncalls, total + ct)
-    tick = cum[(PF, "predict")][1] + cum[(PF, "update")][1]
-    print(f"N = {args.particles}, {ticks} ticks; shares of predict + update (cumulative, nested rows "
-          "overlap their parents)\n")
+    tick = cum[(PF, "predict")][1] + cum[(PF, "update")][1] + cum[("decision.py", "assess")][1]
+    print(f"N = {args.particles}, {ticks} ticks; shares of predict + update + the risk rule's assessment "
+          "(cumulative, nested rows overlap their parents)\n")
     print("| function | share of a tick | calls per tick |\n|---|---|---|")
     for key in ROWS:
         calls, total = cum.get(key, (0, 0.0))

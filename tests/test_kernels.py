@@ -196,9 +196,8 @@ def test_line_of_sight_kernel_equals_the_numpy_occluders(scenes, which):
         pf.set_ego(np.stack([ego_pose, layout.obstacle_start]))
         pf.pose = pose.copy()  # a new pose array: the filter's line-of-sight cache starts afresh
         got = pf.sees_ego()
-        targets = sight_targets(ego, ego_pose)
-        hull = np.array([*ego.hull_offset, *ego.hull_half])
-        np.testing.assert_allclose(filter_kernels.sight_targets(hull, ego_pose), targets, rtol=0, atol=1e-12)
+        targets = sight_targets(ego, ego_pose)  # one pose: the plain-float path the filter takes
+        np.testing.assert_array_equal(targets, sight_targets(ego, ego_pose[None])[0])  # = the array path
         want = occ.visible(obstacle.eye(pose), targets)
         np.testing.assert_array_equal(got, want, err_msg=f"{which}, ego at s = {s_ego:.1f} m")
         np.testing.assert_array_equal(pf.sees_ego(), want)  # from the cache, the same

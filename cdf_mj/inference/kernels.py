@@ -65,6 +65,20 @@ def pack_boxes(occluders: Occluders, eye_height: float) -> np.ndarray:
     return np.ascontiguousarray(np.column_stack([c, s, cx, cy, occluders.half, active.astype(float)]))
 
 
+# ---------------------------------------------------------------------------------- draws
+@numba.njit(cache=True, nogil=True)
+def _uniform(rng: np.random.Generator) -> float:
+    """One ``rng.random()`` draw. A function of its own: the kernels draw at many places,
+    and each inlined draw would make Numba compile the generator's code again."""
+    return rng.random()
+
+
+@numba.njit(cache=True, nogil=True)
+def _normal(rng: np.random.Generator) -> float:
+    """One ``rng.standard_normal()`` draw (see :func:`_uniform`)."""
+    return rng.standard_normal()
+
+
 # ---------------------------------------------------------------------------------- sight
 @numba.njit(cache=True, nogil=True)
 def sight_prep(boxes: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -148,7 +162,7 @@ def _arc(i: int, table: np.ndarray, nseg: np.ndarray, pose: np.ndarray, intent: 
     """Particle ``i``'s arc length [m] on its own route: kept, or (new pose, new intent)
     projected by the full search."""
     if seg[i] < 0 or s_route[i] != intent[i]:
-        s[i], seg[i] = drv.project(table, nseg, intent[i], pose[i, 0], pose[i, 1], -1)
+        s[i], seg[i] = drv.project(table, nseg, intent[i], pose[i, 0], pose[i, 1], drv.NO_SEGMENT)
         s_route[i] = intent[i]
     return float(s[i])
 
@@ -206,11 +220,11 @@ def predict(rng: np.random.Generator, cfg: np.ndarray, table: np.ndarray, nseg: 
     jump_p = cfg[F_JUMP]
     for i in range(n):
         # look (k) and believe (g)
-        if rng.random() < theta[i, T_BETA] and _sees(i, pose, cfg, boxes, loc, beyond, sight):
-            belief[i, 0] = ego[0] + rng.standard_normal() * cfg[F_OBS_POS]
-            belief[i, 1] = ego[1] + rng.standard_normal() * cfg[F_OBS_POS]
-            belief[i, 2] = ego[2] + rng.standard_normal() * cfg[F_OBS_HEAD]
-            belief[i, 3] = ego[3] + rng.standard_normal() * cfg[F_OBS_SPEED]
+        if _uniform(rng) < theta[i, T_BETA] and _sees(i, pose, cfg, boxes, loc, beyond, sight):
+            belief[i, 0] = ego[0] + _normal(rng) * cfg[F_OBS_POS]
+            belief[i, 1] = ego[1] + _normal(rng) * cfg[F_OBS_POS]
+            belief[i, 2] = ego[2] + _normal(rng) * cfg[F_OBS_HEAD]
+            belief[i, 3] = ego[3] + _normal(rng) * cfg[F_OBS_SPEED]
             has_belief[i] = True
         elif has_belief[i]:
             drv.dead_reckon(belief, i, dt)
@@ -222,12 +236,12 @@ def predict(rng: np.random.Generator, cfg: np.ndarray, table: np.ndarray, nseg: 
                                           belief[i, 3], theta[i, T_GAP], theta[i, T_CLEAR])
         may_go = False
         if md == WAITING and ok:  # its stop is over by its departure hazard
-            may_go = rng.random() < theta[i, T_PGO]
+            may_go = _uniform(rng) < theta[i, T_PGO]
         x, y, th, v = pose[i, 0], pose[i, 1], pose[i, 2], pose[i, 3]
         c, sn = math.cos(th), math.sin(th)
         a, steer, md = drv.drive(table, nseg, ends, cfg, r, x, y, c, sn, v, arc, seg[i], md, ok, may_go,
                                  theta[i, T_ACCEL], theta[i, T_TURN], theta[i, T_YIELD])
-        if jump_p > 0.0 and rng.random() < jump_p:
+        if jump_p > 0.0 and _uniform(rng) < jump_p:
             if md in (WAITING, YIELDING):
                 md = GOING  # takes the gap whatever it saw
                 has_belief[i] = False
@@ -236,8 +250,8 @@ def predict(rng: np.random.Generator, cfg: np.ndarray, table: np.ndarray, nseg: 
                 md = YIELDING  # hesitates for a tick
                 a = -theta[i, T_YIELD]
         mode[i] = md
-        a = min(max(a + rng.standard_normal() * cfg[F_NU_A], cfg[F_ACC_LO]), cfg[F_ACC_HI])
-        steer = min(max(steer + rng.standard_normal() * cfg[F_NU_S], cfg[F_STEER_LO]), cfg[F_STEER_HI])
+        a = min(max(a + _normal(rng) * cfg[F_NU_A], cfg[F_ACC_LO]), cfg[F_ACC_HI])
+        steer = min(max(steer + _normal(rng) * cfg[F_NU_S], cfg[F_STEER_LO]), cfg[F_STEER_HI])
         # move (f), and where that puts it on its route
         x, y, th, v = drv.bicycle(x, y, th, v, c, sn, a, steer, dt, cfg[drv.C_WHEELBASE])
         out[i, 0], out[i, 1], out[i, 2], out[i, 3] = x, y, th, v
@@ -384,8 +398,11 @@ def resample_indexes(w: np.ndarray, u: np.ndarray) -> np.ndarray:
     positions clamped below 1 (:mod:`cdf_mj.inference.resampling`). ValueError if the
     weights do not have a positive finite sum."""
     n = w.shape[0]
-    c = np.cumsum(w)
-    total = c[-1]
+    c = np.empty(n)
+    total = 0.0
+    for i in range(n):  # numpy.cumsum's order (sequential)
+        total += w[i]
+        c[i] = total
     if not 0.0 < total < math.inf:
         raise ValueError("weights must have a positive finite sum")
     if total != 1.0:
@@ -403,45 +420,39 @@ def resample_indexes(w: np.ndarray, u: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
-def resample(rng: np.random.Generator, w: np.ndarray, jitter_std: np.ndarray, lo: np.ndarray, hi: np.ndarray,
-             intent_floor: float, p_left: float, pose: np.ndarray, mode: np.ndarray, belief: np.ndarray,
-             has_belief: np.ndarray, intent: np.ndarray, theta: np.ndarray, s: np.ndarray, seg: np.ndarray,
-             s_route: np.ndarray, sight: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Stratified resampling (N uniforms), the gather of every particle array, the
-    parameters' jitter (six normals per particle, kept in ``[lo, hi]``), and the intent
-    floor (N uniforms; a held-back particle drawn redraws its intent, one uniform each)."""
+def resample(rng: np.random.Generator, w: np.ndarray, theta: np.ndarray, mode: np.ndarray, intent: np.ndarray,
+             jitter_std: np.ndarray, lo: np.ndarray, hi: np.ndarray, intent_floor: float,
+             p_left: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Stratified resampling (N uniforms): the indexes of the particles kept, and their
+    parameters and intents after the jitter (six normals per particle, kept in
+    ``[lo, hi]``) and the intent floor (N uniforms; a held-back particle drawn redraws its
+    intent, one uniform each). The caller gathers the other particle arrays."""
     n = w.shape[0]
     u = np.empty(n)
     for i in range(n):
-        u[i] = rng.random()
+        u[i] = _uniform(rng)
     keep = resample_indexes(w, u)
     n_theta = theta.shape[1]
-    pose2, belief2, theta2 = np.empty_like(pose), np.empty_like(belief), np.empty_like(theta)
-    mode2, has2, intent2 = np.empty_like(mode), np.empty_like(has_belief), np.empty_like(intent)
-    s2, seg2, route2, sight2 = np.empty_like(s), np.empty_like(seg), np.empty_like(s_route), np.empty_like(sight)
     jitter = jitter_std.shape[0]
+    theta2 = np.empty((n, n_theta))
+    intent2 = np.empty(n, dtype=np.int64)
     for i in range(n):
         k = keep[i]
-        for j in range(4):
-            pose2[i, j] = pose[k, j]
-            belief2[i, j] = belief[k, j]
-        mode2[i], has2[i], intent2[i] = mode[k], has_belief[k], intent[k]
-        s2[i], seg2[i], route2[i], sight2[i] = s[k], seg[k], s_route[k], sight[k]
+        intent2[i] = intent[k]
         for j in range(n_theta):
-            theta2[i, j] = theta[k, j]
-    if jitter > 0:
-        for i in range(n):
-            for j in range(jitter):
-                x = theta2[i, j] + rng.standard_normal() * jitter_std[j]
-                theta2[i, j] = min(max(x, lo[j]), hi[j])
+            x = theta[k, j]
+            if j < jitter:
+                x = min(max(x + _normal(rng) * jitter_std[j], lo[j]), hi[j])
+            theta2[i, j] = x
     if intent_floor > 0.0:
         redraw = np.empty(n, dtype=np.bool_)
         for i in range(n):
-            redraw[i] = rng.random() < intent_floor and (mode2[i] == WAITING or mode2[i] == YIELDING)
+            md = mode[keep[i]]
+            redraw[i] = _uniform(rng) < intent_floor and md in (WAITING, YIELDING)
         for i in range(n):
             if redraw[i]:
-                intent2[i] = LEFT if rng.random() < p_left else RIGHT
-    return pose2, mode2, belief2, has2, intent2, theta2, s2, seg2, route2, sight2
+                intent2[i] = LEFT if _uniform(rng) < p_left else RIGHT
+    return keep, theta2, intent2
 
 
 # ----------------------------------------------------------------------------- futures
@@ -450,10 +461,11 @@ def left_futures(w: np.ndarray, cfg: np.ndarray, table: np.ndarray, nseg: np.nda
                  targets: np.ndarray, ego: np.ndarray, pose: np.ndarray, mode: np.ndarray, belief: np.ndarray,
                  has_belief: np.ndarray, intent: np.ndarray, theta: np.ndarray, s: np.ndarray, seg: np.ndarray,
                  s_route: np.ndarray, sight: np.ndarray,
-                 react_ticks: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """:meth:`cdf_mj.inference.particle_filter.ParticleFilter.futures` in one pass: the
-    weight, arc length [m], speed [m/s], acceleration [m/s^2], cruise speed [m/s] and delay
-    [s] of every left-turner that may go on (a finite delay and a positive weight). "Held
+                 react_ticks: int) -> tuple[np.ndarray, int]:
+    """:meth:`cdf_mj.inference.particle_filter.ParticleFilter.futures` in one pass: a table
+    ``(6, N)`` whose first ``m`` columns (``m`` returned with it) are the weight, arc length
+    [m], speed [m/s], acceleration [m/s^2], cruise speed [m/s] and delay [s] of every
+    left-turner that may go on (a finite delay and a positive weight). "Held
     back until the believed ego has passed" is the driver's own clear rule
     (:func:`cdf_mj.model.kernels.clear`: passed, or far by distance and gap)."""
     n = w.shape[0]
@@ -462,8 +474,7 @@ def left_futures(w: np.ndarray, cfg: np.ndarray, table: np.ndarray, nseg: np.nda
     # Where the ego is, as a driver who looks now would judge it (the clear rule's terms).
     ego_ahead = (cx - ego[0]) * math.cos(ego[2]) + (cy - ego[1]) * math.sin(ego[2])
     ego_passed = ego_ahead < -passed_margin
-    w_out, s_out, v_out = np.empty(n), np.empty(n), np.empty(n)
-    a_out, vm_out, d_out = np.empty(n), np.empty(n), np.empty(n)
+    out = np.empty((6, n))  # rows: weight, arc length, speed, acceleration, cruise speed, delay
     m = 0
     for i in range(n):
         wi = w[i]
@@ -496,27 +507,6 @@ def left_futures(w: np.ndarray, cfg: np.ndarray, table: np.ndarray, nseg: np.nda
             wi *= (1.0 - theta[i, T_BETA]) ** math.ceil(t_commit / dt - 1e-9)
         if wi <= 0.0:
             continue
-        w_out[m], s_out[m], v_out[m], a_out[m], vm_out[m], d_out[m] = wi, arc, v, a, theta[i, T_TURN], delay
+        out[0, m], out[1, m], out[2, m], out[3, m], out[4, m], out[5, m] = wi, arc, v, a, theta[i, T_TURN], delay
         m += 1
-    return w_out[:m], s_out[:m], v_out[:m], a_out[:m], vm_out[:m], d_out[:m]
-
-
-@numba.njit(cache=True, nogil=True)
-def sight_targets(cfg_ego: np.ndarray, ego: np.ndarray) -> np.ndarray:
-    """The ego's four hull corners and the hull centre ``(5, 2)`` [m] for its pose ``(4,)``;
-    ``cfg_ego`` = [hull offset x, y, half length, half width] [m]."""
-    c, s = math.cos(ego[2]), math.sin(ego[2])
-    ox, oy, hx, hy = cfg_ego[0], cfg_ego[1], cfg_ego[2], cfg_ego[3]
-    cx = ego[0] + c * ox - s * oy
-    cy = ego[1] + s * ox + c * oy
-    out = np.empty((5, 2))
-    signs = ((1.0, 1.0), (-1.0, 1.0), (-1.0, -1.0), (1.0, -1.0))
-    mx = my = 0.0
-    for j in range(4):
-        lx, ly = signs[j][0] * hx, signs[j][1] * hy
-        out[j, 0] = cx + c * lx - s * ly
-        out[j, 1] = cy + s * lx + c * ly
-        mx += out[j, 0]
-        my += out[j, 1]
-    out[4, 0], out[4, 1] = mx / 4.0, my / 4.0
-    return out
+    return out, m

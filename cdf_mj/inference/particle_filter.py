@@ -61,7 +61,7 @@ from cdf_mj.model.conflict import Futures
 from cdf_mj.model.driver import DriverModel, DriverParams, Intent, Mode
 from cdf_mj.model.geometry import OrientedBox
 from cdf_mj.model.layout import Layout
-from cdf_mj.model.occlusion import Occluders
+from cdf_mj.model.occlusion import Occluders, sight_targets
 from cdf_mj.model.vehicle import CarGeometry
 
 __all__ = ["THETA", "ParticleFilter", "Posterior", "draw_parameters"]
@@ -173,11 +173,10 @@ class ParticleFilter:
             scenario.obs_noise_heading, scenario.obs_noise_speed, *obstacle.eye_offset[:2], s_enter,
             stop_margin, clear_margin, ego_brake, cdf.ego_latency, self._t_slowest,
             float(cdf.cutoff_rule == "paper"), cdf.reinit_mahalanobis ** 2]])
-        self._ego_hull = np.array([*ego.hull_offset, *ego.hull_half], dtype=float)
         self._boxes = kernels.pack_boxes(occluders, float(obstacle.eye_offset[2]))
         # Read-only, as the driver model's own cfg and route table: the kernels they share
         # (the driver's) are then compiled for one array type, not two.
-        for a in (self._cfg, self._ego_hull, self._boxes, self._cov_inv, self._theta_lo, self._theta_hi,
+        for a in (self._cfg, self._boxes, self._cov_inv, self._theta_lo, self._theta_hi,
                   self._jitter_std):
             a.flags.writeable = False
         self._routes = model.table
@@ -232,7 +231,7 @@ class ParticleFilter:
         self.belief = np.zeros((n, 4))
         self.has_belief = np.zeros(n, dtype=bool)
         self.theta = draw_parameters(self.prior, n, self.scenario.dt, self.rng)
-        self.logw = np.zeros(n)
+        self._uniform()
         self._ego, self._ego_values = None, []
         self.set_ego(system_pose)
         return self.posterior()
@@ -256,6 +255,12 @@ class ParticleFilter:
             w, self._ess = kernels.normalise(np.ascontiguousarray(self.logw, dtype=float))
             self._set_weights(w, self.logw)
         return self._w
+
+    def _uniform(self) -> None:
+        """Equal weights: log-weights 0, weights 1/N, ESS N."""
+        self.logw = np.zeros(self.n)
+        self._ess = float(self.n)
+        self._set_weights(np.full(self.n, 1.0 / self.n), self.logw)
 
     def _set_weights(self, w: np.ndarray, logw: np.ndarray) -> None:
         w.flags.writeable = False  # shared by every reader until the log-weights change
@@ -361,11 +366,11 @@ class ParticleFilter:
         Its own acceleration and turn speed, from its current speed (0 once held back).
         """
         s, seg, route = self._arcs()
-        out = kernels.left_futures(self.weights, self._cfg, self._routes.table, self._routes.nseg, self._boxes,
+        table, m = kernels.left_futures(self.weights, self._cfg, self._routes.table, self._routes.nseg, self._boxes,
                                    self._ego_targets, self._ego_pose(), self.pose, self.mode, self.belief,
                                    self.has_belief, self.intent, self.theta, s, seg, route, self._sights(),
                                    int(react_ticks))
-        return Futures(*out)
+        return Futures(*table[:, :m])
 
     # ------------------------------------------------------------------ one tick
     def predict(self, system_pose: np.ndarray | None = None) -> None:
@@ -394,7 +399,7 @@ class ParticleFilter:
             if values != self._ego_values and all(math.isfinite(v) for v in values):
                 self._ego_values = values
                 self._ego = ego = np.array(values)
-                self._ego_targets = kernels.sight_targets(self._ego_hull, ego)
+                self._ego_targets = sight_targets(self.ego, ego)
 
     def update(self, system_pose: np.ndarray) -> Posterior:
         """Weight by the measured obstacle pose, resample, and return the posterior.
@@ -438,7 +443,7 @@ class ParticleFilter:
         n, rng = self.n, self.rng
         self.reinits += 1
         self.pose = np.repeat(np.asarray(measured, dtype=float)[None], n, axis=0)
-        self.logw = np.zeros(n)
+        self._uniform()
         if not self.cdf.reinit_redraw:
             return
         self.intent = self._draw_intent(n)
@@ -458,13 +463,12 @@ class ParticleFilter:
         s, seg, route = self._arcs()
         sight = self._sights()
         jitter = self._jitter_std if self.cdf.param_jitter > 0.0 else self._jitter_std[:0]
-        (self.pose, self.mode, self.belief, self.has_belief, self.intent, self.theta, self._s, self._seg,
-         self._s_route, self._sight) = kernels.resample(
-            self.rng, self.weights, jitter, self._theta_lo, self._theta_hi, float(self.cdf.intent_floor),
-            float(self.prior.p_left), self.pose, self.mode, self.belief, self.has_belief, self.intent, self.theta,
-            s, seg, route, sight)
+        keep, self.theta, self.intent = kernels.resample(
+            self.rng, self.weights, self.theta, self.mode, self.intent, jitter, self._theta_lo, self._theta_hi,
+            float(self.cdf.intent_floor), float(self.prior.p_left))
+        self.pose, self.mode, self.belief, self.has_belief = (self.pose[keep], self.mode[keep], self.belief[keep],
+                                                              self.has_belief[keep])
+        self._s, self._seg, self._s_route, self._sight = s[keep], seg[keep], route[keep], sight[keep]
         self._s_of = self.pose
         self._sight_of = (self.pose, self._ego_targets)
-        self.logw = np.zeros(self.n)
-        self._ess = float(self.n)
-        self._set_weights(np.full(self.n, 1.0 / self.n), self.logw)
+        self._uniform()

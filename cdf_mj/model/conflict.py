@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from cdf_mj.model.geometry import Polyline, boxes_overlap
+from cdf_mj.model.geometry import Polyline, _box_gap
 from cdf_mj.model.layout import Layout
 from cdf_mj.model.vehicle import CarGeometry
 
@@ -128,21 +128,10 @@ class ConflictMap:
         wide_obs = widened(layout.obstacle, margin)
         wide_ego = widened(layout.ego, margin)
         # Candidate pairs: box centres within the sum of the half diagonals; then the exact
-        # box test on those.
+        # box test on those (touching counts), in one compiled pass.
         reach = _reach_centre(wide_obs) + _reach_centre(wide_ego)
-        obs_c, ego_c = _centres(wide_obs, obs), _centres(wide_ego, ego)
-        q_lo = np.full(len(s), np.inf)
-        q_hi = np.full(len(s), -np.inf)
-        for start in range(0, len(s), 256):  # (256, len(q)) distances at a time
-            block = obs[start:start + 256]
-            d2 = ((obs_c[start:start + 256, None, :] - ego_c[None, :, :]) ** 2).sum(-1)
-            js, is_ = np.nonzero(d2 <= reach * reach)
-            if js.size == 0:
-                continue
-            hit = boxes_overlap(wide_obs.footprint(block[js]), wide_ego.footprint(ego[is_]))
-            js, is_ = js[hit] + start, is_[hit]
-            np.minimum.at(q_lo, js, q[is_])
-            np.maximum.at(q_hi, js, q[is_])
+        q_lo, q_hi = _overlap_table(wide_obs.footprint(obs), wide_ego.footprint(ego), _centres(wide_obs, obs),
+                                    _centres(wide_ego, ego), q, reach)
         first = np.flatnonzero(np.isfinite(q_lo))
         if first.size == 0:
             raise ValueError("the obstacle's left route never meets the ego's route: no conflict to "
@@ -175,6 +164,24 @@ class ConflictMap:
 def widened(car: CarGeometry, margin: float) -> CarGeometry:
     """``car`` with ``margin`` [m] added to each half size of its collision box."""
     return dataclasses.replace(car, hull_half=car.hull_half + margin) if margin else car
+
+
+@numba.njit(cache=True, nogil=True)
+def _overlap_table(obs: np.ndarray, ego: np.ndarray, obs_c: np.ndarray, ego_c: np.ndarray, q: np.ndarray,
+                   reach: float) -> tuple[np.ndarray, np.ndarray]:  # pragma: no cover - compiled
+    """Per obstacle box ``obs[j]`` (corners ``(4, 2)``), the least and greatest ``q[i]`` of
+    the ego boxes ``ego[i]`` that it overlaps or touches (``inf``/``-inf`` if none), testing
+    only pairs whose centres are within ``reach`` [m]."""
+    q_lo = np.full(obs.shape[0], np.inf)
+    q_hi = np.full(obs.shape[0], -np.inf)
+    r2 = reach * reach
+    for j in range(obs.shape[0]):
+        for i in range(ego.shape[0]):
+            dx, dy = obs_c[j, 0] - ego_c[i, 0], obs_c[j, 1] - ego_c[i, 1]
+            if dx * dx + dy * dy <= r2 and _box_gap(obs[j], ego[i]) == 0.0:
+                q_lo[j] = min(q_lo[j], q[i])
+                q_hi[j] = max(q_hi[j], q[i])
+    return q_lo, q_hi
 
 
 @functools.lru_cache(maxsize=16)

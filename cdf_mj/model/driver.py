@@ -29,6 +29,7 @@ draws its own from the filter's prior (:class:`cdf_mj.config.DriverPrior`).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from enum import IntEnum
 
@@ -251,11 +252,33 @@ def obstacle_control(model: DriverModel, pose: np.ndarray, mode: np.ndarray, bel
         segment = np.full(n, -1, dtype=np.int64)
     tab = model.table
     rows = model.param_rows(n) if params is None else params.rows(n)
+    if n == 1:  # the simulated car, every tick: the same helpers, called one by one
+        return _one_obstacle(model, pose, mode, belief, has_belief, intent, rows, may_go, segment)
     u, new = kernels.obstacle_control_rows(tab.table, tab.nseg, tab.ends, model.cfg, pose, _per_row(mode, n, np.int64),
                                            _rows(belief, 4), _per_row(has_belief, n, np.bool_),
                                            _per_row(intent, n, np.int64), rows, _per_row(may_go, n, np.bool_),
                                            segment)
     return u, new
+
+
+def _one_obstacle(model: DriverModel, pose: np.ndarray, mode: np.ndarray | int, belief: np.ndarray,
+                  has_belief: np.ndarray | bool, intent: np.ndarray | int, params: np.ndarray,
+                  may_go: np.ndarray | bool, segment: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`obstacle_control` of one car: the kernels' per-car helpers (``project``,
+    ``clear``, ``drive``) called from Python, as ``obstacle_control_rows`` calls them (the
+    same compiled code, without compiling the row loop for one car)."""
+    tab = model.table
+    x, y, th, v = pose[0].tolist()
+    r = int(np.asarray(intent).reshape(-1)[0])
+    s, k = kernels.project(tab.table, tab.nseg, r, x, y, int(segment[0]))
+    segment[0] = k
+    bx, by, bth, bv = np.asarray(belief, dtype=float).reshape(4).tolist()
+    accel, turn_speed, yield_brake, gap, distance = params[0].tolist()
+    ok = kernels.clear(model.cfg, r, bool(np.asarray(has_belief).reshape(-1)[0]), bx, by, bth, bv, gap, distance)
+    a, steer, new = kernels.drive(tab.table, tab.nseg, tab.ends, model.cfg, r, x, y, math.cos(th), math.sin(th), v,
+                                  s, k, int(np.asarray(mode).reshape(-1)[0]), ok,
+                                  bool(np.asarray(may_go).reshape(-1)[0]), accel, turn_speed, yield_brake)
+    return np.array([[a, steer]]), np.array([new], dtype=np.int64)
 
 
 def update_belief(belief: np.ndarray, has_belief: np.ndarray, observed: np.ndarray,
@@ -275,11 +298,6 @@ def update_belief(belief: np.ndarray, has_belief: np.ndarray, observed: np.ndarr
     return new, has
 
 
-_BRAKE, _NO_BRAKE = np.ones(1, dtype=bool), np.zeros(1, dtype=bool)
-for _flag in (_BRAKE, _NO_BRAKE):
-    _flag.flags.writeable = False
-
-
 def ego_control(model: DriverModel, car: CarGeometry, pose: np.ndarray,
                 brake: np.ndarray | bool) -> np.ndarray:
     """The ego's nominal controller ``h(x2, x1, I2)``: follow its route at the nominal
@@ -291,14 +309,19 @@ def ego_control(model: DriverModel, car: CarGeometry, pose: np.ndarray,
     """
     cfg = model.config
     pose = np.asarray(pose, dtype=float)
+    tab = model.table
+    if pose.shape == (4,) and isinstance(brake, (bool, np.bool_)):  # one car, the per-tick call:
+        x, y, th, v = pose.tolist()  # the helpers of ego_control_rows, called one by one
+        s, k = kernels.project(tab.table, tab.nseg, EGO_ROUTE, x, y, -1)
+        steer = kernels.steer_to(tab.table, tab.nseg, tab.ends, EGO_ROUTE, x, y, math.cos(th), math.sin(th), s, k,
+                                 cfg.lookahead + cfg.lookahead_gain * v, car.wheelbase, car.max_steer)
+        accel = -car.max_brake if brake else min(max(cfg.ego_speed_gain * (cfg.ego_speed - v), -car.max_brake),
+                                                 car.max_accel)
+        return np.array([accel, steer])
     rows = _rows(pose, 4)
     limits = np.array([cfg.lookahead, cfg.lookahead_gain, car.wheelbase, car.max_steer, cfg.ego_speed,
                        cfg.ego_speed_gain, car.max_brake, car.max_accel])
-    tab = model.table
-    if pose.ndim == 1 and isinstance(brake, (bool, np.bool_)):  # one car, the per-tick call
-        brake_rows = _BRAKE if brake else _NO_BRAKE
-    else:
-        brake_rows = _per_row(np.broadcast_to(brake, pose.shape[:-1]).reshape(-1), len(rows), np.bool_)
+    brake_rows = _per_row(np.broadcast_to(brake, pose.shape[:-1]).reshape(-1), len(rows), np.bool_)
     u: np.ndarray = kernels.ego_control_rows(tab.table, tab.nseg, tab.ends, EGO_ROUTE, rows, brake_rows,
                                              limits).reshape((*pose.shape[:-1], 2))
     return u

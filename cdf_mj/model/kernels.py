@@ -48,6 +48,9 @@ LEFT, RIGHT = 0, 1
 #: Entries of the float vector ``cfg`` that the driver kernels read (:func:`pack_driver`).
 DRIVER_FIELDS = ("dt", "wheelbase", "max_steer", "max_brake", "lookahead", "lookahead_gain",
                  "passed_margin", "conflict_x", "conflict_y", "s_commit_left", "s_commit_right")
+#: The segment index that asks :func:`project` for the full search (an int64, not the
+#: literal -1, for which Numba would compile the projection a second time).
+NO_SEGMENT = np.int64(-1)
 C_DT, C_WHEELBASE, C_MAX_STEER, C_MAX_BRAKE, C_LOOKAHEAD, C_GAIN, C_PASSED, C_CX, C_CY, C_COMMIT = range(10)
 
 
@@ -322,7 +325,7 @@ def ego_control_rows(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, r: i
     out = np.empty((pose.shape[0], 2))
     for i in range(pose.shape[0]):
         x, y, th, v = pose[i, 0], pose[i, 1], pose[i, 2], pose[i, 3]
-        s, k = project(table, nseg, r, x, y, -1)
+        s, k = project(table, nseg, r, x, y, NO_SEGMENT)
         out[i, 1] = steer_to(table, nseg, ends, r, x, y, math.cos(th), math.sin(th), s, k, car[0] + car[1] * v,
                              car[2], car[3])
         out[i, 0] = -car[6] if brake[i] else min(max(car[5] * (car[4] - v), -car[6]), car[7])

@@ -51,6 +51,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from cdf_mj.model.geometry import box_corners_one
 from cdf_mj.model.vehicle import CarGeometry
 
 __all__ = ["Occluders", "ego_visible", "segments_hit_rectangle", "sight_targets"]
@@ -229,8 +230,19 @@ class Occluders:
 
 def sight_targets(ego: CarGeometry, ego_pose: np.ndarray) -> np.ndarray:
     """The points of the ego a driver may see, ``(..., 5, 2)`` [m, world frame]: the four
-    corners of its collision box and the box's centre, for pose(s) ``(..., 4)``."""
-    corners = ego.footprint(ego_pose)
+    corners of its collision box and the box's centre, for pose(s) ``(..., 4)`` (one pose,
+    the particle filter's per-tick call, on Python floats: the same operations)."""
+    pose = np.asarray(ego_pose, dtype=float)
+    if pose.shape == (4,):
+        x, y, th = float(pose[0]), float(pose[1]), float(pose[2])
+        c, s = math.cos(th), math.sin(th)
+        ox, oy = (float(v) for v in ego.hull_offset)
+        points = box_corners_one(x + c * ox - s * oy, y + s * ox + c * oy, c, s, float(ego.hull_half[0]),
+                                 float(ego.hull_half[1]))
+        (x0, y0), (x1, y1), (x2, y2), (x3, y3) = points
+        points.append(((((x0 + x1) + x2) + x3) / 4.0, (((y0 + y1) + y2) + y3) / 4.0))
+        return np.array(points)
+    corners = ego.footprint(pose)
     return np.concatenate([corners, corners.mean(axis=-2, keepdims=True)], axis=-2)
 
 
