@@ -51,7 +51,7 @@ rule (:mod:`cdf_mj.planners.decision`) rolls forward. ::
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -104,8 +104,10 @@ class Posterior:
     ess: float  # effective sample size before resampling
 
     def to_dict(self) -> dict[str, float]:
-        """JSON-serialisable view."""
-        return asdict(self)
+        """JSON-serialisable view (``dataclasses.asdict`` without its deep copy: every
+        field is a float)."""
+        return {"p_left": self.p_left, "p_right": self.p_right, "p_seen": self.p_seen, "p_cutoff": self.p_cutoff,
+                "ess": self.ess}
 
 
 class ParticleFilter:

@@ -1,8 +1,9 @@
 """Drivers: the obstacle's intent-and-belief controller and the ego's nominal controller.
 
 The obstacle's control ``u1 = h(x1, B, I)`` (paper eq. 4) is a finite state machine over
-arrays of shape ``(N, ...)``: the same function drives the one simulated obstacle
-(N = 1) and every particle of the filter. Its belief ``B`` is a point estimate of the
+arrays of shape ``(N, ...)``: the same compiled per-car code
+(:mod:`cdf_mj.model.kernels`) drives the one simulated obstacle (N = 1) and every
+particle of the filter (whose fused kernels call it particle by particle). Its belief ``B`` is a point estimate of the
 ego's pose ``[x, y, theta, v]`` or nothing (``has_belief`` false); it is updated by
 :func:`update_belief` (paper's ``g``): a new observation replaces it, otherwise it is
 dead-reckoned at the believed speed.

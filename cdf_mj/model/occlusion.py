@@ -4,7 +4,10 @@ The particle filter asks, for every particle's obstacle pose, whether that drive
 sees the ego. One MuJoCo ray per particle (or one isovist) costs far too much at
 N = 1000, so this module tests 2D sight segments against the buildings' footprints
 (oriented rectangles) with NumPy, for all particles, target points and buildings in one
-broadcast, particles on the innermost (contiguous) axis. ::
+broadcast, particles on the innermost (contiguous) axis. The filter itself runs the same
+test compiled, particle by particle and only for those whose answer it needs
+(:func:`cdf_mj.inference.kernels.eye_sees`); this module is its reference in the tests
+and the form for other callers. ::
 
     from cdf_mj.model.occlusion import ego_visible
 
@@ -51,7 +54,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from cdf_mj.model.geometry import box_corners_one
 from cdf_mj.model.vehicle import CarGeometry
 
 __all__ = ["Occluders", "ego_visible", "segments_hit_rectangle", "sight_targets"]
@@ -234,11 +236,7 @@ def sight_targets(ego: CarGeometry, ego_pose: np.ndarray) -> np.ndarray:
     the particle filter's per-tick call, on Python floats: the same operations)."""
     pose = np.asarray(ego_pose, dtype=float)
     if pose.shape == (4,):
-        x, y, th = float(pose[0]), float(pose[1]), float(pose[2])
-        c, s = math.cos(th), math.sin(th)
-        ox, oy = (float(v) for v in ego.hull_offset)
-        points = box_corners_one(x + c * ox - s * oy, y + s * ox + c * oy, c, s, float(ego.hull_half[0]),
-                                 float(ego.hull_half[1]))
+        points = ego.footprint_one(float(pose[0]), float(pose[1]), float(pose[2]))
         (x0, y0), (x1, y1), (x2, y2), (x3, y3) = points
         points.append(((((x0 + x1) + x2) + x3) / 4.0, (((y0 + y1) + y2) + y3) / 4.0))
         return np.array(points)

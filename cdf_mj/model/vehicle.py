@@ -24,7 +24,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cdf_mj.model.geometry import rotated_corners
+from cdf_mj.model.geometry import box_corners_one, rotated_corners
 
 __all__ = ["CarGeometry"]
 
@@ -167,6 +167,15 @@ class CarGeometry:
         ox, oy = self.hull_offset
         return rotated_corners(pose[..., 0] + c * ox - s * oy, pose[..., 1] + s * ox + c * oy, c, s,
                                self.hull_half)
+
+    def footprint_one(self, x: float, y: float, theta: float) -> list[tuple[float, float]]:
+        """:meth:`footprint` of one rear-axle pose ``x, y`` [m], ``theta`` [rad] on Python
+        floats (the same operations, so the same values, without NumPy's per-call
+        overhead: the per-tick calls on one car): four corners ``(x, y)`` [m]."""
+        c, s = math.cos(theta), math.sin(theta)
+        ox, oy = float(self.hull_offset[0]), float(self.hull_offset[1])
+        return box_corners_one(x + c * ox - s * oy, y + s * ox + c * oy, c, s, float(self.hull_half[0]),
+                               float(self.hull_half[1]))
 
     def eye(self, pose: np.ndarray | Sequence[float]) -> np.ndarray:
         """World position(s) ``(..., 3)`` [m] of the driver's eye for pose(s) ``(..., 4)``

@@ -214,7 +214,8 @@ class CDFMonitor:
             raise ValueError(f"CDFMonitor.observe: t must be a finite time [s], got {_show(t)}")
         poses = np.stack([_pose(ego_pose, "ego_pose"), _pose(obstacle_pose, "obstacle_pose")])
         self._check_time(t)
-        in_lane = bool(self.layout.ego_lane.contains(self.layout.obstacle.footprint(poses[1])).any())
+        x, y, th = (float(v) for v in poses[1, :3])
+        in_lane = self.layout.ego_lane.contains_any(self.layout.obstacle.footprint_one(x, y, th))
         brake = self.planner.brake(PlannerInput(t=t, poses=poses, obstacle_in_lane=in_lane))
         self._last_t = t
         post = self.planner.posterior
