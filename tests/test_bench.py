@@ -19,7 +19,8 @@ def test_bench_prints_filter_planner_and_scaling_rows(capsys):
     for name in PLANNERS:
         assert f"| episode, {name} (no counterfactual) |" in out
     for what in ("no filter", "with the filter", "defaults: filter and labels"):
-        assert re.search(rf"\| env step, {what} \| [\d.]+ (µs|ms) \| [\d.]+x \| \d+ steps/s \|", out), what
+        assert re.search(rf"\| env step, {what} \| [\d.]+ (µs|ms) \| [\d.]+x \| \d+ steps/s[^|]* \|", out), what
+    assert re.search(r"\| env step, with the filter \| .* steps/s; target >= 3000 steps/s: (met|MISSED) \|", out)
     one = re.search(r"\| reproduction: 3 seeds x cdf\+reactive, 1 worker\(s\) \| ([\d.]+) (ms|s) \| [\d.]+x \| (.*) \|",
                     out)
     two = re.search(r"\| reproduction: 3 seeds x cdf\+reactive, 2 worker\(s\) \| ([\d.]+) (ms|s) \| [\d.]+x \| (.*) \|",
