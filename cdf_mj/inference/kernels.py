@@ -455,6 +455,22 @@ def resample(rng: np.random.Generator, w: np.ndarray, theta: np.ndarray, mode: n
     return keep, theta2, intent2
 
 
+@numba.njit(cache=True, nogil=True)
+def gather(keep: np.ndarray, pose: np.ndarray, belief: np.ndarray, mode: np.ndarray, has_belief: np.ndarray,
+           s: np.ndarray, seg: np.ndarray, s_route: np.ndarray, sight: np.ndarray, pose2: np.ndarray,
+           belief2: np.ndarray, mode2: np.ndarray, has2: np.ndarray, s2: np.ndarray, seg2: np.ndarray,
+           route2: np.ndarray, sight2: np.ndarray) -> None:
+    """Row ``keep[i]`` of each particle array into row ``i`` of its new array (given, so
+    that nothing is allocated here and no tuple of arrays goes back to Python)."""
+    for i in range(keep.shape[0]):
+        k = keep[i]
+        for j in range(4):
+            pose2[i, j] = pose[k, j]
+            belief2[i, j] = belief[k, j]
+        mode2[i], has2[i], s2[i], seg2[i], route2[i], sight2[i] = (mode[k], has_belief[k], s[k], seg[k],
+                                                                   s_route[k], sight[k])
+
+
 # ----------------------------------------------------------------------------- futures
 @numba.njit(cache=True, nogil=True)
 def left_futures(w: np.ndarray, cfg: np.ndarray, table: np.ndarray, nseg: np.ndarray, boxes: np.ndarray,

@@ -468,9 +468,9 @@ class ParticleFilter:
         keep, self.theta, self.intent = kernels.resample(
             self.rng, self.weights, self.theta, self.mode, self.intent, jitter, self._theta_lo, self._theta_hi,
             float(self.cdf.intent_floor), float(self.prior.p_left))
-        self.pose, self.mode, self.belief, self.has_belief = (self.pose[keep], self.mode[keep], self.belief[keep],
-                                                              self.has_belief[keep])
-        self._s, self._seg, self._s_route, self._sight = s[keep], seg[keep], route[keep], sight[keep]
+        new = [np.empty_like(a) for a in (self.pose, self.belief, self.mode, self.has_belief, s, seg, route, sight)]
+        kernels.gather(keep, self.pose, self.belief, self.mode, self.has_belief, s, seg, route, sight, *new)
+        self.pose, self.belief, self.mode, self.has_belief, self._s, self._seg, self._s_route, self._sight = new
         self._s_of = self.pose
         self._sight_of = (self.pose, self._ego_targets)
         self._uniform()
