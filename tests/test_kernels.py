@@ -574,3 +574,72 @@ def test_bad_input_keeps_its_errors(scenes, traces):
     _assert_same(runs["nan"], runs["last"])
     assert np.all(np.isfinite(runs["nan"]["pose"])) and np.all(np.isfinite(runs["nan"]["belief"]))
     assert not np.array_equal(runs["nan"]["belief"], runs["other"]["belief"])
+
+
+# -------------------------------------------------------------- arrays the filter hands out
+def test_a_copy_of_the_filter_runs_on_without_changing_the_original(scenes, traces):
+    """A what-if copy (``copy.copy`` of the filter, as a user or ``rollout_assessment``
+    makes one) predicts on without touching the original's particles, caches or answers;
+    arrays read before a tick keep their values after it."""
+    import copy
+
+    poses = traces["package"][0]
+    pf = _filter(scenes["package"].layout())
+    _run(pf, poses, ticks=9)
+    before = {name: getattr(pf, name).copy() for name in ("pose", "mode", "belief", "has_belief", "intent")}
+    arc, post, fut = pf.arc(), pf.posterior(), pf.futures()
+    held_mode, held_belief = pf.mode, pf.belief
+    sim = copy.copy(pf)
+    for k in range(15):
+        sim.predict(poses[min(9 + k, len(poses) - 1)])
+    for name, value in before.items():
+        np.testing.assert_array_equal(getattr(pf, name), value, err_msg=name)
+    np.testing.assert_array_equal(pf.arc(), arc)
+    assert pf.posterior() == post
+    np.testing.assert_array_equal(pf.futures().s, fut.s)
+    pf.predict(poses[9])
+    np.testing.assert_array_equal(held_mode, before["mode"])  # the tick gave pf new arrays
+    np.testing.assert_array_equal(held_belief, before["belief"])
+
+
+def test_particle_arrays_of_the_wrong_shape_or_state_are_clear_errors(scene):
+    """Poses and log-weights are read-only (a cache is keyed on them); a particle array of
+    another length, or a tick before reset, is one clear error, never an unchecked read."""
+    layout = scene.layout()
+    pf = _filter(layout)
+    with pytest.raises(RuntimeError, match="reset"):
+        pf.predict(np.stack([layout.ego_start, layout.obstacle_start]))
+    pf.reset(np.stack([layout.ego_start, layout.obstacle_start]))
+    with pytest.raises(ValueError, match="read-only"):
+        pf.pose[0, 0] = 1.0
+    with pytest.raises(ValueError, match="read-only"):
+        pf.logw[0] = 1.0
+    pf.pose = np.repeat(pf.pose, 2, axis=0)
+    with pytest.raises(ValueError, match="pose has 400 rows"):
+        pf.predict()
+    pf.reset(np.stack([layout.ego_start, layout.obstacle_start]))
+    pf.logw = np.zeros(10)
+    with pytest.raises(ValueError, match="logw has 10 rows"):
+        pf.update(np.stack([layout.ego_start, layout.obstacle_start]))
+    model = pf.model
+    with pytest.raises(ValueError, match="beliefs"):
+        obstacle_control(model, np.zeros((3, 4)), np.zeros(3, dtype=int), np.zeros((2, 4)), np.zeros(3, dtype=bool),
+                         np.zeros(3, dtype=int))
+
+
+def test_a_car_far_inside_a_turn_gets_the_full_search(scene):
+    """Tracking walks to a nearer neighbour segment only; a point further than
+    TRACK_RADIUS from the route (where that walk can stop at a local nearest, e.g. far
+    inside the left turn) gets the full search, from any kept segment."""
+    model = _filter(scene.layout()).model
+    tab = model.table
+    route = model.routes[0]
+    rng = np.random.default_rng(3)
+    lo, hi = route.points.min(axis=0) - 15.0, route.points.max(axis=0) + 15.0
+    xy = rng.uniform(lo, hi, size=(4000, 2))
+    want, lateral = route.project(xy)
+    for k0 in range(int(tab.nseg[0])):
+        got = model_kernels.project_rows(tab.table, tab.nseg, np.zeros(len(xy), dtype=np.int64), xy,
+                                         np.full(len(xy), k0, dtype=np.int64))
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-9, err_msg=f"kept segment {k0}")
+    assert np.sum(np.abs(lateral) > model_kernels.TRACK_RADIUS) > 1000  # far points were in the sample

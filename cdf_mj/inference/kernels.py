@@ -11,7 +11,8 @@ loaded from the cache) for its stages:
   onto its route, tracked from the segment it was on;
 - :func:`weigh`: likelihood, normalised weights and the effective sample size;
 - :func:`posterior`: P(left), P(seen) and P(cutoff);
-- :func:`resample`: stratified resampling, gather, parameter jitter and intent floor;
+- :func:`resample`: stratified resampling, parameter jitter and intent floor, then
+  :func:`gather` of the other particle arrays into new arrays the caller allocates;
 - :func:`left_futures`: the left-turners' futures for the risk decision rule.
 
 Random numbers come from the filter's own ``numpy.random.Generator``, passed in: Numba

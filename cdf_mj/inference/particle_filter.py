@@ -93,6 +93,13 @@ def _finite(a: np.ndarray) -> bool:
     return all(math.isfinite(x) for x in a.flat)
 
 
+def _published(a: np.ndarray) -> np.ndarray:
+    """``a``, made read-only: the arrays whose identity keys the filter's caches (poses,
+    log-weights) are replaced, never edited in place."""
+    a.flags.writeable = False
+    return a
+
+
 @dataclass(frozen=True)
 class Posterior:
     """The filter's answer at one tick. Probabilities in [0, 1]; ESS in [1, N]."""
@@ -128,9 +135,11 @@ class ParticleFilter:
             lane (without it: where its nose reaches the conflict point).
 
     The particle arrays (``pose``, ``mode``, ``belief``, ``has_belief``, ``intent``,
-    ``theta``, ``logw``) are public; replace ``pose`` and ``logw`` by new arrays rather
-    than editing them in place (the arc lengths, lines of sight and weights are cached
-    per array).
+    ``theta``, ``logw``) are public. Each tick gives the moving ones (``pose``, ``mode``,
+    ``belief``, ``has_belief``) new arrays: one read earlier keeps its values. ``pose`` and
+    ``logw`` are read-only (the arc lengths, lines of sight and weights are cached per
+    array): assign new arrays of N rows to change them; a particle array of another
+    length is a ValueError at the next stage.
     """
 
     def __init__(self, model: DriverModel, obstacle: CarGeometry, ego: CarGeometry,
@@ -227,7 +236,7 @@ class ParticleFilter:
         if system_pose.shape != (2, 4) or not np.all(np.isfinite(system_pose)):
             raise ValueError(f"the first system pose must be finite, of shape (2, 4), got {system_pose.tolist()}")
         n = self.n
-        self.pose = np.repeat(system_pose[1][None], n, axis=0)
+        self.pose = _published(np.repeat(system_pose[1][None], n, axis=0))
         self.intent = self._draw_intent(n)
         self.mode = np.full(n, _WAITING, dtype=np.int64)
         self.belief = np.zeros((n, 4))
@@ -254,13 +263,14 @@ class ParticleFilter:
         """Normalised weights (N,). Computed once per ``logw`` array: the filter assigns
         a new array whenever the log-weights change, never edits one it has weighed."""
         if self._w_of is not self.logw:
+            self._check_particles()
             w, self._ess = kernels.normalise(np.ascontiguousarray(self.logw, dtype=float))
             self._set_weights(w, self.logw)
         return self._w
 
     def _uniform(self) -> None:
         """Equal weights: log-weights 0, weights 1/N, ESS N."""
-        self.logw = np.zeros(self.n)
+        self.logw = _published(np.zeros(self.n))
         self._ess = float(self.n)
         self._set_weights(np.full(self.n, 1.0 / self.n), self.logw)
 
@@ -328,6 +338,17 @@ class ParticleFilter:
             raise RuntimeError("the particle filter has no measurement yet: call reset(S0) first")
         return self._ego
 
+    def _check_particles(self) -> None:
+        """RuntimeError before :meth:`reset`; ValueError if a particle array assigned from
+        outside does not have the filter's N rows (the kernels index them unchecked)."""
+        if len(self.pose) == 0:
+            raise RuntimeError("the particle filter has no particles yet: call reset(S0) first")
+        n = self.n
+        for name in ("pose", "mode", "belief", "has_belief", "intent", "theta", "logw"):
+            rows = len(getattr(self, name))
+            if rows != n:
+                raise ValueError(f"ParticleFilter.{name} has {rows} rows, the filter has N = {n} particles")
+
     def ego_exposed(self) -> bool:
         """Whether the (known) ego could still be cut off: it has not yet cleared the
         obstacle's path at the conflict point (its tail past it by the obstacle's half
@@ -386,13 +407,19 @@ class ParticleFilter:
         """
         self.set_ego(system_pose)
         ego = self._ego_pose()
-        s, seg, route = self._arcs()
+        self._check_particles()
+        # New arrays for everything that moves (the kernel writes them): an array the filter
+        # has handed out is never changed afterwards, and a copy of the filter is independent.
+        mode, belief, has_belief = self.mode.copy(), self.belief.copy(), self.has_belief.copy()
+        s, seg, route = (a.copy() for a in self._arcs())
         sight = self._sights()
         tab = self._routes
         pose = kernels.predict(self.rng, self._cfg, tab.table, tab.nseg, tab.ends, self._boxes, self._ego_targets,
-                               ego, self.pose, self.mode, self.belief, self.has_belief, self.intent, self.theta,
-                               s, seg, route, sight)
-        self.pose = self._s_of = pose  # the arcs now are those of the new poses
+                               ego, self.pose, mode, belief, has_belief, self.intent, self.theta, s, seg, route,
+                               sight)
+        self.mode, self.belief, self.has_belief = mode, belief, has_belief
+        self._s, self._seg, self._s_route = s, seg, route
+        self.pose = self._s_of = _published(pose)  # the arcs now are those of the new poses
 
     def set_ego(self, system_pose: np.ndarray | None) -> None:
         """Take the ego's pose from ``system_pose[0]`` where it is finite."""
@@ -422,6 +449,7 @@ class ParticleFilter:
         system_pose = np.asarray(system_pose, dtype=float)
         self.set_ego(system_pose)  # the ego's pose now, for P(cutoff)
         meas = system_pose[1]
+        self._check_particles()
         if not _finite(meas):
             self.skipped_updates += 1
             return self.posterior()
@@ -430,7 +458,7 @@ class ParticleFilter:
         if not ok:
             self.reinitialise(meas)
             return self.posterior()
-        self.logw = logw
+        self.logw = _published(logw)
         self._ess = ess
         self._set_weights(w, logw)
         return self.posterior()
@@ -444,7 +472,7 @@ class ParticleFilter:
         from the prior. Without it, the particles keep their discrete hypotheses."""
         n, rng = self.n, self.rng
         self.reinits += 1
-        self.pose = np.repeat(np.asarray(measured, dtype=float)[None], n, axis=0)
+        self.pose = _published(np.repeat(np.asarray(measured, dtype=float)[None], n, axis=0))
         self._uniform()
         if not self.cdf.reinit_redraw:
             return
@@ -462,6 +490,7 @@ class ParticleFilter:
         parameters get a small Gaussian jitter (``param_jitter``; not the departure
         hazard), and a fraction ``intent_floor`` of the particles still held back (waiting
         or yielding) redraw their intent from the prior."""
+        self._check_particles()
         s, seg, route = self._arcs()
         sight = self._sights()
         jitter = self._jitter_std if self.cdf.param_jitter > 0.0 else self._jitter_std[:0]
@@ -471,6 +500,7 @@ class ParticleFilter:
         new = [np.empty_like(a) for a in (self.pose, self.belief, self.mode, self.has_belief, s, seg, route, sight)]
         kernels.gather(keep, self.pose, self.belief, self.mode, self.has_belief, s, seg, route, sight, *new)
         self.pose, self.belief, self.mode, self.has_belief, self._s, self._seg, self._s_route, self._sight = new
+        _published(self.pose)
         self._s_of = self.pose
         self._sight_of = (self.pose, self._ego_targets)
         self._uniform()

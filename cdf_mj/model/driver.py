@@ -249,14 +249,18 @@ def obstacle_control(model: DriverModel, pose: np.ndarray, mode: np.ndarray, bel
     """
     pose = _rows(pose, 4)
     n = len(pose)
+    belief = _rows(belief, 4)
     if segment is None:
         segment = np.full(n, -1, dtype=np.int64)
+    if len(belief) != n or segment.shape != (n,) or segment.dtype != np.int64:
+        raise ValueError(f"obstacle_control: {n} poses need {n} beliefs (got {len(belief)}) and an int64 "
+                         f"segment array of shape ({n},) (got {segment.dtype} {segment.shape})")
     tab = model.table
     rows = model.param_rows(n) if params is None else params.rows(n)
     if n == 1:  # the simulated car, every tick: the same helpers, called one by one
         return _one_obstacle(model, pose, mode, belief, has_belief, intent, rows, may_go, segment)
     u, new = kernels.obstacle_control_rows(tab.table, tab.nseg, tab.ends, model.cfg, pose, _per_row(mode, n, np.int64),
-                                           _rows(belief, 4), _per_row(has_belief, n, np.bool_),
+                                           belief, _per_row(has_belief, n, np.bool_),
                                            _per_row(intent, n, np.int64), rows, _per_row(may_go, n, np.bool_),
                                            segment)
     return u, new

@@ -239,8 +239,9 @@ def box_gap(a: np.ndarray | Sequence[tuple[float, float]],
     touch (separating axes), else the smallest vertex-to-edge distance both ways; what
     ``shapely.distance`` gives for the two polygons, up to float rounding.
 
-    One pair per call, compiled (Numba): some 0.3 µs, where shapely takes 10 µs and the
-    same steps on Python floats 7 µs.
+    One pair per call, compiled (Numba): about 2 µs from Python with lists of corners (0.3
+    µs of it the compiled core, ``_box_gap``, which other kernels call), where shapely
+    takes 10 µs and the same steps on Python floats 7 µs.
     """
     return float(_box_gap(np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)))
 

@@ -18,8 +18,8 @@ projected on, and the next projection walks from there to the neighbouring segme
 that one is nearer (a descent on the distance along the route), instead of searching all
 segments. A car near its route, moving less than a segment per tick, gets the same
 closest point as the full search (tests/test_kernels.py checks it over whole episodes);
-a segment index < 0 asks for the full search (the first minimum, as
-:meth:`cdf_mj.model.geometry.Polyline.project`).
+a car found more than :data:`TRACK_RADIUS` from its route, or a segment index < 0, gets
+the full search (the first minimum, as :meth:`cdf_mj.model.geometry.Polyline.project`).
 
 World frame (x east, y north), metres, seconds, radians; poses are rear-axle
 ``[x, y, theta, v]``.
@@ -48,6 +48,9 @@ LEFT, RIGHT = 0, 1
 #: Entries of the float vector ``cfg`` that the driver kernels read (:func:`pack_driver`).
 DRIVER_FIELDS = ("dt", "wheelbase", "max_steer", "max_brake", "lookahead", "lookahead_gain",
                  "passed_margin", "conflict_x", "conflict_y", "s_commit_left", "s_commit_right")
+#: [m] Beyond this distance from its route a car's tracked projection is checked by the
+#: full search (far inside a turn, the walk can stop at a local nearest segment).
+TRACK_RADIUS = 3.0
 #: The segment index that asks :func:`project` for the full search (an int64, not the
 #: literal -1, for which Numba would compile the projection a second time).
 NO_SEGMENT = np.int64(-1)
@@ -113,17 +116,24 @@ def _segment(table: np.ndarray, r: int, k: int, x: float, y: float) -> tuple[flo
 
 
 @helper
+def _nearest(table: np.ndarray, nseg: np.ndarray, r: int, x: float, y: float) -> tuple[float, int]:
+    """The full search of :func:`project`: every segment, the first minimum."""
+    best, s_best, k_best = math.inf, 0.0, 0
+    for k in range(nseg[r]):
+        d2, s = _segment(table, r, k, x, y)
+        if d2 < best:  # the first minimum, as numpy.argmin
+            best, s_best, k_best = d2, s, k
+    return s_best, k_best
+
+
+@helper
 def project(table: np.ndarray, nseg: np.ndarray, r: int, x: float, y: float, k0: int) -> tuple[float, int]:
     """Arc length [m] of the closest point of route ``r`` to (x, y) and its segment,
-    tracking from segment ``k0`` (full search when ``k0 < 0`` or out of range)."""
+    tracking from segment ``k0`` (the full search when ``k0 < 0`` or out of range, or
+    when the tracked point is more than :data:`TRACK_RADIUS` away)."""
     n = nseg[r]
     if k0 < 0 or k0 >= n:
-        best, s_best, k_best = math.inf, 0.0, 0
-        for k in range(n):
-            d2, s = _segment(table, r, k, x, y)
-            if d2 < best:  # the first minimum, as numpy.argmin
-                best, s_best, k_best = d2, s, k
-        return s_best, k_best
+        return _nearest(table, nseg, r, x, y)
     best, s_best = _segment(table, r, k0, x, y)
     k = k0
     while k + 1 < n:  # walk ahead while nearer
@@ -137,6 +147,8 @@ def project(table: np.ndarray, nseg: np.ndarray, r: int, x: float, y: float, k0:
             if d2 >= best:
                 break
             best, s_best, k = d2, s, k - 1
+    if best > TRACK_RADIUS * TRACK_RADIUS:  # off its route: a local nearest may not be the nearest
+        return _nearest(table, nseg, r, x, y)
     return s_best, k
 
 
