@@ -300,10 +300,12 @@ def _print_json(obj: Any) -> None:
 
 # ----------------------------------------------------------------- subcommands
 def _command(subparsers: argparse._SubParsersAction, name: str, *, summary: str,
-             description: str) -> argparse.ArgumentParser:
-    """The parser of subcommand ``name``; ``summary`` is its line in the list of commands."""
+             description: str, compiles: bool = False) -> argparse.ArgumentParser:
+    """The parser of subcommand ``name``; ``summary`` is its line in the list of commands;
+    ``compiles``: it simulates, so its first run after an install compiles the kernels
+    (and says so, :func:`_note_first_compile`)."""
     p: argparse.ArgumentParser = subparsers.add_parser(name, help=summary, description=description)
-    p.set_defaults(summary=summary)
+    p.set_defaults(summary=summary, compiles=compiles)
     return p
 
 
@@ -318,7 +320,7 @@ def _cmd_episode(args: argparse.Namespace) -> int:
 
 def _add_episode(subparsers: argparse._SubParsersAction) -> None:
     p = _command(
-        subparsers, "episode", summary="run one episode and print its record as JSON",
+        subparsers, "episode", compiles=True, summary="run one episode and print its record as JSON",
         description="Run one episode of the T-intersection scenario and print its record "
                     "as JSON on stdout. The same seed gives the same record.")
     p.add_argument("--seed", type=_non_negative_int, default=0,
@@ -439,7 +441,8 @@ def _add_experiment_arguments(p: argparse.ArgumentParser, episodes: int, out: st
 
 def _add_experiment(subparsers: argparse._SubParsersAction) -> None:
     p = _command(
-        subparsers, "experiment", summary="run planners on the same seeds; print the paper's tables beside ours",
+        subparsers, "experiment", compiles=True,
+        summary="run planners on the same seeds; print the paper's tables beside ours",
         description="Run each planner on the same seeds, write one JSON line per episode and "
                     "planner to OUT/episodes.jsonl, and print the paper's two tables beside ours. "
                     "The same command again continues an interrupted run, or only prints the "
@@ -449,7 +452,7 @@ def _add_experiment(subparsers: argparse._SubParsersAction) -> None:
 
 def _add_reproduce(subparsers: argparse._SubParsersAction) -> None:
     p = _command(
-        subparsers, "reproduce", summary="the paper's experiment: 1000 episodes, CDF and reactive",
+        subparsers, "reproduce", compiles=True, summary="the paper's experiment: 1000 episodes, CDF and reactive",
         description="The paper's experiment with the default settings: seeds 0-999, the CDF "
                     "(with its risk rule; --planners cdf-threshold,reactive for the paper's rule) "
                     "and the reactive planner on the same seeds, both tables. The same command "
@@ -509,7 +512,8 @@ def _add_sweep(subparsers: argparse._SubParsersAction) -> None:
     from cdf_mj.experiments.sweep import SWEEPS
 
     p = _command(
-        subparsers, "sweep", summary="run the planners over a range of one setting; table (CSV, Markdown) and figure",
+        subparsers, "sweep", compiles=True,
+        summary="run the planners over a range of one setting; table (CSV, Markdown) and figure",
         description="Sweep one setting (beta, particle count, threshold tau, noise levels) over "
                     "values, each point an experiment on the same seeds; write OUT/<sweep>.csv, "
                     "OUT/<sweep>.md and OUT/<sweep>.png. Finished points are reused. The figure "
@@ -602,7 +606,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
 
 def _add_render(subparsers: argparse._SubParsersAction) -> None:
     p = _command(
-        subparsers, "render", summary="render one episode offscreen to MP4, GIF or a PNG frame",
+        subparsers, "render", compiles=True, summary="render one episode offscreen to MP4, GIF or a PNG frame",
         description="Run one episode and render it offscreen (MUJOCO_GL=egl unless set, else "
                     "osmesa) at a constant frame rate in simulated time, with the obstacle's "
                     "isovist, the CDF's particles, the braking moment and P(left), P(seen), "
@@ -740,7 +744,8 @@ def _int_list(item: Callable[[str], int]) -> Callable[[str], list[int]]:
 
 def _add_bench(subparsers: argparse._SubParsersAction) -> None:
     p = _command(
-        subparsers, "bench", summary="timing table: physics, filter stages, planners, startup, reproduction scaling",
+        subparsers, "bench", compiles=True,
+        summary="timing table: physics, filter stages, planners, startup, reproduction scaling",
         description="Print the benchmark table of docs/PERFORMANCE.md: medians from one run "
                     "(pin to one core with taskset -c 0 for the single-core rows), each beside its "
                     "ratio to the physics floor of the same run (x floor), and the startup of fresh "
@@ -870,6 +875,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command is None:
         print(_command_list(parser))
         return 0
+    if getattr(args, "compiles", False) and not getattr(args, "quiet", False):
+        _note_first_compile()
     try:
         return args.func(args)
     except BrokenPipeError:  # `cdf-mj episode | head`: the reader left; no traceback
@@ -888,6 +895,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         if isinstance(exc, OSError) and exc.filename is None and exc.errno in _WRITE_ERRORS and out:
             exc.filename = f"{out} (writing)"  # a failed write() names no file: name the output
         return _fail(exc)
+
+
+def _note_first_compile() -> None:
+    """One line on stderr before a command that simulates, the first time after an install:
+    its kernels compile first (seconds of silence otherwise look like a hang)."""
+    from cdf_mj.model.kernels import compile_pending
+
+    folder = compile_pending()
+    if folder is not None:
+        print(f"cdf-mj: first run here: compiling the simulation's kernels (about 10 s, once; "
+              f"cached in {folder})", file=sys.stderr, flush=True)
 
 
 #: Errors of a write that names no file (``[Errno 28] No space left on device``): reported

@@ -212,3 +212,19 @@ def test_tables_print_as_text_by_default_and_as_markdown_on_request(capsys, tmp_
     assert "reactive" in text and "reactive" in markdown
     assert_one_line_error(*run_cli(capsys, "experiment", *SMALL_RUN, "--out", str(out), "--format", "html"),
                           "--format", "text", "markdown")
+
+
+def test_the_first_run_after_an_install_says_it_compiles(tmp_path):
+    """With an empty Numba cache a simulating command says, on stderr, that it compiles the
+    kernels (seconds of silence would look like a hang); once they are cached, it says
+    nothing; stdout stays the record's JSON either way."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH")]))
+    command = [sys.executable, "-m", "cdf_mj", "episode", "--seed", "0", "--planner", "constant",
+               "--set", "duration=0.5"]
+    first, again = (subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
+                    for _ in range(2))
+    assert first.returncode == 0 and again.returncode == 0, first.stderr + again.stderr
+    assert "compiling the simulation's kernels" in first.stderr and str(tmp_path / "numba") in first.stderr
+    assert "compiling" not in again.stderr
+    assert json.loads(first.stdout) == json.loads(again.stdout)

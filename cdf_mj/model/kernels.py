@@ -28,6 +28,7 @@ World frame (x east, y north), metres, seconds, radians; poses are rear-axle
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
@@ -37,7 +38,7 @@ import numpy as np
 
 from cdf_mj.model.geometry import Polyline
 
-__all__ = ["DRIVER_FIELDS", "RouteTable", "helper", "pack_driver"]
+__all__ = ["DRIVER_FIELDS", "RouteTable", "compile_pending", "helper", "pack_driver"]
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -342,3 +343,19 @@ def ego_control_rows(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, r: i
                              car[2], car[3])
         out[i, 0] = -car[6] if brake[i] else min(max(car[5] * (car[4] - v), -car[6]), car[7])
     return out
+
+
+def compile_pending() -> str | None:
+    """Where Numba caches the package's kernels, if the driver model (which every episode
+    runs) has never been compiled there: the first run after an install compiles the
+    kernels it needs, about 10 s on a 2-core machine for an episode of the CDF
+    (docs/PERFORMANCE.md). None once it has, or if this Numba's cache cannot be read
+    (nothing is guessed). A stale cache after an upgrade is not detected: Numba then
+    compiles again, silently."""
+    try:
+        cache: Any = drive._cache  # type: ignore[attr-defined]  # a numba Dispatcher
+        folder = str(cache.cache_path)
+        index = os.path.join(folder, cache._impl.filename_base + ".nbi")
+    except Exception:  # private Numba attributes: say nothing rather than guess
+        return None
+    return None if os.path.exists(index) else folder
