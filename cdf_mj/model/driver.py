@@ -30,7 +30,6 @@ draws its own from the filter's prior (:class:`cdf_mj.config.DriverPrior`).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from enum import IntEnum
 
@@ -257,32 +256,28 @@ def obstacle_control(model: DriverModel, pose: np.ndarray, mode: np.ndarray, bel
                          f"segment array of shape ({n},) (got {segment.dtype} {segment.shape})")
     tab = model.table
     rows = model.param_rows(n) if params is None else params.rows(n)
-    if n == 1:  # the simulated car, every tick: the same helpers, called one by one
+    mode, has_belief = _per_row(mode, n, np.int64), _per_row(has_belief, n, np.bool_)
+    intent, may_go = _per_row(intent, n, np.int64), _per_row(may_go, n, np.bool_)
+    if n == 1:  # the simulated car, every tick
         return _one_obstacle(model, pose, mode, belief, has_belief, intent, rows, may_go, segment)
-    u, new = kernels.obstacle_control_rows(tab.table, tab.nseg, tab.ends, model.cfg, pose, _per_row(mode, n, np.int64),
-                                           belief, _per_row(has_belief, n, np.bool_),
-                                           _per_row(intent, n, np.int64), rows, _per_row(may_go, n, np.bool_),
-                                           segment)
+    u, new = kernels.obstacle_control_rows(tab.table, tab.nseg, tab.ends, model.cfg, pose, mode, belief, has_belief,
+                                           intent, rows, may_go, segment)
     return u, new
 
 
-def _one_obstacle(model: DriverModel, pose: np.ndarray, mode: np.ndarray | int, belief: np.ndarray,
-                  has_belief: np.ndarray | bool, intent: np.ndarray | int, params: np.ndarray,
-                  may_go: np.ndarray | bool, segment: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`obstacle_control` of one car: the kernels' per-car helpers (``project``,
-    ``clear``, ``drive``) called from Python, as ``obstacle_control_rows`` calls them (the
-    same compiled code, without compiling the row loop for one car)."""
+def _one_obstacle(model: DriverModel, pose: np.ndarray, mode: np.ndarray, belief: np.ndarray,
+                  has_belief: np.ndarray, intent: np.ndarray, params: np.ndarray, may_go: np.ndarray,
+                  segment: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`obstacle_control` of one car: the per-car kernel that ``obstacle_control_rows``
+    loops over (:func:`cdf_mj.model.kernels.control`), called from Python (the row loop is
+    not compiled for one car)."""
     tab = model.table
     x, y, th, v = pose[0].tolist()
-    r = int(np.asarray(intent).reshape(-1)[0])
-    s, k = kernels.project(tab.table, tab.nseg, r, x, y, int(segment[0]))
-    segment[0] = k
-    bx, by, bth, bv = np.asarray(belief, dtype=float).reshape(4).tolist()
+    bx, by, bth, bv = belief[0].tolist()
     accel, turn_speed, yield_brake, gap, distance = params[0].tolist()
-    ok = kernels.clear(model.cfg, r, bool(np.asarray(has_belief).reshape(-1)[0]), bx, by, bth, bv, gap, distance)
-    a, steer, new = kernels.drive(tab.table, tab.nseg, tab.ends, model.cfg, r, x, y, math.cos(th), math.sin(th), v,
-                                  s, k, int(np.asarray(mode).reshape(-1)[0]), ok,
-                                  bool(np.asarray(may_go).reshape(-1)[0]), accel, turn_speed, yield_brake)
+    a, steer, new, segment[0] = kernels.control(tab.table, tab.nseg, tab.ends, model.cfg, int(intent[0]), x, y, th,
+                                                v, int(segment[0]), int(mode[0]), bool(has_belief[0]), bx, by, bth,
+                                                bv, bool(may_go[0]), accel, turn_speed, yield_brake, gap, distance)
     return np.array([[a, steer]]), np.array([new], dtype=np.int64)
 
 
@@ -315,17 +310,13 @@ def ego_control(model: DriverModel, car: CarGeometry, pose: np.ndarray,
     cfg = model.config
     pose = np.asarray(pose, dtype=float)
     tab = model.table
-    if pose.shape == (4,) and isinstance(brake, (bool, np.bool_)):  # one car, the per-tick call:
-        x, y, th, v = pose.tolist()  # the helpers of ego_control_rows, called one by one
-        s, k = kernels.project(tab.table, tab.nseg, EGO_ROUTE, x, y, -1)
-        steer = kernels.steer_to(tab.table, tab.nseg, tab.ends, EGO_ROUTE, x, y, math.cos(th), math.sin(th), s, k,
-                                 cfg.lookahead + cfg.lookahead_gain * v, car.wheelbase, car.max_steer)
-        accel = -car.max_brake if brake else min(max(cfg.ego_speed_gain * (cfg.ego_speed - v), -car.max_brake),
-                                                 car.max_accel)
-        return np.array([accel, steer])
-    rows = _rows(pose, 4)
     limits = np.array([cfg.lookahead, cfg.lookahead_gain, car.wheelbase, car.max_steer, cfg.ego_speed,
                        cfg.ego_speed_gain, car.max_brake, car.max_accel])
+    if pose.shape == (4,) and isinstance(brake, (bool, np.bool_)):  # one car, the per-tick call
+        x, y, th, v = pose.tolist()
+        accel, steer = kernels.ego_control(tab.table, tab.nseg, tab.ends, EGO_ROUTE, x, y, th, v, bool(brake), limits)
+        return np.array([accel, steer])
+    rows = _rows(pose, 4)
     brake_rows = _per_row(np.broadcast_to(brake, pose.shape[:-1]).reshape(-1), len(rows), np.bool_)
     u: np.ndarray = kernels.ego_control_rows(tab.table, tab.nseg, tab.ends, EGO_ROUTE, rows, brake_rows,
                                              limits).reshape((*pose.shape[:-1], 2))

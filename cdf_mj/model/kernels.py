@@ -171,15 +171,29 @@ def point_at(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, r: int, s: f
 
 
 @helper
+def ahead_of_conflict(cfg: np.ndarray, x: float, y: float, th: float) -> float:
+    """[m] how far the conflict point lies ahead of a car at (x, y) heading ``th``, along
+    its heading (negative once past it)."""
+    return float((cfg[C_CX] - x) * math.cos(th) + (cfg[C_CY] - y) * math.sin(th))
+
+
+@helper
+def passed_or_far(cfg: np.ndarray, ahead: float, v: float, critical_gap: float, clear_distance: float) -> bool:
+    """The clear rule's test of an ego ``ahead`` [m] of the conflict point at speed ``v``
+    [m/s]: past it by ``passed_margin``, or further than ``clear_distance`` and more than
+    ``critical_gap`` [s] away."""
+    if ahead < -cfg[C_PASSED]:
+        return True
+    return bool(ahead > clear_distance and ahead > critical_gap * max(v, 0.0))
+
+
+@helper
 def clear(cfg: np.ndarray, intent: int, has_belief: bool, bx: float, by: float, bth: float, bv: float,
           critical_gap: float, clear_distance: float) -> bool:
     """The driver's clear rule (:func:`cdf_mj.model.driver.road_clear`) for one driver."""
     if intent == RIGHT or not has_belief:
         return True
-    ahead = (cfg[C_CX] - bx) * math.cos(bth) + (cfg[C_CY] - by) * math.sin(bth)  # [m] to the conflict
-    if ahead < -cfg[C_PASSED]:
-        return True
-    return bool(ahead > clear_distance and ahead > critical_gap * max(bv, 0.0))
+    return passed_or_far(cfg, ahead_of_conflict(cfg, bx, by, bth), bv, critical_gap, clear_distance)
 
 
 @helper
@@ -225,6 +239,21 @@ def drive(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, cfg: np.ndarray
     return a, steer, new
 
 
+@helper
+def control(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, cfg: np.ndarray, intent: int, x: float,
+            y: float, th: float, v: float, k: int, mode: int, has_belief: bool, bx: float, by: float, bth: float,
+            bv: float, may_go: bool, accel: float, turn_speed: float, yield_brake: float, critical_gap: float,
+            clear_distance: float) -> tuple[float, float, int, int]:
+    """The obstacle driver of one car from its pose, kept segment ``k`` and belief:
+    projection, clear rule and :func:`drive`; returns its acceleration, steering, new mode
+    and new segment."""
+    s, k = project(table, nseg, intent, x, y, k)
+    ok = clear(cfg, intent, has_belief, bx, by, bth, bv, critical_gap, clear_distance)
+    a, steer, new = drive(table, nseg, ends, cfg, intent, x, y, math.cos(th), math.sin(th), v, s, k, mode, ok,
+                          may_go, accel, turn_speed, yield_brake)
+    return a, steer, new, k
+
+
 @numba.njit(cache=True, nogil=True)
 def obstacle_control_rows(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, cfg: np.ndarray,
                            pose: np.ndarray, mode: np.ndarray, belief: np.ndarray, has_belief: np.ndarray,
@@ -236,14 +265,10 @@ def obstacle_control_rows(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray,
     u = np.empty((n, 2))
     new = np.empty(n, dtype=np.int64)
     for i in range(n):
-        r = intent[i]
-        s, seg[i] = project(table, nseg, r, pose[i, 0], pose[i, 1], seg[i])
-        ok = clear(cfg, r, has_belief[i], belief[i, 0], belief[i, 1], belief[i, 2], belief[i, 3],
-                   params[i, 3], params[i, 4])
-        th = pose[i, 2]
-        u[i, 0], u[i, 1], new[i] = drive(table, nseg, ends, cfg, r, pose[i, 0], pose[i, 1], math.cos(th),
-                                         math.sin(th), pose[i, 3], s, seg[i], mode[i], ok, may_go[i],
-                                         params[i, 0], params[i, 1], params[i, 2])
+        u[i, 0], u[i, 1], new[i], seg[i] = control(
+            table, nseg, ends, cfg, intent[i], pose[i, 0], pose[i, 1], pose[i, 2], pose[i, 3], seg[i], mode[i],
+            has_belief[i], belief[i, 0], belief[i, 1], belief[i, 2], belief[i, 3], may_go[i], params[i, 0],
+            params[i, 1], params[i, 2], params[i, 3], params[i, 4])
     return u, new
 
 
@@ -327,21 +352,28 @@ def steer_rows(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, r: int, po
     return out
 
 
+@helper
+def ego_control(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, r: int, x: float, y: float, th: float,
+                v: float, brake: bool, car: np.ndarray) -> tuple[float, float]:
+    """The ego's nominal controller for one pose on route ``r``: pure pursuit and
+    ``speed_gain (v_nominal - v)`` within its limits, or its full braking if ``brake``;
+    ``car`` = [look-ahead m, look-ahead gain s, wheelbase m, max steer rad, nominal speed
+    m/s, speed gain 1/s, max brake m/s^2, max accel m/s^2]. Returns [acceleration m/s^2,
+    steering rad]."""
+    s, k = project(table, nseg, r, x, y, NO_SEGMENT)
+    steer = steer_to(table, nseg, ends, r, x, y, math.cos(th), math.sin(th), s, k, car[0] + car[1] * v, car[2],
+                     car[3])
+    return (-car[6] if brake else min(max(car[5] * (car[4] - v), -car[6]), car[7])), steer
+
+
 @numba.njit(cache=True, nogil=True)
 def ego_control_rows(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, r: int, pose: np.ndarray,
                      brake: np.ndarray, car: np.ndarray) -> np.ndarray:
-    """The ego's nominal controller for N poses ``(N, 4)`` on route ``r``: pure pursuit
-    and ``speed_gain (v_nominal - v)`` within its limits, or its full braking where
-    ``brake``; ``car`` = [look-ahead m, look-ahead gain s, wheelbase m, max steer rad,
-    nominal speed m/s, speed gain 1/s, max brake m/s^2, max accel m/s^2]. Returns
-    ``(N, 2)`` [acceleration m/s^2, steering rad]."""
+    """:func:`ego_control` for N poses ``(N, 4)``: ``(N, 2)``."""
     out = np.empty((pose.shape[0], 2))
     for i in range(pose.shape[0]):
-        x, y, th, v = pose[i, 0], pose[i, 1], pose[i, 2], pose[i, 3]
-        s, k = project(table, nseg, r, x, y, NO_SEGMENT)
-        out[i, 1] = steer_to(table, nseg, ends, r, x, y, math.cos(th), math.sin(th), s, k, car[0] + car[1] * v,
-                             car[2], car[3])
-        out[i, 0] = -car[6] if brake[i] else min(max(car[5] * (car[4] - v), -car[6]), car[7])
+        out[i, 0], out[i, 1] = ego_control(table, nseg, ends, r, pose[i, 0], pose[i, 1], pose[i, 2], pose[i, 3],
+                                           brake[i], car)
     return out
 
 
