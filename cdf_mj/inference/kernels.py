@@ -183,7 +183,7 @@ def ego_terms(cfg: np.ndarray, ego: np.ndarray) -> tuple[float, float]:
     has, ``inf`` if stopped), and the ticks left before its last chance to brake and
     stop short of it (``inf`` if (nearly) stopped, 0 once too late)."""
     v = ego[3]
-    ahead = (cfg[drv.C_CX] - ego[0]) * math.cos(ego[2]) + (cfg[drv.C_CY] - ego[1]) * math.sin(ego[2])
+    ahead = drv.ahead_of_conflict(cfg, ego[0], ego[1], ego[2])
     rest = ahead + cfg[F_CLEAR_MARGIN]
     t_clear = 0.0 if rest <= 0.0 else rest / v if v > 0.1 else math.inf
     if v < 0.1:
@@ -203,6 +203,16 @@ def arrival(s_enter: float, s: float, v: float, a: float, v_turn: float) -> floa
     if rem <= d_acc:
         return (math.sqrt(v * v + 2.0 * a * rem) - v) / a
     return t_acc + (rem - d_acc) / max(v_turn, 0.1)
+
+
+@helper
+def ticks_to_commit(cfg: np.ndarray, arc: float, v: float, a: float) -> int:
+    """Ticks a left-turner at arc length ``arc`` [m] and speed ``v`` [m/s], accelerating at
+    ``a`` [m/s^2], needs to reach its commit point: the ticks on which a look can still
+    stop it."""
+    remaining = max(cfg[drv.C_COMMIT + LEFT] - arc, 0.0)
+    ticks: int = math.ceil((math.sqrt(v * v + 2.0 * a * remaining) - v) / a / cfg[drv.C_DT] - 1e-9)
+    return ticks
 
 
 # ---------------------------------------------------------------------------- predict
@@ -288,17 +298,10 @@ def weigh(pose: np.ndarray, meas: np.ndarray, cov_inv: np.ndarray, logw: np.ndar
         top = max(top, out[i])
     if not nearest <= reinit_maha2:
         return np.empty(0), np.empty(0), 0.0, False
-    w = np.empty(n)
-    total = 0.0
     for i in range(n):
         out[i] -= top
-        w[i] = math.exp(out[i])
-        total += w[i]
-    sq = 0.0
-    for i in range(n):
-        w[i] /= total
-        sq += w[i] * w[i]
-    return out, w, min(max(1.0 / sq, 1.0), float(n)), True
+    w, ess = normalise(out)
+    return out, w, ess, True
 
 
 @numba.njit(cache=True, nogil=True)
@@ -321,23 +324,25 @@ def normalise(logw: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 @helper
-def _cutoff(i: int, cfg: np.ndarray, pose: np.ndarray, mode: np.ndarray, intent: np.ndarray,
-            theta: np.ndarray, arc: float, sees: bool, t_clear: float, ticks_to_stop: float) -> float:
+def _cutoff(i: int, cfg: np.ndarray, table: np.ndarray, nseg: np.ndarray, pose: np.ndarray, mode: np.ndarray,
+            intent: np.ndarray, theta: np.ndarray, s: np.ndarray, seg: np.ndarray, s_route: np.ndarray,
+            boxes: np.ndarray, loc: np.ndarray, beyond: np.ndarray, sight: np.ndarray, t_clear: float,
+            ticks_to_stop: float) -> float:
     """The probability that particle ``i`` cuts the ego off (see
-    :meth:`cdf_mj.inference.particle_filter.ParticleFilter.cutoff_probability`)."""
+    :meth:`cdf_mj.inference.particle_filter.ParticleFilter.cutoff_probability`), reading
+    and filling its arc-length and line-of-sight caches."""
     md = mode[i]
     if intent[i] != LEFT or (md != GOING and md != COMMITTED):
         return 0.0
     if cfg[F_PAPER] != 0.0:
         return 1.0
+    arc = _arc(i, table, nseg, pose, intent, s, seg, s_route)
     v, a = pose[i, 3], theta[i, T_ACCEL]
     p = 1.0
     if md == GOING:
-        remaining = max(cfg[drv.C_COMMIT + LEFT] - arc, 0.0)
-        t_commit = (math.sqrt(v * v + 2.0 * a * remaining) - v) / a
-        ticks = min(math.ceil(t_commit / cfg[drv.C_DT] - 1e-9), ticks_to_stop)
+        sees = theta[i, T_BETA] > 0.0 and _sees(i, pose, cfg, boxes, loc, beyond, sight)
         beta = theta[i, T_BETA] if sees else 0.0
-        p = (1.0 - beta) ** ticks
+        p = (1.0 - beta) ** min(ticks_to_commit(cfg, arc, v, a), ticks_to_stop)
     # Pulls out behind the ego? Only once the ego clears the conflict point sooner than the
     # slowest driver of the prior could get there.
     if p > 0.0 and t_clear < cfg[F_T_SLOWEST] and arrival(cfg[F_S_ENTER], arc, v, a, theta[i, T_TURN]) > t_clear:
@@ -352,14 +357,10 @@ def cutoff_rows(cfg: np.ndarray, table: np.ndarray, nseg: np.ndarray, boxes: np.
     """Every particle's cut-off probability ``(N,)``."""
     loc, beyond = sight_prep(boxes, targets)
     t_clear, ticks = ego_terms(cfg, ego)
-    n = pose.shape[0]
-    out = np.zeros(n)
-    for i in range(n):
-        md = mode[i]
-        if intent[i] == LEFT and md in (GOING, COMMITTED):
-            arc = _arc(i, table, nseg, pose, intent, s, seg, s_route)
-            sees = md == GOING and theta[i, T_BETA] > 0.0 and _sees(i, pose, cfg, boxes, loc, beyond, sight)
-            out[i] = _cutoff(i, cfg, pose, mode, intent, theta, arc, sees, t_clear, ticks)
+    out = np.empty(pose.shape[0])
+    for i in range(pose.shape[0]):
+        out[i] = _cutoff(i, cfg, table, nseg, pose, mode, intent, theta, s, seg, s_route, boxes, loc, beyond,
+                         sight, t_clear, ticks)
     return out
 
 
@@ -381,11 +382,9 @@ def posterior(w: np.ndarray, cfg: np.ndarray, table: np.ndarray, nseg: np.ndarra
         if intent[i] != LEFT:
             continue
         p_left += wi
-        md = mode[i]
-        if exposed and wi > 0.0 and md in (GOING, COMMITTED):
-            arc = _arc(i, table, nseg, pose, intent, s, seg, s_route)
-            sees = md == GOING and theta[i, T_BETA] > 0.0 and _sees(i, pose, cfg, boxes, loc, beyond, sight)
-            p_cut += wi * _cutoff(i, cfg, pose, mode, intent, theta, arc, sees, t_clear, ticks)
+        if exposed and wi > 0.0:
+            p_cut += wi * _cutoff(i, cfg, table, nseg, pose, mode, intent, theta, s, seg, s_route, boxes, loc,
+                                  beyond, sight, t_clear, ticks)
     return min(max(p_left, 0.0), 1.0), min(max(p_seen, 0.0), 1.0), min(max(p_cut, 0.0), 1.0)
 
 
@@ -487,10 +486,8 @@ def left_futures(w: np.ndarray, cfg: np.ndarray, table: np.ndarray, nseg: np.nda
     (:func:`cdf_mj.model.kernels.clear`: passed, or far by distance and gap)."""
     n = w.shape[0]
     loc, beyond = sight_prep(boxes, targets)
-    cx, cy, passed_margin, dt = cfg[drv.C_CX], cfg[drv.C_CY], cfg[drv.C_PASSED], cfg[drv.C_DT]
     # Where the ego is, as a driver who looks now would judge it (the clear rule's terms).
-    ego_ahead = (cx - ego[0]) * math.cos(ego[2]) + (cy - ego[1]) * math.sin(ego[2])
-    ego_passed = ego_ahead < -passed_margin
+    ego_ahead = drv.ahead_of_conflict(cfg, ego[0], ego[1], ego[2])
     out = np.empty((6, n))  # rows: weight, arc length, speed, acceleration, cruise speed, delay
     m = 0
     for i in range(n):
@@ -504,24 +501,20 @@ def left_futures(w: np.ndarray, cfg: np.ndarray, table: np.ndarray, nseg: np.nda
         if md in (WAITING, YIELDING):
             v = 0.0
             if has_belief[i]:
-                bx, by, bth, bv = belief[i, 0], belief[i, 1], belief[i, 2], belief[i, 3]
-                ahead = (cx - bx) * math.cos(bth) + (cy - by) * math.sin(bth)
-                passed = ahead < -passed_margin
-                far = ahead > theta[i, T_CLEAR] and ahead > theta[i, T_GAP] * max(bv, 0.0)
-                if not (passed or far):  # held back until the believed ego has passed
-                    if bv <= 0.1:
+                ahead = drv.ahead_of_conflict(cfg, belief[i, 0], belief[i, 1], belief[i, 2])
+                bv = belief[i, 3]
+                if not drv.passed_or_far(cfg, ahead, bv, theta[i, T_GAP], theta[i, T_CLEAR]):
+                    if bv <= 0.1:  # held back until the believed ego has passed
                         continue
-                    delay = max((ahead + passed_margin) / bv, 0.0)
+                    delay = max((ahead + cfg[drv.C_PASSED]) / bv, 0.0)
             if md == WAITING:  # and it leaves at its hazard: within the reaction window, or later
                 wi *= 1.0 - (1.0 - theta[i, T_PGO]) ** react_ticks
         arc = _arc(i, table, nseg, pose, intent, s, seg, s_route)
         # Looks ahead of it before its commit point stop it only if it would then judge the
         # ego not clear (a far or passed ego is no reason to yield).
-        seen_clear = ego_passed or (ego_ahead > theta[i, T_CLEAR] and ego_ahead > theta[i, T_GAP] * max(ego[3], 0.0))
-        if md != COMMITTED and not seen_clear and _sees(i, pose, cfg, boxes, loc, beyond, sight):
-            remaining = max(cfg[drv.C_COMMIT + LEFT] - arc, 0.0)
-            t_commit = (math.sqrt(v * v + 2.0 * a * remaining) - v) / a
-            wi *= (1.0 - theta[i, T_BETA]) ** math.ceil(t_commit / dt - 1e-9)
+        if (md != COMMITTED and not drv.passed_or_far(cfg, ego_ahead, ego[3], theta[i, T_GAP], theta[i, T_CLEAR])
+                and _sees(i, pose, cfg, boxes, loc, beyond, sight)):
+            wi *= (1.0 - theta[i, T_BETA]) ** ticks_to_commit(cfg, arc, v, a)
         if wi <= 0.0:
             continue
         out[0, m], out[1, m], out[2, m], out[3, m], out[4, m], out[5, m] = wi, arc, v, a, theta[i, T_TURN], delay

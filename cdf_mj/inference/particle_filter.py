@@ -169,20 +169,19 @@ class ParticleFilter:
             inside = np.flatnonzero(ego_lane.contains(obstacle.footprint(poses)).any(axis=-1))
             if inside.size:
                 s_enter = float(s_grid[inside[0]])
-        self._s_enter = s_enter
         # Kernel jitter of the continuous parameters after each resampling: std = this
         # fraction of each prior range, values kept inside the range.
         ranges = np.array([getattr(prior, name) for name in THETA[:-1]], dtype=float)
         self._theta_lo, self._theta_hi = ranges[:, 0].copy(), ranges[:, 1].copy()
         self._jitter_std = cdf.param_jitter * (self._theta_hi - self._theta_lo)
         # [s] the slowest plausible driver needs from a standstill at the line into the lane.
-        self._t_slowest = kernels.arrival(s_enter, 0.0, 0.0, prior.accel[0], prior.turn_speed[0])
+        t_slowest = kernels.arrival(s_enter, 0.0, 0.0, prior.accel[0], prior.turn_speed[0])
         nu = cdf.process_noise_scale * np.array([scenario.noise_accel, scenario.noise_steer])
         # Everything the kernels read, as one float vector (kernels.FILTER_FIELDS).
         self._cfg = np.concatenate([model.cfg, [
             cdf.mode_jump, *obstacle.accel_range, *obstacle.steer_range, *nu, scenario.obs_noise_pos,
             scenario.obs_noise_heading, scenario.obs_noise_speed, *obstacle.eye_offset[:2], s_enter,
-            stop_margin, clear_margin, ego_brake, cdf.ego_latency, self._t_slowest,
+            stop_margin, clear_margin, ego_brake, cdf.ego_latency, t_slowest,
             float(cdf.cutoff_rule == "paper"), cdf.reinit_mahalanobis ** 2]])
         self._boxes = kernels.pack_boxes(occluders, float(obstacle.eye_offset[2]))
         # Read-only, as the driver model's own cfg and route table: the kernels they share
@@ -278,30 +277,31 @@ class ParticleFilter:
         w.flags.writeable = False  # shared by every reader until the log-weights change
         self._w, self._w_of = w, logw
 
-    def _arcs(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """The arc-length cache ``(s, segment, route)`` of the current pose array (reset
-        to "not known" for a new one that the filter did not move itself)."""
+    def _caches(self, check: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The per-particle caches the kernels read and fill, after checking the particle
+        arrays (:meth:`_check_particles`; ``check=False`` for a kernel that reads only the
+        poses): arc length, segment and route of the current pose array (reset to "not
+        known" for a pose array the filter did not move itself), and the line of sight of
+        the current pose array and ego pose."""
+        if check:
+            self._check_particles()
+        n = len(self.pose)
         if self._s_of is not self.pose:
-            n = len(self.pose)
             self._s, self._seg, self._s_route = np.zeros(n), np.full(n, -1, dtype=np.int64), np.zeros(n, np.int64)
             self._s_of = self.pose
-        return self._s, self._seg, self._s_route
-
-    def _sights(self) -> np.ndarray:
-        """The line-of-sight cache of the current pose array and ego pose."""
         cached = self._sight_of
         if cached is None or cached[0] is not self.pose or cached[1] is not self._ego_targets:
-            self._sight = np.full(len(self.pose), -1, dtype=np.int8)
+            self._sight = np.full(n, -1, dtype=np.int8)
             self._sight_of = (self.pose, self._ego_targets)
-        return self._sight
+        return self._s, self._seg, self._s_route, self._sight
 
     def posterior(self) -> Posterior:
         """P(left), P(right), P(seen), P(cutoff) and ESS of the current weights."""
         w = self.weights
-        s, seg, route = self._arcs()
+        s, seg, route, sight = self._caches()
         p_left, p_seen, p_cutoff = kernels.posterior(
             w, self._cfg, self._routes.table, self._routes.nseg, self._boxes, self._ego_targets, self._ego_pose(),
-            self.pose, self.mode, self.has_belief, self.intent, self.theta, s, seg, route, self._sights())
+            self.pose, self.mode, self.has_belief, self.intent, self.theta, s, seg, route, sight)
         return Posterior(p_left=p_left, p_right=1.0 - p_left, p_seen=p_seen, p_cutoff=p_cutoff, ess=self._ess)
 
     def cutoff_probability(self) -> np.ndarray:
@@ -315,10 +315,10 @@ class ParticleFilter:
         its speed, has cleared the conflict point: one that pulls out behind the ego is no
         cut-off (the scenario's own label), and braking for it would stop the ego in its
         path."""
-        s, seg, route = self._arcs()
+        s, seg, route, sight = self._caches()
         p: np.ndarray = kernels.cutoff_rows(self._cfg, self._routes.table, self._routes.nseg, self._boxes,
                                             self._ego_targets, self._ego_pose(), self.pose, self.mode, self.intent,
-                                            self.theta, s, seg, route, self._sights())
+                                            self.theta, s, seg, route, sight)
         return p
 
     def ego_time_to_clear(self) -> float:
@@ -359,7 +359,7 @@ class ParticleFilter:
     def arc(self) -> np.ndarray:
         """[m] every particle's arc length on its own route ``(N,)`` (left or right, by its
         intent), kept from the projection after its last move."""
-        s, seg, route = self._arcs()
+        s, seg, route, _ = self._caches()
         kernels.arcs(self._routes.table, self._routes.nseg, self.pose, self.intent, s, seg, route)
         arc: np.ndarray = s.copy()
         return arc
@@ -367,7 +367,8 @@ class ParticleFilter:
     def sees_ego(self) -> np.ndarray:
         """Whether the ego is in each particle driver's line of sight ``(N,)``, computed once
         per pose array and ego pose."""
-        seen: np.ndarray = kernels.sight_rows(self.pose, self._cfg, self._boxes, self._ego_targets, self._sights())
+        sight = self._caches(check=False)[3]  # it reads the poses alone, of any number
+        seen: np.ndarray = kernels.sight_rows(self.pose, self._cfg, self._boxes, self._ego_targets, sight)
         return seen
 
     def futures(self, react_ticks: int = 1) -> Futures:
@@ -388,11 +389,11 @@ class ParticleFilter:
 
         Its own acceleration and turn speed, from its current speed (0 once held back).
         """
-        s, seg, route = self._arcs()
+        s, seg, route, sight = self._caches()
         table, m = kernels.left_futures(self.weights, self._cfg, self._routes.table, self._routes.nseg, self._boxes,
-                                   self._ego_targets, self._ego_pose(), self.pose, self.mode, self.belief,
-                                   self.has_belief, self.intent, self.theta, s, seg, route, self._sights(),
-                                   int(react_ticks))
+                                        self._ego_targets, self._ego_pose(), self.pose, self.mode, self.belief,
+                                        self.has_belief, self.intent, self.theta, s, seg, route, sight,
+                                        int(react_ticks))
         return Futures(*table[:, :m])
 
     # ------------------------------------------------------------------ one tick
@@ -407,12 +408,11 @@ class ParticleFilter:
         """
         self.set_ego(system_pose)
         ego = self._ego_pose()
-        self._check_particles()
+        s, seg, route, sight = self._caches()
         # New arrays for everything that moves (the kernel writes them): an array the filter
         # has handed out is never changed afterwards, and a copy of the filter is independent.
         mode, belief, has_belief = self.mode.copy(), self.belief.copy(), self.has_belief.copy()
-        s, seg, route = (a.copy() for a in self._arcs())
-        sight = self._sights()
+        s, seg, route = s.copy(), seg.copy(), route.copy()
         tab = self._routes
         pose = kernels.predict(self.rng, self._cfg, tab.table, tab.nseg, tab.ends, self._boxes, self._ego_targets,
                                ego, self.pose, mode, belief, has_belief, self.intent, self.theta, s, seg, route,
@@ -490,9 +490,7 @@ class ParticleFilter:
         parameters get a small Gaussian jitter (``param_jitter``; not the departure
         hazard), and a fraction ``intent_floor`` of the particles still held back (waiting
         or yielding) redraw their intent from the prior."""
-        self._check_particles()
-        s, seg, route = self._arcs()
-        sight = self._sights()
+        s, seg, route, sight = self._caches()
         jitter = self._jitter_std if self.cdf.param_jitter > 0.0 else self._jitter_std[:0]
         keep, self.theta, self.intent = kernels.resample(
             self.rng, self.weights, self.theta, self.mode, self.intent, jitter, self._theta_lo, self._theta_hi,

@@ -147,10 +147,7 @@ class ConflictMap:
 
     def ego_arc(self, ego_pose: np.ndarray) -> float:
         """[m] the ego's arc length on its route for its pose ``(4,)``."""
-        x, y = float(ego_pose[0]), float(ego_pose[1])
-        if math.isfinite(x) and math.isfinite(y):
-            return self.route_ego._project_one(x, y)[0]
-        return math.nan
+        return self.route_ego.project_point(float(ego_pose[0]), float(ego_pose[1]))[0]
 
     def inside(self, q: float) -> bool:
         """Whether the ego at arc length ``q`` [m] is inside the conflict zone."""
