@@ -408,11 +408,10 @@ def bench_startup(planner: str = "cdf", seed: int = 0) -> list[Row]:
                            {**env, "NUMBA_CACHE_DIR": cache})
         wall = time.perf_counter() - t0
         compiled = len(list(Path(cache).rglob("*.nbi")))
-    ticks = _ticks(json.loads(done.stdout)["end_time"], ScenarioConfig().dt)
+    json.loads(done.stdout)  # the record it printed: the episode ran to the end
     rows.append((f"cold start: cdf-mj episode --planner {planner}, empty Numba cache", wall,
                  f"wall time of a new process (python -m cdf_mj episode, labels included); {compiled} kernels "
-                 f"compiled into an empty NUMBA_CACHE_DIR; target < 10 s: {'met' if wall < 10 else 'MISSED'}",
-                 wall / ticks))
+                 f"compiled into an empty NUMBA_CACHE_DIR; target < 10 s: {'met' if wall < 10 else 'MISSED'}"))
     return rows
 
 
