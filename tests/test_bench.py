@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import os
 import re
 
 import pytest
 
 from cdf_mj.cli import main
-from cdf_mj.experiments.bench import PhysicsFloor, format_rows, physics_floor
+from cdf_mj.experiments.bench import PhysicsFloor, _run_python, format_rows, physics_floor
 from cdf_mj.planners.base import PLANNERS
 
 
@@ -60,3 +61,10 @@ def test_the_physics_floor_is_one_ticks_steps():
 def test_bench_refuses_bad_lists(capsys):
     assert main(["bench", "--particles", "0,100"]) == 2
     assert "positive integers" in capsys.readouterr().err
+
+
+def test_a_startup_probe_that_fails_is_an_error_the_cli_reports_in_one_line():
+    """A fresh process of the startup rows that fails raises ChildProcessError (an OSError,
+    which ``cdf-mj`` reports in one line with a non-zero status), naming its stderr."""
+    with pytest.raises(ChildProcessError, match="no such planner here"):
+        _run_python(["-c", "import sys; sys.exit('no such planner here')"], dict(os.environ))

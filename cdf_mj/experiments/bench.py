@@ -416,10 +416,11 @@ def bench_startup(planner: str = "cdf", seed: int = 0) -> list[Row]:
 
 
 def _run_python(args: list[str], env: dict[str, str]) -> subprocess.CompletedProcess[str]:
-    """Run this Python with ``args`` and ``env``; RuntimeError with its stderr if it fails."""
+    """Run this Python with ``args`` and ``env``; ChildProcessError (an OSError: ``cdf-mj``
+    reports it in one line and exits 1) with the end of its stderr if it fails."""
     done = subprocess.run([sys.executable, *args], env=env, capture_output=True, text=True, check=False)
     if done.returncode != 0:
-        raise RuntimeError(f"{' '.join(args)} failed ({done.returncode}): {done.stderr.strip()[-2000:]}")
+        raise ChildProcessError(f"{' '.join(args)} failed ({done.returncode}): {done.stderr.strip()[-2000:]}")
     return done
 
 
