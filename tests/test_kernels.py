@@ -643,3 +643,25 @@ def test_a_car_far_inside_a_turn_gets_the_full_search(scene):
                                          np.full(len(xy), k0, dtype=np.int64))
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-9, err_msg=f"kept segment {k0}")
     assert np.sum(np.abs(lateral) > model_kernels.TRACK_RADIUS) > 1000  # far points were in the sample
+
+
+@pytest.mark.parametrize("radius", [1.5, 2.0, 4.0])
+def test_tracking_through_a_hairpin_tighter_than_the_tracking_radius(radius):
+    """A route that turns back on itself tighter than TRACK_RADIUS (a hairpin of 1.5-4 m,
+    24 segments, then a straight leg back) is tracked exactly: beyond the route's own
+    radius of turn the full search takes over, so no point ends on the wrong leg."""
+    from cdf_mj.model.geometry import Polyline
+
+    angles = np.linspace(-0.5 * math.pi, 0.5 * math.pi, 25)
+    arc = np.column_stack([20.0 + radius * np.cos(angles), radius * np.sin(angles)])
+    route = Polyline(np.vstack([[[0.0, -radius]], arc, [[0.0, radius]]]))
+    assert model_kernels.tracking_radius(route) == pytest.approx(min(model_kernels.TRACK_RADIUS, radius), rel=0.01)
+    tab = model_kernels.RouteTable.of((route,))
+    rng = np.random.default_rng(11)
+    before = route.point_at(rng.uniform(0.0, route.length, 20000)) + rng.normal(0.0, 1.5, (20000, 2))
+    seg = np.full(len(before), -1, dtype=np.int64)
+    zeros = np.zeros(len(before), dtype=np.int64)
+    model_kernels.project_rows(tab.table, tab.nseg, zeros, np.ascontiguousarray(before), seg)
+    after = np.ascontiguousarray(before + rng.uniform(-0.5, 0.5, before.shape))  # a tick's move, tracked
+    got = model_kernels.project_rows(tab.table, tab.nseg, zeros, after, seg)
+    np.testing.assert_allclose(got, route.project(after)[0], rtol=0, atol=1e-9)

@@ -10,16 +10,21 @@ seconds, once), then loaded from Numba's cache (``__pycache__`` beside this file
 ``NUMBA_CACHE_DIR``).
 
 Routes are packed into a :class:`RouteTable`: for route ``r`` and segment ``k``, the row
-``table[r, k] = [x0, y0, ux, uy, length, s0]`` (segment start [m], unit direction, length
-[m], arc length at its start [m]), ``nseg[r]`` segments, ``ends[r]`` the last waypoint.
+``table[r, k] = [x0, y0, ux, uy, length, s0, reach2]`` (segment start [m], unit direction,
+length [m], arc length at its start [m], and the route's tracking radius squared [m^2],
+below), ``nseg[r]`` segments, ``ends[r]`` the last waypoint.
 
 Projection onto a route *tracks*: a car keeps the index of the segment it was last
 projected on, and the next projection walks from there to the neighbouring segment while
 that one is nearer (a descent on the distance along the route), instead of searching all
 segments. A car near its route, moving less than a segment per tick, gets the same
 closest point as the full search (tests/test_kernels.py checks it over whole episodes);
-a car found more than :data:`TRACK_RADIUS` from its route, or a segment index < 0, gets
-the full search (the first minimum, as :meth:`cdf_mj.model.geometry.Polyline.project`).
+a car found further from its route than the route's tracking radius, or a segment index
+< 0, gets the full search (the first minimum, as
+:meth:`cdf_mj.model.geometry.Polyline.project`). The tracking radius is
+:data:`TRACK_RADIUS`, or the route's tightest local radius of turn where that is smaller
+(:func:`tracking_radius`): beyond it, inside a tight turn, the walk can stop at a local
+nearest segment.
 
 World frame (x east, y north), metres, seconds, radians; poses are rear-axle
 ``[x, y, theta, v]``.
@@ -38,7 +43,7 @@ import numpy as np
 
 from cdf_mj.model.geometry import Polyline
 
-__all__ = ["DRIVER_FIELDS", "RouteTable", "compile_pending", "helper", "pack_driver"]
+__all__ = ["DRIVER_FIELDS", "RouteTable", "compile_pending", "helper", "pack_driver", "tracking_radius"]
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -49,8 +54,8 @@ LEFT, RIGHT = 0, 1
 #: Entries of the float vector ``cfg`` that the driver kernels read (:func:`pack_driver`).
 DRIVER_FIELDS = ("dt", "wheelbase", "max_steer", "max_brake", "lookahead", "lookahead_gain",
                  "passed_margin", "conflict_x", "conflict_y", "s_commit_left", "s_commit_right")
-#: [m] Beyond this distance from its route a car's tracked projection is checked by the
-#: full search (far inside a turn, the walk can stop at a local nearest segment).
+#: [m] Beyond this distance from its route (or the route's tighter radius of turn,
+#: :func:`tracking_radius`) a car's tracked projection is checked by the full search.
 TRACK_RADIUS = 3.0
 #: The segment index that asks :func:`project` for the full search (an int64, not the
 #: literal -1, for which Numba would compile the projection a second time).
@@ -60,7 +65,7 @@ C_DT, C_WHEELBASE, C_MAX_STEER, C_MAX_BRAKE, C_LOOKAHEAD, C_GAIN, C_PASSED, C_CX
 
 @dataclass(frozen=True, eq=False)
 class RouteTable:
-    """Polylines packed for the kernels: ``table`` ``(R, S, 6)``, ``nseg`` ``(R,)``,
+    """Polylines packed for the kernels: ``table`` ``(R, S, 7)``, ``nseg`` ``(R,)``,
     ``ends`` ``(R, 2)`` (see the module docstring); rows past ``nseg[r]`` are unused."""
 
     table: np.ndarray
@@ -71,16 +76,31 @@ class RouteTable:
     def of(cls, routes: tuple[Polyline, ...]) -> RouteTable:
         """The table of ``routes`` (route ``r`` = ``routes[r]``)."""
         n = max(len(r.points) - 1 for r in routes)
-        table = np.zeros((len(routes), n, 6))
+        table = np.zeros((len(routes), n, 7))
         for r, route in enumerate(routes):
             k = len(route.points) - 1
             table[r, :k] = np.column_stack([route._x0, route._y0, route._ux, route._uy, route._len,
-                                            route._s0[:-1]])
+                                            route._s0[:-1], np.full(k, tracking_radius(route) ** 2)])
         nseg = np.array([len(r.points) - 1 for r in routes], dtype=np.int64)
         ends = np.array([r.points[-1] for r in routes], dtype=float)
         for a in (table, nseg, ends):
             a.flags.writeable = False
         return cls(table, nseg, ends)
+
+
+def tracking_radius(route: Polyline) -> float:
+    """[m] how far from ``route`` a tracked projection is trusted: :data:`TRACK_RADIUS`, or
+    the route's tightest local radius of turn if smaller. At an inner waypoint turning by
+    ``theta`` between segments of lengths ``a`` and ``b`` that radius is ``min(a, b) /
+    theta`` (a polyline along a circle of radius R gives R); a point nearer the route than
+    every such radius lies on one normal of it only, so the walk's local nearest segment
+    is the nearest."""
+    ux, uy = route._ux, route._uy
+    turn = np.abs(np.arctan2(ux[:-1] * uy[1:] - uy[:-1] * ux[1:], ux[:-1] * ux[1:] + uy[:-1] * uy[1:]))
+    shorter = np.minimum(route._len[:-1], route._len[1:])
+    with np.errstate(divide="ignore"):
+        radius = np.where(turn > 0.0, shorter / turn, np.inf)
+    return float(min(TRACK_RADIUS, radius.min(initial=np.inf)))
 
 
 def helper(fn: F) -> F:
@@ -131,7 +151,7 @@ def _nearest(table: np.ndarray, nseg: np.ndarray, r: int, x: float, y: float) ->
 def project(table: np.ndarray, nseg: np.ndarray, r: int, x: float, y: float, k0: int) -> tuple[float, int]:
     """Arc length [m] of the closest point of route ``r`` to (x, y) and its segment,
     tracking from segment ``k0`` (the full search when ``k0 < 0`` or out of range, or
-    when the tracked point is more than :data:`TRACK_RADIUS` away)."""
+    when the tracked point is further than the route's tracking radius)."""
     n = nseg[r]
     if k0 < 0 or k0 >= n:
         return _nearest(table, nseg, r, x, y)
@@ -148,7 +168,7 @@ def project(table: np.ndarray, nseg: np.ndarray, r: int, x: float, y: float, k0:
             if d2 >= best:
                 break
             best, s_best, k = d2, s, k - 1
-    if best > TRACK_RADIUS * TRACK_RADIUS:  # off its route: a local nearest may not be the nearest
+    if best > table[r, k, 6]:  # beyond the route's tracking radius: a local nearest may not be the nearest
         return _nearest(table, nseg, r, x, y)
     return s_best, k
 
