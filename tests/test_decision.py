@@ -7,6 +7,7 @@ mirrored (left-hand traffic), with other lane widths and no buildings (tests/jun
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 from typing import Any, ClassVar
@@ -17,7 +18,17 @@ from cli_helpers import assert_one_line_error, run_cli
 from junctions import junction_scene
 
 from cdf_mj.config import CDFConfig, RiskConfig, ScenarioConfig
-from cdf_mj.model.conflict import BRAKE, DEFER, GO, Futures, collision_masses, conflict_map, route_poses, widened
+from cdf_mj.model.conflict import (
+    BRAKE,
+    DEFER,
+    GO,
+    Futures,
+    collision_masses,
+    conflict_map,
+    right_turn_overlap,
+    route_poses,
+    widened,
+)
 from cdf_mj.model.geometry import boxes_overlap
 from cdf_mj.model.layout import Layout
 from cdf_mj.planners import CDFPlanner
@@ -427,3 +438,29 @@ def test_a_junction_whose_routes_never_meet_is_refused(scene: Scene) -> None:
     far = dataclasses.replace(layout, route_left=moved)
     with pytest.raises(ValueError, match="never meets the ego's route"):
         RiskRule().reset(far, ScenarioConfig())
+
+
+def test_a_right_turner_long_enough_to_reach_the_ego_is_found(scene):
+    """The drivers' model takes a right-turner for one that never meets the ego. Our car on
+    the package's junction never does (no overlap anywhere on the right route); a 10 m
+    obstacle does, and the arc length given is one where its box truly overlaps an ego
+    box on the ego's route (``World`` warns of it)."""
+    layout = scene.layout()
+    assert right_turn_overlap(layout) is None
+    long_car = dataclasses.replace(layout.obstacle, hull_offset=np.array([2.6, 0.0]),
+                                   hull_half=np.array([5.0, 1.25]))
+    long_layout = layout.with_cars(obstacle=long_car)
+    s = right_turn_overlap(long_layout)
+    assert s is not None
+    obs = long_car.footprint(route_poses(long_layout.route_right, np.array([s])))
+    q = np.arange(0.0, layout.route_ego.length, 0.1)
+    ego = layout.ego.footprint(route_poses(layout.route_ego, q))
+    assert boxes_overlap(np.broadcast_to(obs, ego.shape), ego).any()
+
+
+def test_the_world_refuses_an_ego_start_off_its_route(scene):
+    """An ego_start_spread that would place the ego past the end of its route (where the
+    start heading is taken between two clamped, equal points) is one clear error."""
+    with pytest.raises(ValueError, match=r"ego_start_spread=.*off its route"):
+        World(scene, ScenarioConfig(ego_start_spread=(195.0, 195.0)))
+    World(scene, ScenarioConfig())  # the default spread is on it

@@ -53,6 +53,7 @@ __all__ = [
     "collision_masses",
     "conflict_map",
     "ego_plans",
+    "right_turn_overlap",
     "route_poses",
     "widened",
 ]
@@ -127,11 +128,7 @@ class ConflictMap:
         obs, ego = route_poses(left, s), route_poses(ego_route, q)
         wide_obs = widened(layout.obstacle, margin)
         wide_ego = widened(layout.ego, margin)
-        # Candidate pairs: box centres within the sum of the half diagonals; then the exact
-        # box test on those (touching counts), in one compiled pass.
-        reach = _reach_centre(wide_obs) + _reach_centre(wide_ego)
-        q_lo, q_hi = _overlap_table(wide_obs.footprint(obs), wide_ego.footprint(ego), _centres(wide_obs, obs),
-                                    _centres(wide_ego, ego), q, reach)
+        q_lo, q_hi = _overlaps(wide_obs, obs, wide_ego, ego, q)
         first = np.flatnonzero(np.isfinite(q_lo))
         if first.size == 0:
             raise ValueError("the obstacle's left route never meets the ego's route: no conflict to "
@@ -161,6 +158,32 @@ class ConflictMap:
 def widened(car: CarGeometry, margin: float) -> CarGeometry:
     """``car`` with ``margin`` [m] added to each half size of its collision box."""
     return dataclasses.replace(car, hull_half=car.hull_half + margin) if margin else car
+
+
+def _overlaps(car_a: CarGeometry, poses_a: np.ndarray, car_b: CarGeometry, poses_b: np.ndarray,
+              q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per pose of car ``a``, the least and greatest ``q`` [m] of the poses of car ``b`` whose
+    collision boxes it overlaps or touches (``inf``/``-inf`` if none): candidate pairs are
+    box centres within the sum of the half diagonals, then the exact box test, in one
+    compiled pass."""
+    reach = _reach_centre(car_a) + _reach_centre(car_b)
+    return _overlap_table(car_a.footprint(poses_a), car_b.footprint(poses_b), _centres(car_a, poses_a),
+                          _centres(car_b, poses_b), q, reach)
+
+
+@functools.lru_cache(maxsize=16)
+def right_turn_overlap(layout: Layout) -> float | None:
+    """[m] the first arc length on the obstacle's right route (0.1 m apart) at which its
+    collision box overlaps the ego's, the ego anywhere on its route; None if it never does.
+    The drivers' model, and every predictor built on it, takes a right-turner for one that
+    never meets the ego: where this is not None (a long car, a tight right turn), a
+    right-turner can hit the ego unforeseen. Cached per layout."""
+    right, ego_route = layout.route_right, layout.route_ego
+    s = np.arange(0.0, right.length, _DS)
+    q = np.arange(0.0, ego_route.length + _EXTEND, _DS)
+    q_lo, _ = _overlaps(layout.obstacle, route_poses(right, s), layout.ego, route_poses(ego_route, q), q)
+    hit = np.flatnonzero(np.isfinite(q_lo))
+    return float(s[hit[0]]) if hit.size else None
 
 
 @numba.njit(cache=True, nogil=True)

@@ -15,13 +15,16 @@ rear-axle ``[x, y, theta, v]``.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from cdf_mj.config import ScenarioConfig
+from cdf_mj.model.conflict import right_turn_overlap
 from cdf_mj.model.driver import DriverModel, Intent, Mode, obstacle_control, road_clear, update_belief
 from cdf_mj.model.geometry import box_gap
+from cdf_mj.sim.checks import SceneWarning
 from cdf_mj.sim.scene import Scene, SimulationDivergedError
 from cdf_mj.sim.visibility import ego_visible
 
@@ -130,6 +133,17 @@ class World:
         self._nu_std = np.array([config.noise_accel, config.noise_steer])
         self._s0 = layout.route_ego.project(layout.ego_start[:2])[0]
         self._s_conflict = layout.route_ego.project(layout.conflict)[0]
+        lo, hi = config.ego_start_spread
+        if self._s0 + lo < 0.0 or self._s0 + hi + 1.0 > layout.route_ego.length:
+            raise ValueError(f"ego_start_spread=({lo:g}, {hi:g}) m puts the ego's start off its route in "
+                             f"{scene.source}: its start site is {self._s0:.1f} m along a route of "
+                             f"{layout.route_ego.length:.1f} m (and the start needs 1 m of route ahead)")
+        s_right = right_turn_overlap(layout)
+        if s_right is not None:
+            warnings.warn(f"in {scene.source}, the obstacle's collision box meets the ego's on the obstacle's "
+                          f"right route ({s_right:.1f} m along it): a right-turner can hit the ego, which the "
+                          "drivers' model and every planner built on it take for impossible; give the right "
+                          "route a wider turn or the obstacle a smaller box", SceneWarning, stacklevel=2)
         if config.hesitation > 0.0:  # a stop past the commit point would never happen
             start = layout.obstacle_start[:2]
             room = min(float(s - r.project(start)[0]) for r, s in zip(layout.obstacle_routes,
