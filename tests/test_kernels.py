@@ -665,3 +665,23 @@ def test_tracking_through_a_hairpin_tighter_than_the_tracking_radius(radius):
     after = np.ascontiguousarray(before + rng.uniform(-0.5, 0.5, before.shape))  # a tick's move, tracked
     got = model_kernels.project_rows(tab.table, tab.nseg, zeros, after, seg)
     np.testing.assert_allclose(got, route.project(after)[0], rtol=0, atol=1e-9)
+
+
+def test_particle_arrays_assigned_in_other_types_are_converted_not_compiled_again(scene):
+    """A particle array assigned from outside in another dtype or writable (``pf.pose =
+    np.array(pf.pose)``, an int32 mode) is converted at the next stage, so every kernel keeps
+    its one compiled variant, and the caller's array is not frozen."""
+    layout = scene.layout()
+    pf = _filter(layout)
+    system = np.stack([layout.ego_start, layout.obstacle_start])
+    pf.reset(system)
+    pf.predict(system)
+    pf.update(system)
+    variants = {k: len(k.signatures) for k in (filter_kernels.predict, filter_kernels.weigh, filter_kernels.posterior)}
+    mine = np.array(pf.pose)
+    pf.pose, pf.mode, pf.intent = mine, pf.mode.astype(np.int32), pf.intent.astype(np.int16)
+    pf.predict(system)
+    pf.update(system)
+    assert {k: len(k.signatures) for k in variants} == variants
+    assert pf.mode.dtype == np.int64 and pf.intent.dtype == np.int64 and not pf.pose.flags.writeable
+    assert mine.flags.writeable

@@ -93,6 +93,11 @@ def _finite(a: np.ndarray) -> bool:
     return all(math.isfinite(x) for x in a.flat)
 
 
+#: The particle arrays and the dtype the kernels are compiled for.
+_PARTICLE_DTYPES = (("pose", np.float64), ("mode", np.int64), ("belief", np.float64), ("has_belief", np.bool_),
+                    ("intent", np.int64), ("theta", np.float64), ("logw", np.float64))
+
+
 def _published(a: np.ndarray) -> np.ndarray:
     """``a``, made read-only: the arrays whose identity keys the filter's caches (poses,
     log-weights) are replaced, never edited in place."""
@@ -340,14 +345,20 @@ class ParticleFilter:
 
     def _check_particles(self) -> None:
         """RuntimeError before :meth:`reset`; ValueError if a particle array assigned from
-        outside does not have the filter's N rows (the kernels index them unchecked)."""
+        outside does not have the filter's N rows (the kernels index them unchecked). An
+        array assigned from outside in another dtype or layout is converted (and ``pose``,
+        ``logw`` made read-only): each kernel is compiled for one type of each argument."""
         if len(self.pose) == 0:
             raise RuntimeError("the particle filter has no particles yet: call reset(S0) first")
         n = self.n
-        for name in ("pose", "mode", "belief", "has_belief", "intent", "theta", "logw"):
-            rows = len(getattr(self, name))
-            if rows != n:
-                raise ValueError(f"ParticleFilter.{name} has {rows} rows, the filter has N = {n} particles")
+        for name, dtype in _PARTICLE_DTYPES:
+            value = getattr(self, name)
+            if len(value) != n:
+                raise ValueError(f"ParticleFilter.{name} has {len(value)} rows, the filter has N = {n} particles")
+            if type(value) is not np.ndarray or value.dtype != dtype or not value.flags.c_contiguous or (
+                    name in ("pose", "logw") and value.flags.writeable):
+                value = np.array(value, dtype=dtype, order="C")  # a copy: the caller's array stays theirs
+                setattr(self, name, _published(value) if name in ("pose", "logw") else value)
 
     def ego_exposed(self) -> bool:
         """Whether the (known) ego could still be cut off: it has not yet cleared the
