@@ -324,25 +324,21 @@ def normalise(logw: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 @helper
-def _cutoff(i: int, cfg: np.ndarray, table: np.ndarray, nseg: np.ndarray, pose: np.ndarray, mode: np.ndarray,
-            intent: np.ndarray, theta: np.ndarray, s: np.ndarray, seg: np.ndarray, s_route: np.ndarray,
-            boxes: np.ndarray, loc: np.ndarray, beyond: np.ndarray, sight: np.ndarray, t_clear: float,
-            ticks_to_stop: float) -> float:
+def _cutoff(i: int, cfg: np.ndarray, pose: np.ndarray, mode: np.ndarray, intent: np.ndarray,
+            theta: np.ndarray, arc: float, sees: bool, t_clear: float, ticks_to_stop: float) -> float:
     """The probability that particle ``i`` cuts the ego off (see
-    :meth:`cdf_mj.inference.particle_filter.ParticleFilter.cutoff_probability`), reading
-    and filling its arc-length and line-of-sight caches."""
+    :meth:`cdf_mj.inference.particle_filter.ParticleFilter.cutoff_probability`)."""
     md = mode[i]
     if intent[i] != LEFT or (md != GOING and md != COMMITTED):
         return 0.0
     if cfg[F_PAPER] != 0.0:
         return 1.0
-    arc = _arc(i, table, nseg, pose, intent, s, seg, s_route)
     v, a = pose[i, 3], theta[i, T_ACCEL]
     p = 1.0
     if md == GOING:
-        sees = theta[i, T_BETA] > 0.0 and _sees(i, pose, cfg, boxes, loc, beyond, sight)
+        ticks = min(ticks_to_commit(cfg, arc, v, a), ticks_to_stop)
         beta = theta[i, T_BETA] if sees else 0.0
-        p = (1.0 - beta) ** min(ticks_to_commit(cfg, arc, v, a), ticks_to_stop)
+        p = (1.0 - beta) ** ticks
     # Pulls out behind the ego? Only once the ego clears the conflict point sooner than the
     # slowest driver of the prior could get there.
     if p > 0.0 and t_clear < cfg[F_T_SLOWEST] and arrival(cfg[F_S_ENTER], arc, v, a, theta[i, T_TURN]) > t_clear:
@@ -357,10 +353,14 @@ def cutoff_rows(cfg: np.ndarray, table: np.ndarray, nseg: np.ndarray, boxes: np.
     """Every particle's cut-off probability ``(N,)``."""
     loc, beyond = sight_prep(boxes, targets)
     t_clear, ticks = ego_terms(cfg, ego)
-    out = np.empty(pose.shape[0])
-    for i in range(pose.shape[0]):
-        out[i] = _cutoff(i, cfg, table, nseg, pose, mode, intent, theta, s, seg, s_route, boxes, loc, beyond,
-                         sight, t_clear, ticks)
+    n = pose.shape[0]
+    out = np.zeros(n)
+    for i in range(n):
+        md = mode[i]
+        if intent[i] == LEFT and md in (GOING, COMMITTED):
+            arc = _arc(i, table, nseg, pose, intent, s, seg, s_route)
+            sees = md == GOING and theta[i, T_BETA] > 0.0 and _sees(i, pose, cfg, boxes, loc, beyond, sight)
+            out[i] = _cutoff(i, cfg, pose, mode, intent, theta, arc, sees, t_clear, ticks)
     return out
 
 
@@ -382,9 +382,11 @@ def posterior(w: np.ndarray, cfg: np.ndarray, table: np.ndarray, nseg: np.ndarra
         if intent[i] != LEFT:
             continue
         p_left += wi
-        if exposed and wi > 0.0:
-            p_cut += wi * _cutoff(i, cfg, table, nseg, pose, mode, intent, theta, s, seg, s_route, boxes, loc,
-                                  beyond, sight, t_clear, ticks)
+        md = mode[i]
+        if exposed and wi > 0.0 and md in (GOING, COMMITTED):
+            arc = _arc(i, table, nseg, pose, intent, s, seg, s_route)
+            sees = md == GOING and theta[i, T_BETA] > 0.0 and _sees(i, pose, cfg, boxes, loc, beyond, sight)
+            p_cut += wi * _cutoff(i, cfg, pose, mode, intent, theta, arc, sees, t_clear, ticks)
     return min(max(p_left, 0.0), 1.0), min(max(p_seen, 0.0), 1.0), min(max(p_cut, 0.0), 1.0)
 
 
