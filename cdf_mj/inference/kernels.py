@@ -183,7 +183,7 @@ def ego_terms(cfg: np.ndarray, ego: np.ndarray) -> tuple[float, float]:
     has, ``inf`` if stopped), and the ticks left before its last chance to brake and
     stop short of it (``inf`` if (nearly) stopped, 0 once too late)."""
     v = ego[3]
-    ahead = drv.ahead_of_conflict(cfg, ego[0], ego[1], ego[2])
+    ahead = drv.ahead_of_conflict(cfg[drv.C_CX], cfg[drv.C_CY], ego[0], ego[1], ego[2])
     rest = ahead + cfg[F_CLEAR_MARGIN]
     t_clear = 0.0 if rest <= 0.0 else rest / v if v > 0.1 else math.inf
     if v < 0.1:
@@ -205,13 +205,13 @@ def arrival(s_enter: float, s: float, v: float, a: float, v_turn: float) -> floa
     return t_acc + (rem - d_acc) / max(v_turn, 0.1)
 
 
-@helper
-def ticks_to_commit(cfg: np.ndarray, arc: float, v: float, a: float) -> int:
-    """Ticks a left-turner at arc length ``arc`` [m] and speed ``v`` [m/s], accelerating at
-    ``a`` [m/s^2], needs to reach its commit point: the ticks on which a look can still
-    stop it."""
-    remaining = max(cfg[drv.C_COMMIT + LEFT] - arc, 0.0)
-    ticks: int = math.ceil((math.sqrt(v * v + 2.0 * a * remaining) - v) / a / cfg[drv.C_DT] - 1e-9)
+@numba.njit(cache=True, nogil=True, inline="always")
+def ticks_to_commit(s_commit: float, dt: float, arc: float, v: float, a: float) -> int:
+    """Ticks of ``dt`` [s] a left-turner at arc length ``arc`` [m] and speed ``v`` [m/s],
+    accelerating at ``a`` [m/s^2], needs to reach its commit point ``s_commit`` [m]: the
+    ticks on which a look can still stop it (scalars only, inlined)."""
+    remaining = max(s_commit - arc, 0.0)
+    ticks: int = math.ceil((math.sqrt(v * v + 2.0 * a * remaining) - v) / a / dt - 1e-9)
     return ticks
 
 
@@ -298,10 +298,19 @@ def weigh(pose: np.ndarray, meas: np.ndarray, cov_inv: np.ndarray, logw: np.ndar
         top = max(top, out[i])
     if not nearest <= reinit_maha2:
         return np.empty(0), np.empty(0), 0.0, False
+    # normalise()'s steps, written here: calling it would compile it for every cold start,
+    # where it is otherwise needed only for log-weights assigned from outside.
+    w = np.empty(n)
+    total = 0.0
     for i in range(n):
         out[i] -= top
-    w, ess = normalise(out)
-    return out, w, ess, True
+        w[i] = math.exp(out[i])
+        total += w[i]
+    sq = 0.0
+    for i in range(n):
+        w[i] /= total
+        sq += w[i] * w[i]
+    return out, w, min(max(1.0 / sq, 1.0), float(n)), True
 
 
 @numba.njit(cache=True, nogil=True)
@@ -336,7 +345,7 @@ def _cutoff(i: int, cfg: np.ndarray, pose: np.ndarray, mode: np.ndarray, intent:
     v, a = pose[i, 3], theta[i, T_ACCEL]
     p = 1.0
     if md == GOING:
-        ticks = min(ticks_to_commit(cfg, arc, v, a), ticks_to_stop)
+        ticks = min(ticks_to_commit(cfg[drv.C_COMMIT + LEFT], cfg[drv.C_DT], arc, v, a), ticks_to_stop)
         beta = theta[i, T_BETA] if sees else 0.0
         p = (1.0 - beta) ** ticks
     # Pulls out behind the ego? Only once the ego clears the conflict point sooner than the
@@ -489,7 +498,7 @@ def left_futures(w: np.ndarray, cfg: np.ndarray, table: np.ndarray, nseg: np.nda
     n = w.shape[0]
     loc, beyond = sight_prep(boxes, targets)
     # Where the ego is, as a driver who looks now would judge it (the clear rule's terms).
-    ego_ahead = drv.ahead_of_conflict(cfg, ego[0], ego[1], ego[2])
+    ego_ahead = drv.ahead_of_conflict(cfg[drv.C_CX], cfg[drv.C_CY], ego[0], ego[1], ego[2])
     out = np.empty((6, n))  # rows: weight, arc length, speed, acceleration, cruise speed, delay
     m = 0
     for i in range(n):
@@ -503,9 +512,9 @@ def left_futures(w: np.ndarray, cfg: np.ndarray, table: np.ndarray, nseg: np.nda
         if md in (WAITING, YIELDING):
             v = 0.0
             if has_belief[i]:
-                ahead = drv.ahead_of_conflict(cfg, belief[i, 0], belief[i, 1], belief[i, 2])
+                ahead = drv.ahead_of_conflict(cfg[drv.C_CX], cfg[drv.C_CY], belief[i, 0], belief[i, 1], belief[i, 2])
                 bv = belief[i, 3]
-                if not drv.passed_or_far(cfg, ahead, bv, theta[i, T_GAP], theta[i, T_CLEAR]):
+                if not drv.passed_or_far(cfg[drv.C_PASSED], ahead, bv, theta[i, T_GAP], theta[i, T_CLEAR]):
                     if bv <= 0.1:  # held back until the believed ego has passed
                         continue
                     delay = max((ahead + cfg[drv.C_PASSED]) / bv, 0.0)
@@ -514,9 +523,10 @@ def left_futures(w: np.ndarray, cfg: np.ndarray, table: np.ndarray, nseg: np.nda
         arc = _arc(i, table, nseg, pose, intent, s, seg, s_route)
         # Looks ahead of it before its commit point stop it only if it would then judge the
         # ego not clear (a far or passed ego is no reason to yield).
-        if (md != COMMITTED and not drv.passed_or_far(cfg, ego_ahead, ego[3], theta[i, T_GAP], theta[i, T_CLEAR])
+        if (md != COMMITTED
+                and not drv.passed_or_far(cfg[drv.C_PASSED], ego_ahead, ego[3], theta[i, T_GAP], theta[i, T_CLEAR])
                 and _sees(i, pose, cfg, boxes, loc, beyond, sight)):
-            wi *= (1.0 - theta[i, T_BETA]) ** ticks_to_commit(cfg, arc, v, a)
+            wi *= (1.0 - theta[i, T_BETA]) ** ticks_to_commit(cfg[drv.C_COMMIT + LEFT], cfg[drv.C_DT], arc, v, a)
         if wi <= 0.0:
             continue
         out[0, m], out[1, m], out[2, m], out[3, m], out[4, m], out[5, m] = wi, arc, v, a, theta[i, T_TURN], delay

@@ -294,7 +294,14 @@ def update_belief(belief: np.ndarray, has_belief: np.ndarray, observed: np.ndarr
     n = len(new)
     has = np.array(_per_row(has_belief, n, np.bool_), copy=True)
     obs = _rows(np.broadcast_to(np.asarray(observation, dtype=float), (n, 4)), 4)
-    kernels.believe_rows(new, has, _per_row(observed, n, np.bool_), obs, float(dt))
+    seen = _per_row(observed, n, np.bool_)
+    if n == 1:  # the simulated car, every tick: believe_rows' step, its per-car helper called from Python
+        if seen[0]:
+            new[0], has[0] = obs[0], True
+        elif has[0]:
+            kernels.dead_reckon(new, 0, float(dt))
+        return new, has
+    kernels.believe_rows(new, has, seen, obs, float(dt))
     return new, has
 
 

@@ -190,19 +190,20 @@ def point_at(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, r: int, s: f
     return table[r, k, 0] + table[r, k, 2] * d, table[r, k, 1] + table[r, k, 3] * d
 
 
-@helper
-def ahead_of_conflict(cfg: np.ndarray, x: float, y: float, th: float) -> float:
-    """[m] how far the conflict point lies ahead of a car at (x, y) heading ``th``, along
-    its heading (negative once past it)."""
-    return float((cfg[C_CX] - x) * math.cos(th) + (cfg[C_CY] - y) * math.sin(th))
+@numba.njit(cache=True, nogil=True, inline="always")
+def ahead_of_conflict(cx: float, cy: float, x: float, y: float, th: float) -> float:
+    """[m] how far the conflict point (cx, cy) lies ahead of a car at (x, y) heading ``th``,
+    along its heading (negative once past it). Scalars only, inlined where it is called
+    (no compiled function of its own to pay for at a cold start)."""
+    return float((cx - x) * math.cos(th) + (cy - y) * math.sin(th))
 
 
-@helper
-def passed_or_far(cfg: np.ndarray, ahead: float, v: float, critical_gap: float, clear_distance: float) -> bool:
+@numba.njit(cache=True, nogil=True, inline="always")
+def passed_or_far(passed_margin: float, ahead: float, v: float, critical_gap: float, clear_distance: float) -> bool:
     """The clear rule's test of an ego ``ahead`` [m] of the conflict point at speed ``v``
     [m/s]: past it by ``passed_margin``, or further than ``clear_distance`` and more than
-    ``critical_gap`` [s] away."""
-    if ahead < -cfg[C_PASSED]:
+    ``critical_gap`` [s] away (scalars only, inlined)."""
+    if ahead < -passed_margin:
         return True
     return bool(ahead > clear_distance and ahead > critical_gap * max(v, 0.0))
 
@@ -213,7 +214,8 @@ def clear(cfg: np.ndarray, intent: int, has_belief: bool, bx: float, by: float, 
     """The driver's clear rule (:func:`cdf_mj.model.driver.road_clear`) for one driver."""
     if intent == RIGHT or not has_belief:
         return True
-    return passed_or_far(cfg, ahead_of_conflict(cfg, bx, by, bth), bv, critical_gap, clear_distance)
+    return passed_or_far(cfg[C_PASSED], ahead_of_conflict(cfg[C_CX], cfg[C_CY], bx, by, bth), bv, critical_gap,
+                         clear_distance)
 
 
 @helper
