@@ -134,7 +134,9 @@ class World:
         self._s0 = layout.route_ego.project(layout.ego_start[:2])[0]
         self._s_conflict = layout.route_ego.project(layout.conflict)[0]
         lo, hi = config.ego_start_spread
-        if self._s0 + lo < 0.0 or self._s0 + hi + 1.0 > layout.route_ego.length:
+        # A start before the route's first waypoint starts at it (heading along the route);
+        # past its end there is no heading to take.
+        if self._s0 + hi + 1.0 > layout.route_ego.length:
             raise ValueError(f"ego_start_spread=({lo:g}, {hi:g}) m puts the ego's start off its route in "
                              f"{scene.source}: its start site is {self._s0:.1f} m along a route of "
                              f"{layout.route_ego.length:.1f} m (and the start needs 1 m of route ahead)")
