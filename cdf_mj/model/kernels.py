@@ -107,8 +107,8 @@ def helper(fn: F) -> F:
     """Compile a per-car helper: ``numba.njit(cache=True, nogil=True)`` without Numba's
     reference counting (``_nrt=False``). A helper allocates nothing, and a kernel calls it
     once per particle with array arguments, whose reference counts Numba would otherwise
-    raise and drop on every call: two atomic operations per array, which measured 40 ns
-    per call against 2 ns without (docs/PERFORMANCE.md)."""
+    raise and drop on every call: two atomic operations per array, 39 ns a call against
+    1.5 ns without (``scripts/kernel_costs.py``, docs/PERFORMANCE.md)."""
     compile_: Any = numba.njit  # _nrt is a compiler flag that numba's stubs do not list
     return compile_(cache=True, nogil=True, _nrt=False)(fn)  # type: ignore[no-any-return]
 
