@@ -142,6 +142,26 @@ def test_no_cycle_between_subpackages():
         visit(node, [])
 
 
+def test_nothing_in_the_package_imports_the_command_line():
+    """``cdf_mj.cli`` is the top: only its own modules and ``python -m cdf_mj`` import it."""
+    users = [f"{module} imports {target}" for module, targets in _graph().items() for target in sorted(targets)
+             if _layer(target) == "cli" and _layer(module) not in {"cli", "__main__"}]
+    assert users == []
+
+
+def test_the_command_modules_share_only_the_arguments_module():
+    """Inside ``cdf_mj.cli``: ``args`` imports no other module of it, each command module
+    (``episode``, ``sweep``, ...) imports only ``args``, and ``app`` assembles them."""
+    graph = _graph()
+    cli = {m: {t for t in targets if _layer(t) == "cli"} for m, targets in graph.items() if _layer(m) == "cli"}
+    assert cli["cdf_mj.cli.args"] == set()
+    commands = set(cli) - {"cdf_mj.cli", "cdf_mj.cli.__main__", "cdf_mj.cli.app", "cdf_mj.cli.args"}
+    assert {"cdf_mj.cli.episode", "cdf_mj.cli.experiment", "cdf_mj.cli.bench"} <= commands
+    for module in sorted(commands):
+        assert cli[module] <= {"cdf_mj.cli.args"}, module
+    assert commands <= cli["cdf_mj.cli.app"]
+
+
 @pytest.mark.parametrize("module", ["cdf_mj.model.driver", "cdf_mj.model.layout", "cdf_mj.model.occlusion",
                                     "cdf_mj.model.vehicle", "cdf_mj.inference.particle_filter"])
 def test_the_models_and_the_filter_run_without_mujoco(module):

@@ -1,0 +1,133 @@
+"""``cdf-mj experiment`` and ``cdf-mj reproduce``: run planners on the same seeds into a
+result directory and print the paper's tables beside ours.
+
+Both take the same options; ``reproduce`` is ``experiment`` with the paper's 1000 seeds.
+The same command again continues an interrupted run (``--resume``, needed before, is
+accepted and does nothing more), ``--force`` starts over.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from cdf_mj.cli.args import (
+    EXIT_FAILED_EPISODES,
+    PROG,
+    CLIError,
+    _command,
+    _episodes,
+    _non_negative_int,
+    _planner_list,
+    _seed_range,
+    _workers,
+    add_cdf_arguments,
+    add_format_argument,
+    add_scenario_arguments,
+    cdf_from_args,
+    config_from_args,
+)
+from cdf_mj.experiments.store import locked
+from cdf_mj.extras import install_hint
+from cdf_mj.records import RECORDS_FILE
+
+#: What an experiment directory holds of its run; ``--force`` removes these and nothing else.
+RUN_FILES = (RECORDS_FILE, "settings.json")
+
+
+def _cmd_experiment(args: argparse.Namespace) -> int:
+    from cdf_mj.analysis.tables import experiment_tables
+    from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
+
+    config = config_from_args(args)
+    cdf = cdf_from_args(args, args.planners)
+    seeds = _seed_range(args.seed0, args.episodes)
+    if args.retry_failed and args.force:
+        raise CLIError("--force starts over, so --retry-failed has nothing to retry: give one of them")
+    if args.address is not None and args.backend != "ray":
+        raise CLIError("--address is the address of a Ray cluster: it needs --backend ray")
+    if args.force:
+        _remove_run(Path(args.out))
+    try:  # resume: the same command again continues a run, or shows its tables if it is complete
+        result = run_experiment(args.out, seeds, args.planners, config, cdf, args.scene,
+                                progress=not args.quiet, workers=args.workers, backend=args.backend,
+                                resume=True, retry_failed=args.retry_failed, address=args.address)
+    except SettingsMismatchError as exc:
+        raise CLIError(f"{exc}, or give --force to replace them") from None
+    except KeyboardInterrupt:
+        print(f"{PROG}: interrupted; the finished episodes are saved in {args.out}/episodes.jsonl: "
+              f"run the same command again to continue", file=sys.stderr)
+        return 130
+    what = f"{args.episodes} episodes from seed {args.seed0}, planners {','.join(args.planners)}"
+    if result.ran:
+        resumed = f", {result.resumed} already on disk" if result.resumed else ""
+        print(f"{what}: {result.ran} run in {result.wall_time:.1f} s on {result.workers} worker(s) "
+              f"({result.backend}){resumed}; peak memory per worker {result.peak_worker_rss_mb:.0f} MiB; "
+              f"records in {args.out}/episodes.jsonl\n")
+    else:
+        print(f"{what}: all {result.resumed} records were already in {args.out}/episodes.jsonl "
+              f"(--force runs them again)\n")
+    print(experiment_tables(result.records, fmt=args.format))
+    if result.failed:
+        print(f"{PROG}: {result.failed} of {len(result)} episodes failed; their records in "
+              f"{args.out}/episodes.jsonl hold the error and traceback (\"status\": \"failed\")",
+              file=sys.stderr)
+        return EXIT_FAILED_EPISODES
+    return 0
+
+
+def _remove_run(out: Path) -> None:
+    """Remove the records and settings of the run in ``out`` (:data:`RUN_FILES`), under the
+    directory's lock so that a run still using it is not pulled from under it."""
+    if not out.is_dir():
+        return
+    with locked(out):
+        for name in RUN_FILES:
+            (out / name).unlink(missing_ok=True)
+
+
+def _add_experiment_arguments(p: argparse.ArgumentParser, episodes: int, out: str) -> None:
+    p.add_argument("--episodes", type=_episodes, default=episodes,
+                   help=f"number of seeds, 1 to 10^7 (default {episodes})")
+    p.add_argument("--seed0", type=_non_negative_int, default=0, help="first seed (default 0)")
+    p.add_argument("--planners", type=_planner_list, default=["cdf", "reactive"],
+                   help="comma-separated planners run on the same seeds (default cdf,reactive)")
+    p.add_argument("--out", default=out, help=f"result directory (default {out})")
+    add_cdf_arguments(p)
+    p.add_argument("--workers", type=_workers, default=None,
+                   help="worker processes, 1 to 1024 (default: the CPU count; 1 runs in this process)")
+    p.add_argument("--backend", choices=("process", "ray"), default="process",
+                   help=f"where episodes run: a local process pool (default) or Ray ({install_hint('ray')})")
+    p.add_argument("--address", default=None,
+                   help="with --backend ray: the address of an existing Ray cluster "
+                        "(default: start a local Ray instance)")
+    p.add_argument("--force", action="store_true",
+                   help="start over: remove the records and settings of the run in --out (no other file)")
+    p.add_argument("--retry-failed", action="store_true",
+                   help="run the episodes of the run in --out that failed again")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_format_argument(p)
+    add_scenario_arguments(p)
+    p.set_defaults(func=_cmd_experiment)
+
+
+def _add_experiment(subparsers: argparse._SubParsersAction) -> None:
+    p = _command(
+        subparsers, "experiment", compiles=True,
+        summary="run planners on the same seeds; print the paper's tables beside ours",
+        description="Run each planner on the same seeds, write one JSON line per episode and "
+                    "planner to OUT/episodes.jsonl, and print the paper's two tables beside ours. "
+                    "The same command again continues an interrupted run, or only prints the "
+                    "tables of a finished one; other settings in the same OUT are refused.")
+    _add_experiment_arguments(p, episodes=100, out="results/experiment")
+
+
+def _add_reproduce(subparsers: argparse._SubParsersAction) -> None:
+    p = _command(
+        subparsers, "reproduce", compiles=True, summary="the paper's experiment: 1000 episodes, CDF and reactive",
+        description="The paper's experiment with the default settings: seeds 0-999, the CDF "
+                    "(with its risk rule; --planners cdf-threshold,reactive for the paper's rule) "
+                    "and the reactive planner on the same seeds, both tables. The same command "
+                    "again continues an interrupted run, or only prints the tables of a finished one.")
+    _add_experiment_arguments(p, episodes=1000, out="results/reproduce")

@@ -1,0 +1,100 @@
+"""``cdf-mj sweep``: run the planners over a range of one setting; a table (CSV, Markdown)
+and a figure per sweep."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from cdf_mj.cli.args import (
+    EXIT_FAILED_EPISODES,
+    PROG,
+    CLIError,
+    _command,
+    _episodes,
+    _non_negative_int,
+    _planner_list,
+    _seed_range,
+    _shown,
+    _workers,
+    add_cdf_arguments,
+    add_scenario_arguments,
+    cdf_from_args,
+    config_from_args,
+)
+from cdf_mj.extras import install_hint
+
+#: Most points of one sweep (each an experiment on every seed).
+MAX_SWEEP_VALUES = 100
+
+
+def _value_list(text: str) -> list[float]:
+    """Comma-separated finite numbers, 1 to :data:`MAX_SWEEP_VALUES` of them (the range of
+    each is the swept setting's, checked by its configuration)."""
+    try:
+        values = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {_shown(text)}") from None
+    if not values or len(values) > MAX_SWEEP_VALUES:
+        raise argparse.ArgumentTypeError(f"expected 1 to {MAX_SWEEP_VALUES} values, got {len(values)}")
+    bad = [v for v in values if not abs(v) < float("inf")]  # inf, nan; also a 400-digit number
+    if bad:
+        raise argparse.ArgumentTypeError(f"expected finite numbers, got {bad[0]!r} in {_shown(text)}")
+    return values
+
+
+def _cmd_sweep(args: argparse.Namespace) -> int:
+    from cdf_mj.experiments.sweep import VizUnavailableError, run_sweep
+
+    config = config_from_args(args)
+    cdf = cdf_from_args(args, args.planners)
+    seeds = _seed_range(args.seed0, args.episodes)
+    if args.values is not None and len(args.sweeps) > 1:
+        raise CLIError("--values applies to one sweep at a time; name a single sweep")
+    failed = []
+    for name in args.sweeps:
+        try:
+            result = run_sweep(name, args.out, seeds, planners=args.planners, values=args.values, config=config,
+                               cdf=cdf, scene=args.scene, workers=args.workers,
+                               progress=not args.quiet, figure=not args.no_figure)
+        except VizUnavailableError as exc:
+            raise CLIError(f"{exc} (the tables are written; --no-figure skips the figure)") from None
+        print(result.markdown + "\n")
+        figure = f", {result.figure_path}" if result.figure_path else ""
+        print(f"wrote {result.csv_path}, {result.markdown_path}{figure}\n")
+        failed += [f"{name} = {f.value:g}: {f}" for f in result.failures]
+    for line in failed:  # as `experiment` does: the run goes on, the status says it
+        print(f"{PROG}: {line}", file=sys.stderr)
+    if failed:
+        print(f"{PROG}: the failed episodes are left out of the tables; their records hold the error and "
+              "traceback (\"status\": \"failed\")", file=sys.stderr)
+        return EXIT_FAILED_EPISODES
+    return 0
+
+
+def _add_sweep(subparsers: argparse._SubParsersAction) -> None:
+    from cdf_mj.experiments.sweep import SWEEPS
+
+    p = _command(
+        subparsers, "sweep", compiles=True,
+        summary="run the planners over a range of one setting; table (CSV, Markdown) and figure",
+        description="Sweep one setting (beta, particle count, threshold tau, noise levels) over "
+                    "values, each point an experiment on the same seeds; write OUT/<sweep>.csv, "
+                    "OUT/<sweep>.md and OUT/<sweep>.png. Finished points are reused. The figure "
+                    f"needs matplotlib ({install_hint('viz')}).")
+    p.add_argument("sweeps", nargs="+", choices=sorted(SWEEPS), metavar="SWEEP",
+                   help=f"one or more of: {', '.join(SWEEPS)}")
+    p.add_argument("--values", type=_value_list, default=None,
+                   help="comma-separated values (one sweep only; default: the sweep's own)")
+    p.add_argument("--episodes", type=_episodes, default=200, help="seeds per point, 1 to 10^7 (default 200)")
+    p.add_argument("--seed0", type=_non_negative_int, default=0, help="first seed (default 0)")
+    p.add_argument("--planners", type=_planner_list, default=["cdf", "reactive"],
+                   help="comma-separated planners (default cdf,reactive)")
+    p.add_argument("--out", default="results/sweeps", help="output directory (default results/sweeps)")
+    add_cdf_arguments(p, swept=True)
+    p.add_argument("--workers", type=_workers, default=None,
+                   help="worker processes per point (default: the CPU count; 1 runs in this process)")
+    p.add_argument("--no-figure", action="store_true", help="tables only (no matplotlib needed)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_scenario_arguments(p)
+    p.set_defaults(func=_cmd_sweep)
