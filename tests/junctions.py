@@ -9,11 +9,14 @@ added with :func:`cdf_mj.sim.spec.add_car` at their start poses. ::
     from tests.junctions import Placement, build_junction, junction_scene
     scene = junction_scene(rotation=0.7, mirror=True, lane_width=3.2)   # a Scene
     spec = build_junction(names=SceneNames(ego_prefix="av/"), cars=False)  # add your own cars
+    small = build_junction(scale=0.1, cars=False)   # a 1:10 testbed: 0.37 m lanes, no cars
 
 The local frame (before placement) is the frame of ``models/xml``: x east, y north,
 metres, radians; the main road runs along x centred on y = 0, the ego drives east in the
 southern lane, the side road comes from the north and the obstacle faces south.
-:class:`Placement` maps local points and headings to the world.
+:class:`Placement` maps local points and headings to the world, and ``scale`` shrinks
+or grows the whole junction about its local origin (every length and height; a testbed at
+1:10 is ``scale=0.1``), after which the local frame is still in full-size metres.
 
 Mirroring (``mirror=True``, y -> -y before the rotation) gives left-hand traffic: the ego
 drives east in the *northern* lane, the side road comes from the south, and the turn that
@@ -51,17 +54,19 @@ DEFAULT_NAMES = SceneNames()
 
 @dataclass(frozen=True)
 class Placement:
-    """Where the local junction lies in the world: ``world = R(rotation) @ M @ local + center``
-    with ``M = diag(1, -1)`` when mirrored. ``rotation`` [rad] about the junction centre,
-    ``center`` [m] the world position of the local origin."""
+    """Where the local junction lies in the world: ``world = R(rotation) @ M @ (scale *
+    local) + center`` with ``M = diag(1, -1)`` when mirrored. ``rotation`` [rad] about the
+    junction centre, ``center`` [m] the world position of the local origin, ``scale`` the
+    testbed's scale (0.1: 1:10)."""
 
     rotation: float = 0.0
     mirror: bool = False
     center: tuple[float, float] = (0.0, 0.0)
+    scale: float = 1.0
 
     def point(self, xy: np.ndarray | tuple[float, float]) -> np.ndarray:
         """Local points ``(..., 2)`` [m] in the world frame."""
-        p = np.array(xy, dtype=float)
+        p = self.scale * np.array(xy, dtype=float)
         if self.mirror:
             p[..., 1] = -p[..., 1]
         c, s = math.cos(self.rotation), math.sin(self.rotation)
@@ -73,9 +78,9 @@ class Placement:
         return math.remainder((-theta if self.mirror else theta) + self.rotation, 2 * math.pi)
 
     def pose(self, pose: np.ndarray | tuple[float, ...]) -> np.ndarray:
-        """A local pose ``[x, y, theta, v]`` in the world frame."""
+        """A local pose ``[x, y, theta, v]`` in the world frame (the speed scaled as the lengths)."""
         x, y, th, v = (float(p) for p in pose)
-        return np.array([*self.point((x, y)), self.heading(th), v])
+        return np.array([*self.point((x, y)), self.heading(th), self.scale * v])
 
 
 def _quat(yaw: float) -> list[float]:
@@ -120,18 +125,20 @@ def _local_geometry(w: float, left_radius: float, right_radius: float) -> dict:
 
 
 def start_poses(*, rotation: float = 0.0, mirror: bool = False, lane_width: float = 3.7,
-                center: tuple[float, float] = (0.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+                center: tuple[float, float] = (0.0, 0.0), scale: float = 1.0
+                ) -> tuple[np.ndarray, np.ndarray]:
     """The ego's and the obstacle's start poses ``[x, y, theta, 0]`` in the world frame, as
     :func:`build_junction` places them (for cars of your own)."""
     g = _local_geometry(lane_width, 7.0, 6.0)
-    place = Placement(rotation, mirror, center)
+    place = Placement(rotation, mirror, center, scale)
     return place.pose(g["ego_start"]), place.pose(g["obstacle_start"])
 
 
 def build_junction(*, rotation: float = 0.0, mirror: bool = False, lane_width: float = 3.7,
                    names: SceneNames = DEFAULT_NAMES, buildings: bool = True, cars: bool = True,
                    center: tuple[float, float] = (0.0, 0.0), left_radius: float = 7.0,
-                   right_radius: float = 6.0, camera: str | None = "top") -> mujoco.MjSpec:
+                   right_radius: float = 6.0, camera: str | None = "top", scale: float = 1.0
+                   ) -> mujoco.MjSpec:
     """A T-junction as an ``MjSpec`` (see the module docstring for the layout).
 
     Args:
@@ -144,13 +151,18 @@ def build_junction(*, rotation: float = 0.0, mirror: bool = False, lane_width: f
         center: world position of the junction centre [m].
         left_radius, right_radius: the obstacle's turn radii [m] (rear axle).
         camera: name of a camera 70 m above the centre looking down, or None for none.
+        scale: the whole junction's scale (every length and height; 0.1: a 1:10 testbed
+            with 0.37 m lanes), the arguments above in full-size metres; only without our
+            full-size ``cars``.
 
     Options: timestep 0.005 s, integrator implicitfast, angles in radians, an offscreen
     buffer of 1280 x 720.
     """
+    if cars and scale != 1.0:
+        raise ValueError(f"build_junction: our cars are full size; with scale={scale} add your own (cars=False)")
     g = _local_geometry(lane_width, left_radius, right_radius)
-    place = Placement(rotation, mirror, center)
-    w, c = lane_width, g["c"]
+    place = Placement(rotation, mirror, center, scale)
+    w, c, k = lane_width, g["c"], scale
     spec = mujoco.MjSpec()
     spec.modelname = "junction"
     spec.compiler.degree = False
@@ -159,24 +171,24 @@ def build_junction(*, rotation: float = 0.0, mirror: bool = False, lane_width: f
     spec.visual.global_.offwidth, spec.visual.global_.offheight = 1280, 720
     world = spec.worldbody
     cx, cy = center
-    world.add_geom(name="ground", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[200, 200, 0.1],
+    world.add_geom(name="ground", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[200 * k, 200 * k, 0.1],
                    pos=[cx, cy, 0], rgba=[0.3, 0.38, 0.26, 1], contype=0, conaffinity=0)
     road_rgba = [0.22, 0.22, 0.24, 1]
     side_len = 40.0
     for name, (x, y), (hx, hy) in (("road_main", (0.0, 0.0), (ROUTE_END, w)),
                                    ("road_side", (0.0, w + side_len / 2), (w, side_len / 2))):
-        world.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_BOX, pos=[*place.point((x, y)), 0.005],
-                       quat=_quat(place.heading(0.0)), size=[hx, hy, 0.005], rgba=road_rgba,
+        world.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_BOX, pos=[*place.point((x, y)), 0.005 * k],
+                       quat=_quat(place.heading(0.0)), size=[hx * k, hy * k, 0.005 * k], rgba=road_rgba,
                        contype=0, conaffinity=0, group=0)
     if camera is not None:
-        world.add_camera(name=camera, pos=[cx, cy, 70.0], fovy=60.0)
+        world.add_camera(name=camera, pos=[cx, cy, 70.0 * k], fovy=60.0)
 
     def site(name: str, xy: tuple[float, float], heading: float = 0.0, box: tuple | None = None) -> None:
         s = world.add_site(name=name, pos=[*place.point(xy), 0.0], quat=_quat(place.heading(heading)),
                            group=4)
         if box is not None:
             s.type = mujoco.mjtGeom.mjGEOM_BOX
-            s.size = [*box, 0.02]
+            s.size = [b * k for b in (*box, 0.02)]
 
     site(names.ego_start, g["ego_start"][:2], g["ego_start"][2])
     site(names.obstacle_start, g["obstacle_start"][:2], g["obstacle_start"][2])
@@ -192,8 +204,8 @@ def build_junction(*, rotation: float = 0.0, mirror: bool = False, lane_width: f
     if buildings:
         for suffix, (xy, half) in g["buildings"].items():
             world.add_geom(name=names.building_prefix + suffix, type=mujoco.mjtGeom.mjGEOM_BOX,
-                           pos=[*place.point(xy), half[2]], quat=_quat(place.heading(0.0)),
-                           size=list(half), rgba=[0.72, 0.64, 0.52, 1], group=1,
+                           pos=[*place.point(xy), half[2] * k], quat=_quat(place.heading(0.0)),
+                           size=[h * k for h in half], rgba=[0.72, 0.64, 0.52, 1], group=1,
                            contype=1, conaffinity=2)
     if cars:
         for prefix, key, paint in ((names.ego_prefix, "ego_start", (0.8, 0.1, 0.1, 1.0)),

@@ -16,13 +16,17 @@ import pytest
 from junctions import Placement, build_junction
 
 from cdf_mj.config import SceneNames
+from cdf_mj.model.vehicle import CarGeometry
 from cdf_mj.sim.assets import MODELS_DIR
 from cdf_mj.sim.checks import SceneError, SceneWarning, substeps
-from cdf_mj.sim.scene import Scene
+from cdf_mj.sim.scene import Scene, read_layout
 
 MOVED = {"rotation": 2.3, "mirror": True, "center": (30.0, -12.0)}
 PLACE = Placement(MOVED["rotation"], MOVED["mirror"], MOVED["center"])
 NAMES = SceneNames()
+#: Our car at 1:10 (a 0.46 m box), for junctions read without cars.
+SMALL_CAR = CarGeometry(wheelbase=0.27, hull_offset=(0.135, 0.0), hull_half=(0.23, 0.09), hull_height=0.145,
+                        eye_offset=(0.12, 0.035, 0.12), accel_range=(-0.4877, 0.3), steer_range=(-0.6, 0.6))
 
 
 def _load(spec: mujoco.MjSpec, *, drive: bool = True) -> Scene:
@@ -72,7 +76,7 @@ def test_a_conflict_point_on_the_wrong_carriageway_is_refused():
     spec = build_junction(**MOVED)
     _set_site(spec, NAMES.conflict, (2.5, 1.85))  # the westbound lane, not the ego's
     msg = _error(spec)
-    assert f"site '{NAMES.conflict}' is 3.70 m from the ego's route" in msg
+    assert f"site '{NAMES.conflict}' is 3.7 m from the ego's route" in msg
     assert "wrong carriageway?" in msg
 
 
@@ -195,3 +199,40 @@ def test_every_problem_is_listed_at_once():
     for fragment in (f"lacks site '{NAMES.commit}'", "routes swapped?", "wrong carriageway?",
                      "beyond 90 deg"):
         assert fragment in msg, fragment
+
+
+# ------------------------------------------------------------------ a testbed at another scale
+def _junction_error(spec: mujoco.MjSpec) -> str:
+    """The SceneError of reading a junction without our cars (the monitor's check)."""
+    with pytest.raises(SceneError) as err:
+        read_layout(spec.compile(), NAMES, ego=SMALL_CAR, obstacle=SMALL_CAR)
+    return str(err.value)
+
+
+@pytest.mark.parametrize("scale", [0.5, 0.1, 0.05])
+def test_a_correct_small_junction_loads(scale: float):
+    """The paper's junction at 1:2, 1:10 (0.37 m lanes) and 1:20, moved and mirrored: every
+    check passes (a route's start direction measured over a fixed 1 m refused 1:10)."""
+    spec = build_junction(**MOVED, scale=scale, cars=False)
+    layout = read_layout(spec.compile(), NAMES, ego=SMALL_CAR, obstacle=SMALL_CAR)
+    assert layout.ego_lane.half[1] == pytest.approx(1.85 * scale)
+
+
+def test_a_wrong_small_junction_is_told_in_its_own_metres():
+    spec = build_junction(**MOVED, scale=0.1, cars=False)
+    start = spec.site(NAMES.obstacle_start)
+    start.quat = [math.cos(0.5), 0.0, 0.0, math.sin(0.5)]  # turned by 1 rad off its routes
+    msg = _junction_error(spec)
+    assert f"site '{NAMES.obstacle_start}' heads" in msg and "over its first 0.123 m" in msg
+    spec = build_junction(**MOVED, scale=0.1, cars=False)
+    spec.site(NAMES.conflict).pos = [*Placement(*MOVED.values(), scale=0.1).point((2.5, 1.85)), 0.0]
+    assert f"site '{NAMES.conflict}' is 0.37 m from the ego's route" in _junction_error(spec)
+
+
+def test_a_lane_in_millimetres_is_named_as_such():
+    spec = build_junction(cars=False)
+    spec.site(NAMES.ego_lane).size = [150.0, 1850.0, 0.02]
+    msg = _junction_error(spec)
+    assert f"site '{NAMES.ego_lane}' makes the ego's lane 300 m wide" in msg  # the box's shorter side
+    spec.site(NAMES.ego_lane).size = [90000.0, 1850.0, 0.02]
+    assert "3700 m wide (its box's shorter side): a lane is 0.05-20 m wide; millimetres?" in _junction_error(spec)

@@ -24,9 +24,50 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from cdf_mj.config import MAX_ACCEL
 from cdf_mj.model.geometry import box_corners_one, rotated_corners
 
-__all__ = ["CarGeometry"]
+__all__ = ["CAR_LENGTH", "CAR_SIZE", "CAR_WIDTH", "CarGeometry"]
+
+#: [m] the collision box's length of anything that drives on a road, from a 1:40 model
+#: (MuJoCo's example car, ``model/car/car.xml``, is 0.2 m long) to a road train; a length
+#: outside it is a unit mistake (millimetres, centimetres), not a car.
+CAR_LENGTH = (0.05, 30.0)
+#: [m] the collision box's width (a 1:40 model to an oversize load).
+CAR_WIDTH = (0.02, 10.0)
+#: [m] the wheelbase, the box's height and every offset in the chassis frame: at most this.
+CAR_SIZE = 30.0
+
+
+def _unit_hint(value: float, high: float, low: float = 0.0) -> str:
+    """For a length ``value`` [m] beyond ``high``: the smaller units in which it would lie
+    in ``[low, high]`` (none for a value within twice the bound: too close to tell)."""
+    units = [unit for factor, unit in ((1000.0, "millimetres"), (100.0, "centimetres"))
+             if value > 2.0 * high and low <= value / factor <= high]
+    return f"; {' or '.join(units)}?" if units else ""
+
+
+def _box_problem(half: np.ndarray) -> str:
+    """What makes a collision box of half sizes ``half`` [m] no car's, or ''."""
+    for size, (low, high), word in ((2.0 * float(half[0]), CAR_LENGTH, "long"),
+                                    (2.0 * float(half[1]), CAR_WIDTH, "wide")):
+        if not low <= size <= high:
+            hint = _unit_hint(size, high, low) if size > high else "; metres expected"
+            return f"makes the box {size:g} m {word}: a car is {low:g}-{high:g} m {word}{hint}"
+    return ""
+
+
+def _range_problem(name: str, most: float) -> str:
+    """What makes an actuator range reaching ``most`` (accel [m/s^2], steering [rad]) no
+    car's, or ''."""
+    if name == "accel_range" and most > MAX_ACCEL:
+        hint = "; mm/s^2?" if most / 1000.0 <= MAX_ACCEL else ""
+        return f"reaches {most:g} m/s^2: a car's is at most {MAX_ACCEL:g} m/s^2 (about 10 g){hint}"
+    if name == "steer_range" and most > math.pi / 2:
+        hint = (f"; degrees? Steering angles are radians ({most:g} deg = {math.radians(most):.3g} rad)"
+                if most <= 90.0 else "")
+        return f"reaches {most:g} rad: a car steers at most pi/2 rad (90 deg){hint}"
+    return ""
 
 
 def _vector(value: Sequence[float] | np.ndarray, size: int) -> np.ndarray | None:
@@ -66,7 +107,12 @@ class CarGeometry:
         steer_range: ``(full right, full left)`` steering angle [rad], right < 0 < left.
 
     Arrays are stored read-only; ValueError (one message listing every bad field) on a
-    value that is not finite, of the wrong shape, or out of range.
+    value that is not finite, of the wrong shape, or out of range. The ranges are those of
+    a car in metres, seconds and radians at any scale from a 1:40 model to a road train
+    (:data:`CAR_LENGTH`, :data:`CAR_WIDTH`, :data:`CAR_SIZE`, accelerations within
+    :data:`cdf_mj.config.MAX_ACCEL`, steering within pi/2 rad); a value outside says which
+    unit it looks like (``hull_half=[2300.0, 900.0] makes the box 4600 m long: a car is
+    0.05-30 m long; millimetres?``).
     """
 
     wheelbase: float
@@ -86,6 +132,11 @@ class CarGeometry:
                 bad.append(f"{name}={getattr(self, name)!r} must be {size} finite numbers [m]")
             elif name == "hull_half" and not np.all(value > 0):
                 bad.append(f"hull_half={value.tolist()} must be > 0 [m]")
+            elif name == "hull_half" and (implausible := _box_problem(value)):
+                bad.append(f"hull_half={value.tolist()} {implausible}")
+            elif (far := float(np.max(np.abs(value)))) > CAR_SIZE:
+                bad.append(f"{name}={value.tolist()} reaches {far:g} m from the rear axle: a car's "
+                           f"parts are within {CAR_SIZE:g} m of it{_unit_hint(far, CAR_SIZE)}")
             else:
                 object.__setattr__(self, name, value)
         for name in ("wheelbase", "hull_height"):
@@ -96,6 +147,9 @@ class CarGeometry:
                 number = math.nan
             if not (math.isfinite(number) and number > 0):
                 bad.append(f"{name}={value!r} must be a finite number > 0 [m]")
+            elif number > CAR_SIZE:
+                bad.append(f"{name}={number:g} m: a car's is at most {CAR_SIZE:g} m"
+                           f"{_unit_hint(number, CAR_SIZE)}")
             else:
                 object.__setattr__(self, name, number)
         for name, unit, sides in (("accel_range", "m/s^2", "braking < 0 < acceleration"),
@@ -105,6 +159,8 @@ class CarGeometry:
                                     and pair[0] < 0.0 < pair[1]):
                 bad.append(f"{name}={getattr(self, name)!r} must be two finite numbers, "
                            f"{sides} [{unit}]")
+            elif implausible := _range_problem(name, max(-pair[0], pair[1])):
+                bad.append(f"{name}={pair!r} {implausible}")
             else:
                 object.__setattr__(self, name, pair)
         if bad:
@@ -143,6 +199,16 @@ class CarGeometry:
                              f"{'; ' if missing and unknown else ''}"
                              f"{'unknown ' + ', '.join(unknown) if unknown else ''}")
         return cls(**data)  # type: ignore[arg-type]  # the constructor checks every value
+
+    @property
+    def length(self) -> float:
+        """Length of the collision box [m]."""
+        return 2.0 * float(self.hull_half[0])
+
+    @property
+    def width(self) -> float:
+        """Width of the collision box [m]."""
+        return 2.0 * float(self.hull_half[1])
 
     @property
     def max_brake(self) -> float:

@@ -68,8 +68,17 @@ _OBJ = {
 #: 1e7 N s/m, the speed servo) implicitly; Euler and RK4 treat them explicitly and diverge.
 STABLE_INTEGRATORS = (mujoco.mjtIntegrator.mjINT_IMPLICIT, mujoco.mjtIntegrator.mjINT_IMPLICITFAST)
 
+# The lengths below are a full-size junction's; a narrower one (a testbed at another scale)
+# is checked at these lengths x its lane width / FULL_LANE (:func:`_junction_scale`).
 _ROUTE_STEP = 0.2  # [m] spacing of the points at which routes are tested against the ego lane
+_START_SPAN = 1.0  # [m] a route's start direction is measured over its first this much
+_LANE_SPAN = 1.0  # [m] the left route's direction in the ego's lane: over its last this much there
 _HEADING_TOL = math.radians(20.0)  # [rad] obstacle start site vs its routes' first direction
+#: [m] lanes at least this wide (a narrow full-size lane) are checked at the lengths above.
+FULL_LANE = 3.0
+#: [m] the width of the ego's lane (site ``ego_lane``, its shorter side): a lane of a 1:40
+#: testbed to a wide road; a width outside it is a unit mistake.
+LANE_WIDTH = (0.05, 20.0)
 _DRIVE_TIME = 0.3  # [s] length of each phase of the test drive
 _FAR = (2000.0, -3000.0)  # [m] chassis-frame y of ego, obstacle in the test drive: apart, alone
 #: Largest coordinate or size of any body, geom or site in a scene, and largest control
@@ -308,18 +317,33 @@ def _site_box(m: mujoco.MjModel, d: mujoco.MjData, name: str) -> OrientedBox:
                        np.array(m.site(name).size[:2]))
 
 
+def _junction_scale(lane: OrientedBox | None) -> float:
+    """The junction's scale for the checks' lengths: its lane width (the ego lane box's
+    shorter side) / :data:`FULL_LANE`, at most 1 (1 without a lane box)."""
+    return 1.0 if lane is None else min(1.0, 2.0 * float(np.min(lane.half)) / FULL_LANE)
+
+
 def _meaning_problems(m: mujoco.MjModel, d: mujoco.MjData, n: SceneNames, routes: dict[str, Polyline],
                       has: Callable[[str, str], bool]) -> list[str]:
-    """What the junction's elements mean: which route crosses the ego's lane, where the
-    conflict point lies, where the obstacle's start site faces (elements that exist and are
-    well formed only)."""
+    """What the junction's elements mean: how wide the ego's lane is, which route crosses
+    it, where the conflict point lies, where the obstacle's start site faces (elements that
+    exist and are well formed only). Lengths are measured at the junction's scale
+    (:func:`_junction_scale`) and said in its own metres."""
     wrong: list[str] = []
     ego, left, right = (routes.get(r) for r in (n.route_ego, n.route_left, n.route_right))
     lane = _site_box(m, d, n.ego_lane) if has("site", n.ego_lane) and \
         m.site(n.ego_lane).type[0] == mujoco.mjtGeom.mjGEOM_BOX else None
+    if lane is not None and not LANE_WIDTH[0] <= 2.0 * float(np.min(lane.half)) <= LANE_WIDTH[1]:
+        width = 2.0 * float(np.min(lane.half))
+        hint = "; millimetres?" if LANE_WIDTH[0] <= width / 1000.0 <= LANE_WIDTH[1] and width > LANE_WIDTH[1] \
+            else ""
+        wrong.append(f"site '{n.ego_lane}' makes the ego's lane {width:.4g} m wide (its box's shorter "
+                     f"side): a lane is {LANE_WIDTH[0]:g}-{LANE_WIDTH[1]:g} m wide{hint}")
+        lane = None  # nothing else is read at a scale that is not a junction's
+    scale = _junction_scale(lane)
     if lane is not None and left is not None and right is not None:
         def inside(route: Polyline) -> np.ndarray:
-            s = np.append(np.arange(0.0, route.length, _ROUTE_STEP), route.length)
+            s = np.append(np.arange(0.0, route.length, _ROUTE_STEP * scale), route.length)
             pts = route.point_at(s)
             return pts[lane.contains(pts)]
 
@@ -336,13 +360,14 @@ def _meaning_problems(m: mujoco.MjModel, d: mujoco.MjData, n: SceneNames, routes
             if len(right_in):
                 x, y = right_in[0]
                 wrong.append(f"body '{n.route_right}' enters the ego's lane (site '{n.ego_lane}') "
-                             f"at ({x:.2f}, {y:.2f}) m: the right route must turn away from it")
+                             f"at ({x:.4g}, {y:.4g}) m: the right route must turn away from it")
         if len(left_in) and ego is not None:
             # in the lane, the left-turner drives the ego's way (the end of its path there)
             s_end = left.project(left_in[-1])[0]
             s_ego = ego.project(left_in[-1])[0]
-            t_left = left.point_at(min(float(s_end), left.length)) - left.point_at(max(float(s_end) - 1.0, 0.0))
-            t_ego = ego.point_at(float(s_ego) + 0.5) - ego.point_at(float(s_ego) - 0.5)
+            span = _LANE_SPAN * scale
+            t_left = left.point_at(min(float(s_end), left.length)) - left.point_at(max(float(s_end) - span, 0.0))
+            t_ego = ego.point_at(float(s_ego) + span / 2) - ego.point_at(float(s_ego) - span / 2)
             if float(t_left @ t_ego) < 0.0:
                 wrong.append(f"body '{n.route_left}' runs against the ego's direction (body "
                              f"'{n.route_ego}') in the ego's lane: is one of the routes reversed?")
@@ -351,9 +376,9 @@ def _meaning_problems(m: mujoco.MjModel, d: mujoco.MjData, n: SceneNames, routes
         s_c, lat = (float(v) for v in ego.project(conflict))
         half = float(lane.half[1]) if lane is not None else math.inf
         if abs(lat) > half:
-            wrong.append(f"site '{n.conflict}' is {abs(lat):.2f} m from the ego's route (body "
+            wrong.append(f"site '{n.conflict}' is {abs(lat):.3g} m from the ego's route (body "
                          f"'{n.route_ego}'); it must lie on that route within the ego's lane "
-                         f"(half width {half:.2f} m): on the wrong carriageway?")
+                         f"(half width {half:.3g} m): on the wrong carriageway?")
         elif lane is not None and not lane.contains(conflict):
             wrong.append(f"site '{n.conflict}' lies outside the ego's lane (site '{n.ego_lane}'); "
                          "it marks where a left-turner enters that lane")
@@ -361,20 +386,21 @@ def _meaning_problems(m: mujoco.MjModel, d: mujoco.MjData, n: SceneNames, routes
             s_start = float(ego.project(np.array(d.site(n.ego_start).xpos[:2]))[0])
             if s_c <= s_start:
                 wrong.append(f"site '{n.conflict}' is not ahead of site '{n.ego_start}' along body "
-                             f"'{n.route_ego}' ({s_c - s_start:.1f} m): is the ego's route reversed? "
+                             f"'{n.route_ego}' ({s_c - s_start:.3g} m): is the ego's route reversed? "
                              "Its waypoints go in the ego's direction of travel")
     if has("site", n.obstacle_start):
         heading = math.atan2(d.site(n.obstacle_start).xmat[3], d.site(n.obstacle_start).xmat[0])
         for name, route in ((n.route_left, left), (n.route_right, right)):
             if route is None:
                 continue
-            u = route.point_at(min(1.0, route.length)) - route.point_at(0.0)
+            span = min(_START_SPAN * scale, route.length)
+            u = route.point_at(span) - route.point_at(0.0)
             off = abs(math.remainder(math.atan2(u[1], u[0]) - heading, 2 * math.pi))
             if off > _HEADING_TOL:
                 wrong.append(f"site '{n.obstacle_start}' heads {math.degrees(heading):.1f} deg but "
                              f"body '{name}' starts towards {math.degrees(math.atan2(u[1], u[0])):.1f} "
-                             "deg: turn the site's x axis along the route (euler=\"0 0 yaw\", yaw in "
-                             "radians)")
+                             f"deg over its first {span:.3g} m: turn the site's x axis along the route "
+                             "(euler=\"0 0 yaw\", yaw in radians)")
     return wrong
 
 
