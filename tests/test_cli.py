@@ -181,6 +181,22 @@ def test_force_starts_over_and_removes_only_that_runs_files(capsys, tmp_path):
     assert (out / "report.md").read_text() == "a file of the user's\n"
 
 
+@pytest.mark.parametrize("command", ["experiment", "reproduce"])
+def test_resume_of_earlier_releases_is_accepted_with_a_one_line_note(capsys, tmp_path, command):
+    """``--resume`` (needed once to continue a run) does nothing more than the same command
+    without it, and says so in one line on stderr; stdout and the records are unchanged."""
+    out = tmp_path / "run"
+    assert run_cli(capsys, command, *SMALL_RUN, "--out", str(out))[0] == 0
+    lines = (out / "episodes.jsonl").read_text().splitlines(keepends=True)
+    (out / "episodes.jsonl").write_text(lines[0])  # as if killed after the first seed
+    status, text, err = run_cli(capsys, command, *SMALL_RUN, "--out", str(out), "--resume", "--retry-failed")
+    assert status == 0, err
+    assert err.splitlines() == ["cdf-mj: --resume is no longer needed: the same command continues an "
+                                "interrupted run"]
+    assert "1 run in" in text and "1 already on disk" in text
+    assert sorted((out / "episodes.jsonl").read_text().splitlines(keepends=True)) == sorted(lines)
+
+
 def test_force_and_retry_failed_together_are_refused(capsys, tmp_path):
     assert_one_line_error(*run_cli(capsys, "experiment", *SMALL_RUN, "--out", str(tmp_path), "--force",
                                    "--retry-failed"), "--force", "--retry-failed")

@@ -32,6 +32,9 @@ from cdf_mj.experiments.store import locked
 from cdf_mj.extras import install_hint
 from cdf_mj.records import RECORDS_FILE
 
+#: The one line that ``--resume`` prints on stderr (the option of earlier releases, now a no-op).
+RESUME_NOTE = "--resume is no longer needed: the same command continues an interrupted run"
+
 #: What an experiment directory holds of its run; ``--force`` removes these and nothing else.
 RUN_FILES = (RECORDS_FILE, "settings.json")
 
@@ -47,6 +50,8 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
         raise CLIError("--force starts over, so --retry-failed has nothing to retry: give one of them")
     if args.address is not None and args.backend != "ray":
         raise CLIError("--address is the address of a Ray cluster: it needs --backend ray")
+    if args.resume:  # a script written when continuing needed --resume: it gets what it asked for
+        print(f"{PROG}: {RESUME_NOTE}", file=sys.stderr)
     if args.force:
         _remove_run(Path(args.out))
     try:  # resume: the same command again continues a run, or shows its tables if it is complete
@@ -104,6 +109,9 @@ def _add_experiment_arguments(p: argparse.ArgumentParser, episodes: int, out: st
                         "(default: start a local Ray instance)")
     p.add_argument("--force", action="store_true",
                    help="start over: remove the records and settings of the run in --out (no other file)")
+    p.add_argument("--resume", action="store_true",
+                   help="no longer needed, accepted for earlier scripts: the same command continues an "
+                        "interrupted run")
     p.add_argument("--retry-failed", action="store_true",
                    help="run the episodes of the run in --out that failed again")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
