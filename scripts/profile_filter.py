@@ -31,6 +31,7 @@ import numpy as np
 
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.inference.particle_filter import ParticleFilter
+from cdf_mj.planners.base import PlannerContext
 from cdf_mj.planners.decision import RiskRule
 from cdf_mj.scenario.episode import run_episode
 from cdf_mj.sim.scene import Scene
@@ -65,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
                                     np.random.default_rng(0))
 
     rule = RiskRule(CDFConfig().risk)
-    rule.reset(scene.layout(), cfg)
+    rule.reset(PlannerContext.of(scene.layout(), cfg))
 
     def replay() -> None:
         for _ in range(args.replays):

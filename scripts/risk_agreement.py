@@ -24,6 +24,7 @@ import numpy as np
 
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.model.driver import ego_control
+from cdf_mj.planners.base import PlannerContext
 from cdf_mj.planners.cdf import CDFPlanner
 from cdf_mj.planners.decision import GivenFutures, RiskRule, rollout_assessment
 from cdf_mj.scenario.world import World
@@ -50,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
         world = World(scene, config)
         world.reset(seed)
         planner = CDFPlanner(cdf)
-        planner.reset(world.layout, config, world.rng["planner"])
+        planner.reset(PlannerContext.of(world.layout, config), world.rng["planner"])
         rule = planner.rule
         assert isinstance(rule, RiskRule)
         pf, braking, started = planner.filter, False, False

@@ -19,6 +19,7 @@ from cdf_mj.analysis.tables import paired_table, planner_table
 from cdf_mj.config import ScenarioConfig
 from cdf_mj.model.geometry import box_corners
 from cdf_mj.planners import PLANNERS, PlannerInput, make_planner
+from cdf_mj.planners.base import PlannerContext
 from cdf_mj.planners.baselines import (
     CVConfig,
     CVPlanner,
@@ -62,7 +63,7 @@ def test_cv_does_not_brake_for_a_car_leaving_in_the_far_lane(scene):
     """A right-turner past its turn, westbound in the far lane, passing the eastbound ego."""
     cfg = ScenarioConfig()
     p = CVPlanner()
-    p.reset(scene.layout(), cfg, np.random.default_rng(0))
+    p.reset(PlannerContext.of(scene.layout(), cfg), np.random.default_rng(0))
     for k in range(30):
         t = 0.1 * k
         poses = np.array([[-40.0 + 13.4 * t, -1.85, 0.0, 13.4], [-8.0 - 6.0 * t, 1.85, math.pi, 6.0]])
@@ -74,7 +75,7 @@ def test_imm_mode_probabilities_sum_to_one_and_find_the_intent(scene):
         cfg = _situation(intent, offset)
         trace = run_episode(cfg, seed=3, planner="constant", scene=scene, label=False, trace=True).trace
         p = IMMPlanner()
-        p.reset(scene.layout(), cfg, np.random.default_rng(0))
+        p.reset(PlannerContext.of(scene.layout(), cfg), np.random.default_rng(0))
         for t, poses, in zip(trace["t"], trace["poses"], strict=True):
             p.brake(PlannerInput(t=t, poses=np.array(poses), obstacle_in_lane=False))
             mu = p.mode_probabilities

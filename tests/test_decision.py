@@ -32,7 +32,7 @@ from cdf_mj.model.conflict import (
 from cdf_mj.model.geometry import boxes_overlap
 from cdf_mj.model.layout import Layout
 from cdf_mj.planners import CDFPlanner
-from cdf_mj.planners.base import PLANNERS, DecidingPlanner, PlannerInput, ThresholdRule, make_planner
+from cdf_mj.planners.base import PLANNERS, DecidingPlanner, PlannerContext, PlannerInput, ThresholdRule, make_planner
 from cdf_mj.planners.decision import GivenFutures, RiskRule, rollout_assessment
 from cdf_mj.scenario.episode import run_episode
 from cdf_mj.scenario.world import World
@@ -125,7 +125,7 @@ def test_compiled_rollouts_agree_with_the_boxes(layouts: dict[str, Layout]) -> N
     config = ScenarioConfig()
     for name, layout in layouts.items():
         rule = RiskRule(RiskConfig(horizon=4.0))
-        rule.reset(layout, config)
+        rule.reset(PlannerContext.of(layout, config))
         same = total = 0
         q_conflict = float(layout.route_ego.project(layout.conflict)[0])
         for _ in range(12):
@@ -147,7 +147,7 @@ def test_compiled_rollouts_agree_with_the_boxes(layouts: dict[str, Layout]) -> N
 def test_plans_brake_and_go_as_the_ego_would(scene: Scene) -> None:
     layout = scene.layout()
     rule = RiskRule()
-    rule.reset(layout, ScenarioConfig())
+    rule.reset(PlannerContext.of(layout, ScenarioConfig()))
     ego = route_poses(layout.route_ego, np.array([100.0]))[0]
     ego[3] = 13.4
     plans = rule.plans(ego)
@@ -164,7 +164,7 @@ def test_plans_brake_and_go_as_the_ego_would(scene: Scene) -> None:
 def test_a_standing_car_at_the_line_is_no_risk_and_a_car_in_the_lane_is(scene: Scene) -> None:
     layout = scene.layout()
     rule = RiskRule()
-    rule.reset(layout, ScenarioConfig())
+    rule.reset(PlannerContext.of(layout, ScenarioConfig()))
     q_conflict = float(layout.route_ego.project(layout.conflict)[0])
     ego = route_poses(layout.route_ego, np.array([q_conflict - 20.0]))[0]
     ego[3] = 13.4
@@ -190,7 +190,7 @@ class _StubRule:
     releases = True
     history_keys = ("alarm",)
 
-    def reset(self, layout: Layout, config: ScenarioConfig) -> None:
+    def reset(self, context: PlannerContext) -> None:
         self.alarm = 0.0
 
     def decide(self, predictor: Any, ego_pose: np.ndarray, braking: bool) -> bool:
@@ -274,7 +274,7 @@ def test_the_rollout_reference_reads_the_same_risk(scene: Scene) -> None:
     world = World(scene, config)
     world.reset(1)
     planner = CDFPlanner(cdf)
-    planner.reset(world.layout, config, world.rng["planner"])
+    planner.reset(PlannerContext.of(world.layout, config), world.rng["planner"])
     rule = planner.rule
     assert isinstance(rule, RiskRule)
     pf = planner.filter
@@ -341,7 +341,7 @@ def test_the_filter_futures_follow_the_drivers_clear_rule(scene: Scene) -> None:
             world = World(scene, config)
             world.reset(seed)
             planner = CDFPlanner(CDFConfig(n_particles=200))
-            planner.reset(world.layout, config, world.rng["planner"])
+            planner.reset(PlannerContext.of(world.layout, config), world.rng["planner"])
             while not world.done:
                 m = world.measure()
                 brake = planner.brake(PlannerInput(t=m.t, poses=m.poses, obstacle_in_lane=m.obstacle_in_lane))
@@ -401,7 +401,7 @@ def test_decide_brakes_at_the_last_safe_moment_and_releases(layouts: dict[str, L
     conflict zone; held where every plan collides (a car standing just ahead)."""
     layout = layouts[name]
     rule = RiskRule()
-    rule.reset(layout, ScenarioConfig())
+    rule.reset(PlannerContext.of(layout, ScenarioConfig()))
     q_conflict = float(layout.route_ego.project(layout.conflict)[0])
     s_conflict = float(layout.route_left.project(layout.conflict)[0])
     crossing = GivenFutures(_one(s_conflict - 4.0, 3.0, accel=2.0, v_max=8.0))
@@ -437,7 +437,7 @@ def test_a_junction_whose_routes_never_meet_is_refused(scene: Scene) -> None:
     moved = type(layout.route_left)(layout.route_left.points + np.array([0.0, 500.0]))  # 500 m north
     far = dataclasses.replace(layout, route_left=moved)
     with pytest.raises(ValueError, match="never meets the ego's route"):
-        RiskRule().reset(far, ScenarioConfig())
+        RiskRule().reset(PlannerContext.of(far, ScenarioConfig()))
 
 
 def test_a_right_turner_long_enough_to_reach_the_ego_is_found(scene):

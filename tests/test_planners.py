@@ -4,6 +4,7 @@ the base of deciding planners, on real episodes."""
 from __future__ import annotations
 
 import ast
+import json
 import pickle
 import subprocess
 import sys
@@ -13,7 +14,7 @@ import numpy as np
 import pytest
 
 import cdf_mj.planners
-from cdf_mj.config import ScenarioConfig
+from cdf_mj.config import CDFConfig, RiskConfig, ScenarioConfig
 from cdf_mj.model.layout import Layout
 from cdf_mj.planners import (
     PLANNERS,
@@ -26,6 +27,14 @@ from cdf_mj.planners import (
     make_planner,
     register,
 )
+from cdf_mj.planners.base import (
+    PlannerContext,
+    PlannerSpec,
+    bind_planner,
+    planner_arguments,
+    shared_arguments,
+)
+from cdf_mj.planners.baselines import IMMConfig
 from cdf_mj.scenario.episode import run_episode
 
 
@@ -42,16 +51,61 @@ def test_builtin_planners_are_registered_by_name():
 def test_a_target_string_is_imported_on_first_use_and_pickles(monkeypatch):
     monkeypatch.setitem(PLANNERS, "twin", PLANNERS["reactive"])
     register("twin", "cdf_mj.planners.simple:ReactivePlanner")
-    factory = PLANNERS["twin"]
-    assert factory == LazyPlanner("cdf_mj.planners.simple:ReactivePlanner")
-    assert isinstance(pickle.loads(pickle.dumps(factory))(), ReactivePlanner)
+    spec = PLANNERS["twin"]
+    assert spec == PlannerSpec("twin", LazyPlanner("cdf_mj.planners.simple:ReactivePlanner"))
+    assert isinstance(pickle.loads(pickle.dumps(spec))(), ReactivePlanner)
     assert isinstance(make_planner("twin"), ReactivePlanner)
 
 
 def test_a_callable_target_is_kept_as_it_is(monkeypatch):
     monkeypatch.setitem(PLANNERS, "mine", PLANNERS["reactive"])
     register("mine", ReactivePlanner)
-    assert PLANNERS["mine"] is ReactivePlanner
+    assert PLANNERS["mine"].target is ReactivePlanner
+    monkeypatch.setitem(PLANNERS, "by-hand", ReactivePlanner)  # version 0.1 let users do this
+    assert isinstance(make_planner("by-hand"), ReactivePlanner)
+
+
+def test_registered_arguments_are_updated_by_the_callers_and_stored_as_json(monkeypatch):
+    """``register(name, target, **defaults)`` and ``make_planner(name, **kwargs)`` as
+    ``gymnasium.make``; a run's stored arguments rebuild the same planner."""
+    monkeypatch.setitem(PLANNERS, "imm-09", PLANNERS["imm"])
+    register("imm-09", "cdf_mj.planners.baselines:IMMPlanner", params=IMMConfig(threshold=0.9))
+    assert make_planner("imm-09").params.threshold == 0.9
+    made = make_planner("imm-09", params=IMMConfig(threshold=0.5, p_left=0.4))
+    assert (made.params.threshold, made.params.p_left) == (0.5, 0.4)
+    stored = json.loads(json.dumps(planner_arguments("cdf", cdf=CDFConfig(n_particles=77, tau=0.7))))
+    again = make_planner("cdf", **stored)
+    assert again.cdf == CDFConfig(n_particles=77, tau=0.7)
+    assert make_planner("cdf-threshold", **stored).cdf.decision == "threshold"
+    with pytest.raises(TypeError, match=r"planner 'reactive': ReactivePlanner\(\) takes no arguments"):
+        make_planner("reactive", horizon=2.0)
+    with pytest.raises(ValueError, match="n_particles"):
+        make_planner("cdf", cdf={"n_particles": 0})
+    with pytest.raises(TypeError, match="cdf: .*unexpected keyword.*CDFConfig fields"):
+        make_planner("cdf", cdf={"particles": 10})
+    with pytest.raises(TypeError, match="arguments .* given with a planner object"):
+        make_planner(ReactivePlanner(), horizon=2.0)
+
+
+def test_the_shared_cdf_settings_go_where_the_registry_says():
+    cdf = CDFConfig(n_particles=50, risk=RiskConfig(brake=0.3, release=0.1))
+    assert shared_arguments("cdf", cdf) == {"cdf": cdf}
+    assert shared_arguments("imm-risk", cdf) == {"risk": cdf.risk}
+    assert shared_arguments("imm", cdf) == {} and shared_arguments("reactive", cdf) == {}
+    assert bind_planner("cv-risk", cdf)().rule.config == cdf.risk
+    assert bind_planner("cv", cdf)().rule.name == "threshold"
+
+
+class _OldStylePlanner(ReactivePlanner):
+    def reset(self, layout, config, rng):  # the signature of version 0.1
+        super().reset(layout, rng)
+
+
+def test_a_planner_with_the_old_reset_is_refused_in_one_line(monkeypatch):
+    monkeypatch.setitem(PLANNERS, "old", PLANNERS["reactive"])
+    register("old", _OldStylePlanner)
+    with pytest.raises(TypeError, match=r"reset\(self, layout, config, rng\) is the form of cdf_mj 0.1"):
+        make_planner("old")
 
 
 @pytest.mark.parametrize(("target", "error", "match"), [
@@ -110,9 +164,9 @@ class _BrakesLate(DecidingPlanner):
     name = "late"
     history_keys = ("p_left", "speed")
 
-    def reset(self, layout: Layout, config: ScenarioConfig, rng: np.random.Generator) -> None:
-        super().reset(layout, config, rng)
-        self.layout = layout
+    def reset(self, context: PlannerContext, rng: np.random.Generator) -> None:
+        super().reset(context, rng)
+        self.layout = context.layout
 
     def observe(self, obs: PlannerInput) -> None:
         self.record(obs.t, p_left=0.123456789, speed=obs.poses[1, 3])
@@ -133,5 +187,5 @@ def test_a_deciding_planner_latches_its_first_yes_and_keeps_a_history(scene):
     assert history["t"] == rec.trace["t"]
     assert set(history["p_left"]) == {0.12346}  # rounded to 5 decimals
     assert len(history["speed"]) == len(history["t"])
-    planner.reset(scene.layout(), ScenarioConfig(), np.random.default_rng(0))  # forgets the episode
+    planner.reset(PlannerContext.of(scene.layout(), ScenarioConfig()), np.random.default_rng(0))  # forgets the episode
     assert planner.decision_time is None and planner.history == {"t": [], "p_left": [], "speed": []}

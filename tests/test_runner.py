@@ -268,8 +268,8 @@ class NumpySummaryPlanner(ReactivePlanner):
 
     name = "numpy-summary"
 
-    def reset(self, layout, config, rng) -> None:
-        super().reset(layout, config, rng)
+    def reset(self, context, rng) -> None:
+        super().reset(context, rng)
         self.odd = None
 
     def brake(self, obs: PlannerInput) -> bool:

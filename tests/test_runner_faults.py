@@ -28,10 +28,10 @@ from cdf_mj.sim.scene import DEFAULT_SCENE
 class _QuitsOnOddSeeds(ReactivePlanner):
     """A user's planner that calls ``sys.exit()`` from ``reset`` on some episodes."""
 
-    def reset(self, layout, config, rng):
+    def reset(self, context, rng):
         if int(rng.integers(2)):
             sys.exit(0)  # SystemExit(0): must not end the run as a success
-        super().reset(layout, config, rng)
+        super().reset(context, rng)
 
 
 @pytest.mark.parametrize("workers", [1, 2])

@@ -12,7 +12,7 @@ from cdf_mj.cli import main
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.experiments.sweep import SWEEPS, comparison_figures, run_sweep
 from cdf_mj.extras import install_hint
-from cdf_mj.planners.base import PLANNERS
+from cdf_mj.planners.base import PLANNERS, PlannerSpec, as_config
 from cdf_mj.planners.simple import ReactivePlanner
 from cdf_mj.records import load_records
 
@@ -121,41 +121,46 @@ def test_a_sweep_directory_of_the_earlier_layout_is_reused(tmp_path):
     assert {(r["value"], r["planner"]) for r in result.rows} == {(0.9, "cdf"), (0.5, "cdf"), (0.9, "reactive")}
 
 
-class _BreaksAboveBetaTenth(ReactivePlanner):
-    """The reactive planner, except that it raises at beta above 0.1 (a user's buggy planner)."""
+class _BreaksAboveHalfTau(ReactivePlanner):
+    """The reactive planner, except that it raises where the run's tau is above 0.5 (a user's
+    buggy planner that takes the run's CDF settings: registered with ``shared=("cdf",)``)."""
 
-    def reset(self, layout, config, rng):
-        if config.beta > 0.1:
-            raise RuntimeError(f"planner broke at beta {config.beta}")
-        super().reset(layout, config, rng)
+    def __init__(self, cdf=None):
+        super().__init__()
+        self.tau = as_config(cdf, CDFConfig, "cdf").tau
+
+    def reset(self, context, rng):
+        if self.tau > 0.5:
+            raise RuntimeError(f"planner broke at tau {self.tau}")
+        super().reset(context, rng)
 
 
 def test_failed_episodes_are_counted_per_point_and_never_hidden(tmp_path, monkeypatch, capsys):
     """A point whose episodes all fail keeps its row (episodes 0, failed 2), the Markdown
     names it, its directory and the error, and the command exits 1 (issue 15, item 1)."""
-    monkeypatch.setitem(PLANNERS, "fragile", _BreaksAboveBetaTenth)
-    res = run_sweep("beta", tmp_path, seeds=range(2), planners=("fragile", "cv"), values=(0.05, 0.2), workers=1)
+    monkeypatch.setitem(PLANNERS, "fragile", PlannerSpec("fragile", _BreaksAboveHalfTau, shared=("cdf",)))
+    res = run_sweep("tau", tmp_path, seeds=range(2), planners=("fragile", "cdf"), values=(0.5, 0.9), workers=1)
     rows = {(r["value"], r["planner"]): r for r in res.rows}
-    assert set(rows) == {(0.05, "fragile"), (0.05, "cv"), (0.2, "fragile"), (0.2, "cv")}
-    assert (rows[0.2, "fragile"]["episodes"], rows[0.2, "fragile"]["failed"]) == (0, 2)
-    assert (rows[0.05, "fragile"]["episodes"], rows[0.05, "fragile"]["failed"]) == (2, 0)
-    assert (rows[0.2, "cv"]["episodes"], rows[0.2, "cv"]["failed"]) == (2, 0)
-    assert res.failed == 2 and [(f.value, f.failed, f.episodes) for f in res.failures] == [(0.2, 2, 4)]
-    assert res.failures[0].directory == tmp_path / "beta" / "0.2"
-    assert "RuntimeError: planner broke at beta 0.2" in res.failures[0].error
+    assert set(rows) == {(0.5, "fragile"), (0.5, "cdf"), (0.9, "fragile"), (0.9, "cdf")}
+    assert (rows[0.9, "fragile"]["episodes"], rows[0.9, "fragile"]["failed"]) == (0, 2)
+    assert (rows[0.5, "fragile"]["episodes"], rows[0.5, "fragile"]["failed"]) == (2, 0)
+    assert (rows[0.9, "cdf"]["episodes"], rows[0.9, "cdf"]["failed"]) == (2, 0)
+    assert res.failed == 2 and [(f.value, f.failed, f.episodes) for f in res.failures] == [(0.9, 2, 4)]
+    assert res.failures[0].directory == tmp_path / "tau" / "0.9"
+    assert "RuntimeError: planner broke at tau 0.9" in res.failures[0].error
     with open(res.csv_path, encoding="utf-8") as fh:
         csv_rows = [r for r in csv.DictReader(fh) if r["planner"] == "fragile"]
-    assert [(r["value"], r["episodes"], r["failed"]) for r in csv_rows] == [("0.05", "2", "0"), ("0.2", "0", "2")]
+    assert [(r["value"], r["episodes"], r["failed"]) for r in csv_rows] == [("0.5", "2", "0"), ("0.9", "0", "2")]
     md = res.markdown_path.read_text(encoding="utf-8")
-    assert "| 0.2 | fragile | 0 |" in md and "**2 episodes failed**" in md and str(tmp_path / "beta" / "0.2") in md
+    assert "| 0.9 | fragile | 0 |" in md and "**2 episodes failed**" in md and str(tmp_path / "tau" / "0.9") in md
     assert res.figure_path.is_file()  # a point without completed episodes is drawn as a gap
 
-    argv = ["sweep", "beta", "--values", "0.05,0.2", "--episodes", "2", "--planners", "fragile,cv",
+    argv = ["sweep", "tau", "--values", "0.5,0.9", "--episodes", "2", "--planners", "fragile,cdf",
             "--workers", "1", "--quiet", "--no-figure", "--out", str(tmp_path)]
     assert main(argv) == 1  # EXIT_FAILED_EPISODES, as `experiment`
     err = capsys.readouterr().err
-    assert "beta = 0.2: 2 of 4 episodes failed" in err and "planner broke" in err and "Traceback" not in err
-    assert main([*argv[:3], "0.05", *argv[4:]]) == 0  # the point without failures alone: success
+    assert "tau = 0.9: 2 of 4 episodes failed" in err and "planner broke" in err and "Traceback" not in err
+    assert main([*argv[:3], "0.5", *argv[4:]]) == 0  # the point without failures alone: success
 
 
 _FULL_DISK_SWEEP = """

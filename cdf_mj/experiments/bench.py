@@ -207,6 +207,7 @@ def bench_filter(n_values: tuple[int, ...] = (250, 1000, 10000), passes: int = 3
     """
     from cdf_mj.config import CDFConfig
     from cdf_mj.inference.particle_filter import ParticleFilter
+    from cdf_mj.planners.base import PlannerContext
     from cdf_mj.planners.decision import RiskRule
 
     world, cfg = _setup(scene, config)
@@ -216,7 +217,7 @@ def bench_filter(n_values: tuple[int, ...] = (250, 1000, 10000), passes: int = 3
     stages = ("predict", "weigh", "resample", "decide")
     rows: list[tuple[str, float, str]] = []
     rule = RiskRule(CDFConfig().risk)
-    rule.reset(world.layout(), cfg)
+    rule.reset(PlannerContext.of(world.layout(), cfg))
     targets = {1000: 1.5e-4, 10000: 1e-3}  # [s] issue 16
     for n in n_values:
         pf = ParticleFilter.from_layout(world.layout(), cfg, CDFConfig(n_particles=n),

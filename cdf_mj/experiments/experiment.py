@@ -24,7 +24,6 @@ tables beside ours, with 95 % Wilson intervals. ::
 
 from __future__ import annotations
 
-import functools
 import hashlib
 import json
 import operator
@@ -32,7 +31,7 @@ import os
 import pickle
 import stat
 import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, overload
@@ -53,8 +52,7 @@ from cdf_mj.experiments.runner import (
     worker_count,
 )
 from cdf_mj.experiments.store import RecordStore, locked, write_atomic
-from cdf_mj.planners.base import PLANNERS, Planner, make_planner
-from cdf_mj.planners.cdf import CDFPlanner, ThresholdCDFPlanner
+from cdf_mj.planners.base import Planner, PlannerSpec, bind_planner, stored_planner_arguments
 from cdf_mj.records import FAILED, RECORDS_FILE, EpisodeRecord, read_settings
 from cdf_mj.scenario.episode import run_episode
 from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
@@ -73,29 +71,8 @@ class SettingsMismatchError(ValueError):
     differing keys. Nothing is run."""
 
 
-#: Planners built from the experiment's :class:`CDFConfig` (the CDF's filter or its risk rule).
-CDF_CONFIGURED = ("cdf", "cdf-threshold", "imm-risk", "cv-risk")
-
-
-def _factory(name: str, cdf: CDFConfig | None) -> Callable[[], Planner]:
-    """A picklable zero-argument planner factory: the CDF with its configuration
-    (``cdf-threshold`` with the paper's rule), the ``-risk`` baselines with the CDF's risk
-    rule parameters (so that every planner with the risk rule decides alike)."""
-    cdf = cdf or CDFConfig()
-    if name == "cdf":
-        return functools.partial(CDFPlanner, cdf)
-    if name == "cdf-threshold":
-        return functools.partial(ThresholdCDFPlanner, cdf)
-    if name in ("imm-risk", "cv-risk"):
-        from cdf_mj.planners.baselines import CVRiskPlanner, IMMRiskPlanner
-
-        return functools.partial(IMMRiskPlanner if name == "imm-risk" else CVRiskPlanner, risk=cdf.risk)
-    make_planner(name)  # unknown name: ValueError listing the known ones
-    return PLANNERS[name]
-
-
 def _planner(name: str, cdf: CDFConfig | None) -> Planner:
-    return _factory(name, cdf)()
+    return bind_planner(name, cdf)()
 
 
 def iter_episodes(seeds: Iterable[int], planner: str = "reactive", config: ScenarioConfig | None = None,
@@ -184,9 +161,10 @@ def scene_files(scene: str | Path) -> dict[str, str]:
 
 
 def _settings(seeds: Sequence[int], planners: Sequence[str], config: ScenarioConfig,
-              cdf: CDFConfig, scene: str | Path) -> dict[str, Any]:
+              cdf: CDFConfig, scene: str | Path, factories: Mapping[str, PlannerSpec]) -> dict[str, Any]:
     return {"seeds": [int(seeds[0]), int(seeds[-1]) + 1] if seeds else [0, 0],
             "planners": list(planners), "scenario": config.to_dict(), "cdf": cdf.to_dict(),
+            "planner_args": {name: factories[name].arguments() for name in planners},
             "scene": str(Path(scene).resolve()), "scene_files": scene_files(scene),
             "version": __version__}
 
@@ -248,15 +226,19 @@ def run_experiment(out_dir: str | Path, seeds: Sequence[int], planners: Sequence
                    scene: str | Path = DEFAULT_SCENE, progress: bool = True, *,
                    workers: int | None = None, backend: Backend = "process",
                    resume: bool = False, retry_failed: bool = False,
-                   address: str | None = None) -> ExperimentResult:
+                   address: str | None = None,
+                   planner_args: Mapping[str, Mapping[str, Any]] | None = None) -> ExperimentResult:
     """Run every planner on every seed; persist the records and return them.
 
     Args:
         out_dir: result directory (created): ``settings.json`` and ``episodes.jsonl``.
         seeds: a non-empty contiguous range of non-negative seeds.
         planners: registered planner names, run on the same seeds.
-        config, cdf: scenario and CDF settings (defaults if ``None``).
+        config, cdf: scenario and CDF settings (defaults if ``None``); each planner takes
+            what it shares of ``cdf`` (:func:`planner_factory`).
         scene: MJCF scene file.
+        planner_args: per planner name, constructor arguments on top of those (e.g.
+            ``{"imm": {"params": IMMConfig(threshold=0.9)}}``); kept in ``settings.json``.
         progress: a progress bar on stderr.
         workers: worker processes (default: the CPU count); 1 runs in this process.
         backend: ``process`` (default), ``serial`` or ``ray``.
@@ -286,8 +268,13 @@ def run_experiment(out_dir: str | Path, seeds: Sequence[int], planners: Sequence
     if not planners or len(set(planners)) != len(planners):
         raise ValueError(f"planners must be distinct names, got {list(planners)}")
     n_workers = 1 if backend == "serial" else check_backend(backend, workers)
-    job = SeedJob(config=config, scene=str(scene), planners=planners,
-                  factories={name: _factory(name, cdf) for name in planners})
+    unknown = sorted(set(planner_args or {}) - set(planners))
+    if unknown:
+        raise ValueError(f"planner_args names planners that do not run: {unknown}")
+    factories = {name: bind_planner(name, cdf, (planner_args or {}).get(name)) for name in planners}
+    for spec in factories.values():
+        spec()  # arguments the planner does not take: TypeError before anything is written
+    job = SeedJob(config=config, scene=str(scene), planners=planners, factories=dict(factories))
     if n_workers > 1 and backend == "process" and START_METHOD != "fork":
         try:  # spawned workers get the job pickled: refuse early what cannot be
             pickle.dumps(job)
@@ -297,7 +284,7 @@ def run_experiment(out_dir: str | Path, seeds: Sequence[int], planners: Sequence
     Scene.load(scene, names=config.names)  # a broken scene is refused before anything is written
 
     out = Path(out_dir)
-    settings = _settings(seeds, planners, config, cdf, scene)
+    settings = _settings(seeds, planners, config, cdf, scene, factories)
     settings_path, records_path = out / "settings.json", out / RECORDS_FILE
     out.mkdir(parents=True, exist_ok=True)
     with locked(out):  # a second run into this directory is refused here, before any check
@@ -357,6 +344,7 @@ def _check_directory(out: Path, settings: dict[str, Any], resume: bool) -> None:
         raise SettingsMismatchError(f"the scene {_shown(changed[0]) if changed else settings['scene']} changed "
                                     f"since the run in {out} started: the records would mix two worlds; "
                                     "restore it, or choose another directory")
+    old = {**old, "planner_args": stored_planner_arguments(old)}  # a run stored before they were kept
     diff = _differences(old, json.loads(json.dumps(settings)))
     if diff:
         raise SettingsMismatchError(f"{out} holds results from other settings (differing: {', '.join(diff)}); "

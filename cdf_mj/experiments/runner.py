@@ -115,11 +115,11 @@ class SeedWorker:
     def run(self, seed: int, planners: Sequence[str] | None = None) -> SeedResult:
         """Every planner (or those named) on ``seed``; a planner that raises gives a failed record.
 
-        The seed's label needs the constant-speed counterfactual. A planner that never
-        braked *is* that run (same random streams, same controls), so it is simulated
-        only when every planner braked, and then once for all of them.
+        The seed's label comes from :func:`cdf_mj.scenario.episode.seed_label` over all
+        the seed's runs: the counterfactual is simulated only when every planner braked,
+        and then once for all of them.
         """
-        from cdf_mj.scenario.episode import counterfactual, label_of, run_episode
+        from cdf_mj.scenario.episode import run_episode, seed_label
 
         job = self.job
         records: list[dict[str, Any]] = []
@@ -134,10 +134,9 @@ class SeedWorker:
             records.append(rec)
         done = [r for r in records if r["status"] == OK]
         if done:
-            hit = next((r["collision_with"] == "obstacle" for r in done if r["brake_time"] is None), None)
             try:
-                label, hit = (label_of(done[0]["intent"], hit), hit) if hit is not None else \
-                    counterfactual(job.config, seed, self.scene)
+                label, hit = seed_label(job.config, seed, self.scene,
+                                        [(r["intent"], r["brake_time"], r["collision_with"]) for r in done])
             except (Exception, SystemExit) as exc:  # without a label no record of this seed is usable
                 records = [_failed(seed, r["planner"], exc) if r["status"] == OK else r for r in records]
             else:

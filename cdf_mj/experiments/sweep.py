@@ -71,9 +71,9 @@ from cdf_mj.analysis.metrics import (
 )
 from cdf_mj.analysis.tables import format_number, format_rate
 from cdf_mj.config import CDFConfig, ScenarioConfig
-from cdf_mj.experiments.experiment import CDF_CONFIGURED
 from cdf_mj.experiments.store import write_atomic
 from cdf_mj.extras import require
+from cdf_mj.planners.base import PLANNERS, planner_spec
 from cdf_mj.records import (
     FAILED,
     RecordLike,
@@ -90,6 +90,12 @@ __all__ = ["SWEEPS", "PointFailures", "SweepResult", "SweepSpec", "VizUnavailabl
 
 class VizUnavailableError(ImportError):
     """matplotlib is missing: the figures need the optional extra ``viz``."""
+
+
+def _reads_cdf(name: str) -> bool:
+    """Whether planner ``name`` takes any of a run's CDF settings (its registry entry's
+    ``shared``); an unregistered name reads none."""
+    return name in PLANNERS and bool(planner_spec(name).shared)
 
 
 def _scale_process(config: ScenarioConfig, cdf: CDFConfig, k: float) -> tuple[ScenarioConfig, CDFConfig]:
@@ -284,7 +290,7 @@ def run_sweep(name: str, out_dir: str | Path, seeds: Iterable[int], planners: Se
     records_by_value: dict[float, list[RecordLike]] = {}
     # Planners that read the CDF's settings run at every point; the others, for a setting
     # only those read, run once as references.
-    varied = [p for p in planners if p in CDF_CONFIGURED] if spec.cdf_only else planners
+    varied = [p for p in planners if _reads_cdf(p)] if spec.cdf_only else planners
     references = [p for p in planners if p not in varied]
     for i, (value, cfg, cdf_v) in enumerate(points):
         point = out / name / _value_text(value)
@@ -373,9 +379,10 @@ def _markdown(spec: SweepSpec, table: list[_Point], extra: dict[str, Any], failu
                  format_number(m.time_lost), format_number(m.brier_left, 3), format_number(m.brier_seen, 3),
                  str(p.failed), format_number(p.wall, 1)]
         lines.append("| " + " | ".join(cells) + " |")
-    others = sorted({_value_text(p.value) for p in table if p.metrics.planner not in CDF_CONFIGURED})
+    others = sorted({_value_text(p.value) for p in table if not _reads_cdf(p.metrics.planner)})
     if spec.cdf_only and others:
-        lines += ["", (f"Planners other than {', '.join(f'`{n}`' for n in CDF_CONFIGURED)} do not read this "
+        readers = sorted(n for n in PLANNERS if _reads_cdf(n))
+        lines += ["", (f"Planners other than {', '.join(f'`{n}`' for n in readers)} do not read this "
                        f"setting: they ran once and are listed at {spec.name} = {', '.join(others)}.")]
     if failures:
         lines += ["", f"**{sum(f.failed for f in failures)} episodes failed** and are not in the metrics "

@@ -1,20 +1,30 @@
-"""What every ego planner is: :class:`Planner`, its input, the base of deciding planners,
-and the registry of planners by name.
+"""What every ego planner is: :class:`Planner`, what it is told (:class:`PlannerContext`
+at reset, :class:`PlannerInput` each tick), the base of deciding planners, and the
+registry of planners by name.
 
-A planner decides, at the planner rate (10 Hz), whether the ego brakes. It sees what the
-ego's sensors give (:class:`PlannerInput`: the measured system pose) and, at
-:meth:`Planner.reset`, the junction's static :class:`~cdf_mj.model.layout.Layout`; it never
-sees the live simulation. Braking is at the maximum rate (16 ft/s^2 = 4.877 m/s^2); once
-decided it is held to the end of the episode, as in the paper, unless the planner
-``releases_brake`` (the risk rule of :mod:`cdf_mj.planners.decision`), which returns the
-ego to its nominal speed. ``brake`` is called at every tick, also while the ego brakes,
-so that a filter keeps filtering to the end.
+A planner decides, at the planner rate (10 Hz), whether the ego brakes. It is told only
+what an ego can know: at :meth:`Planner.reset` a :class:`PlannerContext` (the junction's
+static :class:`~cdf_mj.model.layout.Layout` with the cars' dimensions, the planner tick
+and the ego's own nominal controller) and a random stream, and each tick the measured
+system pose (:class:`PlannerInput`). It never sees the live simulation nor any field that
+describes the other driver (its intent prior, its acceleration, its turn speed, ...):
+a predicting planner brings its own model of that driver in its own configuration.
+Braking is at the maximum rate (16 ft/s^2 = 4.877 m/s^2); once decided it is held to the
+end of the episode, as in the paper, unless the planner ``releases_brake`` (the risk rule
+of :mod:`cdf_mj.planners.decision`), which returns the ego to its nominal speed.
+``brake`` is called at every tick, also while the ego brakes, so that a filter keeps
+filtering to the end.
 
-Planners are made by name (:func:`make_planner`); :func:`register` adds one, by a
-``"module:Class"`` string (imported on first use) or by any zero-argument callable::
+Planners are made by name (:func:`make_planner`, in the style of ``gymnasium.make``): a
+registry entry (:class:`PlannerSpec`) carries its target and its default constructor
+arguments; ``make_planner(name, **kwargs)`` updates them with the caller's and builds.
+Every component that builds a planner (episodes, experiments, sweeps, the CLI, videos,
+reports) calls it, and a stored run keeps each planner's arguments
+(:func:`planner_arguments`) so that it can be rebuilt exactly. :func:`register` adds one,
+by a ``"module:Class"`` string (imported on first use) or by any callable::
 
-    register("mine", "my_package.planners:MyPlanner")
-    planner = make_planner("mine")
+    register("mine", "my_package.planners:MyPlanner", horizon=2.0)
+    planner = make_planner("mine", horizon=3.0)
 
 =============  ==============================================  ==============================
 constant       never brakes (the counterfactual run)           :mod:`cdf_mj.planners.simple`
@@ -31,22 +41,58 @@ imm-risk       intent-only IMM with the risk rule              :mod:`cdf_mj.plan
 
 from __future__ import annotations
 
+import dataclasses
+import functools
 import importlib
+import inspect
 import math
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, ClassVar, Protocol
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol, TypeVar
 
 import numpy as np
 
-from cdf_mj.config import ScenarioConfig
+from cdf_mj.config import MAX_SPEED, CDFConfig, ScenarioConfig
 from cdf_mj.model.layout import Layout
 
 if TYPE_CHECKING:  # annotations only: registering a planner imports no compiled kernel
     from cdf_mj.model.conflict import Futures
 
-__all__ = ["PLANNERS", "DecidingPlanner", "DecisionRule", "LazyPlanner", "Planner", "PlannerInput",
-           "Predictor", "ThresholdRule", "make_planner", "predicted_label", "register"]
+__all__ = ["PLANNERS", "DecidingPlanner", "DecisionRule", "LazyPlanner", "Planner", "PlannerContext",
+           "PlannerInput", "PlannerSpec", "Predictor", "ThresholdRule", "as_config", "bind_planner",
+           "make_planner", "planner_arguments", "planner_spec", "predicted_label", "register", "shared_arguments",
+           "stored_planner_arguments"]
+
+
+@dataclass(frozen=True)
+class PlannerContext:
+    """What the ego knows when an episode starts, and all a planner is told at reset.
+
+    Never a field of the other driver: a planner that predicts it brings its own model.
+    Built from a world's configuration by :meth:`of`, or by hand (the monitor, a user's
+    simulation). ValueError naming the field for a tick outside (0, 1] s, a speed outside
+    (0, :data:`~cdf_mj.config.MAX_SPEED`] m/s or a gain that is not > 0.
+    """
+
+    layout: Layout  # the junction's map (routes, lanes, buildings) and both cars' dimensions
+    dt: float  # [s] the planner tick: brake() is called every dt of simulated time
+    nominal_speed: float  # [m/s] the speed the ego's own controller holds when not braking
+    speed_gain: float = 1.0  # [1/s] that controller's proportional speed hold
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.layout, Layout):
+            raise TypeError(f"PlannerContext.layout must be a Layout, got {type(self.layout).__name__}")
+        for name, high, unit in (("dt", 1.0, "s"), ("nominal_speed", MAX_SPEED, "m/s"),
+                                 ("speed_gain", 1000.0, "1/s")):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating)) or not 0 < v <= high:
+                raise ValueError(f"PlannerContext.{name}={v!r} is out of range: must be in (0, {high:g}] [{unit}]")
+
+    @classmethod
+    def of(cls, layout: Layout, config: ScenarioConfig) -> PlannerContext:
+        """The ego's knowledge in a world of ``config``: its tick and its own nominal
+        controller (speed and gain); nothing of the obstacle driver is read."""
+        return cls(layout=layout, dt=config.dt, nominal_speed=config.ego_speed, speed_gain=config.ego_speed_gain)
 
 
 @dataclass(frozen=True)
@@ -63,9 +109,10 @@ class Planner:
 
     name: str = "base"
 
-    def reset(self, layout: Layout, config: ScenarioConfig, rng: np.random.Generator) -> None:
-        """Called at the start of every episode with the junction's static layout, the
-        scenario's parameters and the episode's planner Generator."""
+    def reset(self, context: PlannerContext, rng: np.random.Generator) -> None:
+        """Called at the start of every episode with what the ego knows (the junction's
+        static layout, the tick, its own nominal controller) and the episode's planner
+        Generator."""
 
     @property
     def releases_brake(self) -> bool:
@@ -110,8 +157,8 @@ class DecisionRule(Protocol):
     def history_keys(self) -> tuple[str, ...]:
         """The per-tick values it keeps in the planner's history."""
 
-    def reset(self, layout: Layout, config: ScenarioConfig) -> None:
-        """Start an episode on ``layout`` with the ego's nominal controller of ``config``."""
+    def reset(self, context: PlannerContext) -> None:
+        """Start an episode on ``context.layout`` with the ego's nominal controller of ``context``."""
 
     def decide(self, predictor: Predictor, ego_pose: np.ndarray, braking: bool) -> bool:
         """Whether to brake on this tick (``braking``: whether the ego brakes now)."""
@@ -135,7 +182,7 @@ class ThresholdRule:
         if isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t) or not 0 < t <= 1:
             raise ValueError(f"threshold={t!r} is out of range: must be in (0, 1]")
 
-    def reset(self, layout: Layout, config: ScenarioConfig) -> None:
+    def reset(self, context: PlannerContext) -> None:
         """Nothing to prepare."""
 
     def decide(self, predictor: Predictor, ego_pose: np.ndarray, braking: bool) -> bool:
@@ -173,12 +220,12 @@ class DecidingPlanner(Planner):
         """Whether this planner may release a brake it started (the episode holds it otherwise)."""
         return bool(self.rule.releases)
 
-    def reset(self, layout: Layout, config: ScenarioConfig, rng: np.random.Generator) -> None:
-        """Forget the last episode: no decision, an empty history; the rule reset on ``layout``."""
+    def reset(self, context: PlannerContext, rng: np.random.Generator) -> None:
+        """Forget the last episode: no decision, an empty history; the rule reset on ``context``."""
         self.decision_time: float | None = None
         self.brakes: list[list[float | None]] = []  # [start, end] [s] of each brake; end None while braking
         self.braking = False
-        self.rule.reset(layout, config)
+        self.rule.reset(context)
         self.history: dict[str, list[float]] = {
             key: [] for key in ("t", *self.history_keys, *self.rule.history_keys)}
 
@@ -246,12 +293,68 @@ def predicted_label(decision_time: float | None, p_left: Sequence[float]) -> str
 
 
 # ----------------------------------------------------------------- registry
+_Config = TypeVar("_Config")
+
+
+def _tuples(value: Any) -> Any:
+    """JSON lists back to the tuples the configs hold (nested)."""
+    return tuple(_tuples(v) for v in value) if isinstance(value, list) else value
+
+
+def as_config(value: Any, cls: type[_Config], name: str) -> _Config:
+    """``value`` as a ``cls`` (a frozen configuration dataclass): ``value`` itself, ``cls()``
+    for None, or ``cls(**value)`` for a mapping (a stored run's arguments, read back from
+    JSON: lists become tuples). TypeError naming the argument ``name`` for anything else
+    or for unknown keys; the configuration's own ValueError for values out of range."""
+    if value is None:
+        return cls()
+    if isinstance(value, cls):
+        return value
+    if isinstance(value, Mapping):
+        try:
+            return cls(**{k: _tuples(v) for k, v in value.items()})
+        except TypeError as exc:
+            raise TypeError(f"{name}: {exc}; the keys are {cls.__name__} fields") from None
+    raise TypeError(f"{name} must be a {cls.__name__} (or a mapping of its fields), got {type(value).__name__}")
+
+
+def _jsonable(value: Any) -> Any:
+    """A planner argument as JSON: configuration dataclasses as objects of their fields,
+    tuples as lists."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: _jsonable(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, Mapping):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+@functools.cache
+def _check_reset(cls: type) -> None:
+    """TypeError, in one line, for a planner class whose ``reset`` still takes the
+    ``(layout, config, rng)`` of version 0.1."""
+    try:
+        params = [p for p in inspect.signature(cls.reset).parameters.values()
+                  if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD)]
+    except (TypeError, ValueError):
+        return
+    if len(params) == 4:  # self, layout, config, rng
+        raise TypeError(f"planner class {cls.__name__}: reset(self, layout, config, rng) is the form of "
+                        "cdf_mj 0.1; a planner's reset now takes (self, context, rng), where context is a "
+                        "cdf_mj.planners.PlannerContext (layout, dt, nominal_speed, speed_gain): a planner is "
+                        "told only what the ego knows")
+
+
 @dataclass(frozen=True)
 class LazyPlanner:
     """A planner class named ``"module:Class"``, imported when a planner is first made.
 
     Picklable (worker processes get the string) and free of import cycles: registering
-    a planner imports nothing. Calling it returns a new planner with default parameters.
+    a planner imports nothing. Calling it with the constructor's arguments returns a new
+    planner.
     """
 
     target: str  # "package.module:ClassName"
@@ -261,61 +364,165 @@ class LazyPlanner:
         if not (module and cls and all(p.isidentifier() for p in (*module.split("."), cls))):
             raise ValueError(f"planner target {self.target!r} must be 'package.module:ClassName'")
 
-    def __call__(self) -> Planner:
+    def resolve(self) -> Callable[..., Planner]:
+        """The class (or factory) the target names; ImportError if it cannot be imported."""
         module, _, cls = self.target.partition(":")
         try:
-            factory = getattr(importlib.import_module(module), cls)
+            factory: Callable[..., Planner] = getattr(importlib.import_module(module), cls)
         except (ImportError, AttributeError) as exc:
             raise ImportError(f"planner target {self.target!r} cannot be imported: {exc}") from exc
-        planner = factory()
+        return factory
+
+    def __call__(self, **kwargs: Any) -> Planner:
+        return self.resolve()(**kwargs)
+
+
+@dataclass(frozen=True)
+class PlannerSpec:
+    """A registry entry: how to build one named planner (``gymnasium.envs.registration``'s
+    ``EnvSpec`` for planners).
+
+    ``target`` builds it (a :class:`LazyPlanner`, or a picklable callable); ``kwargs`` are
+    its constructor arguments; ``shared`` names the settings of a run that it takes from
+    the run's shared CDF configuration (``"cdf"``: the whole :class:`~cdf_mj.config.CDFConfig`,
+    ``"risk"``: its :class:`~cdf_mj.config.RiskConfig`, so that every planner with the risk
+    rule decides alike), see :func:`shared_arguments`. Calling a spec builds a fresh planner
+    (a picklable zero-argument factory for worker processes).
+    """
+
+    name: str
+    target: Callable[..., Planner]
+    kwargs: Mapping[str, Any] = field(default_factory=dict)
+    shared: tuple[str, ...] = ()
+
+    def make(self, **kwargs: Any) -> Planner:
+        """A fresh planner with the spec's arguments updated by ``kwargs``. TypeError, naming
+        the planner, for arguments its constructor does not take or for a target that does
+        not make a :class:`Planner`."""
+        args = {**self.kwargs, **kwargs}
+        try:
+            planner = self.target(**args)
+        except TypeError as exc:
+            raise TypeError(f"planner {self.name!r}: {exc}") from None
         if not isinstance(planner, Planner):
-            raise TypeError(f"planner target {self.target!r} made a {type(planner).__name__}, "
-                            "not a cdf_mj.planners.Planner")
+            raise TypeError(f"planner {self.name!r} made a {type(planner).__name__}, not a cdf_mj.planners.Planner")
+        _check_reset(type(planner))
         return planner
 
+    def __call__(self) -> Planner:
+        return self.make()
 
-#: Planner factories by name: zero-argument callables returning a fresh :class:`Planner`
-#: (a :class:`LazyPlanner` for those registered by ``"module:Class"``).
-PLANNERS: dict[str, Callable[[], Planner]] = {}
+    def bind(self, **kwargs: Any) -> PlannerSpec:
+        """The same entry with ``kwargs`` added to its arguments."""
+        return dataclasses.replace(self, kwargs={**self.kwargs, **kwargs})
+
+    def arguments(self) -> dict[str, Any]:
+        """The spec's arguments as JSON (configuration dataclasses as objects), what a stored
+        run keeps; ``make(**arguments())`` builds the same planner."""
+        return {k: _jsonable(v) for k, v in self.kwargs.items()}
 
 
-def register(name: str, target: str | Callable[[], Planner]) -> None:
+#: The registered planners by name (:func:`register`, :func:`make_planner`). A plain
+#: factory put here by hand is read as an entry without arguments.
+PLANNERS: dict[str, PlannerSpec | Callable[..., Planner]] = {}
+
+
+def register(name: str, target: str | Callable[..., Planner], *, shared: Sequence[str] = (),
+             **kwargs: Any) -> None:
     """Make a planner available by ``name`` (to ``run_episode``, experiments and the CLI).
 
     ``target`` is ``"package.module:ClassName"`` (imported on first use; worker processes
-    import it by name, so it works with any start method) or a zero-argument callable
-    returning a fresh planner (a class, a ``functools.partial``; it must be picklable to
-    run in worker processes). ValueError for an empty name or a malformed target string,
-    TypeError for a target that is neither.
+    import it by name, so it works with any start method) or a callable returning a fresh
+    planner (a class, a ``functools.partial``; it must be picklable to run in worker
+    processes). ``kwargs`` are its default constructor arguments; ``shared`` the run's
+    shared settings it takes (``"cdf"``, ``"risk"``: :class:`PlannerSpec`). Registering a
+    name again replaces it. ValueError for an empty name, a malformed target string or an
+    unknown shared setting; TypeError for a target that is neither.
     """
     if not isinstance(name, str) or not name:
         raise ValueError(f"a planner name must be a non-empty string, got {name!r}")
+    bad = [s for s in shared if s not in _SHARED]
+    if bad:
+        raise ValueError(f"planner {name!r}: shared settings {bad} unknown; choose from {sorted(_SHARED)}")
     if isinstance(target, str):
-        PLANNERS[name] = LazyPlanner(target)
+        factory: Callable[..., Planner] = LazyPlanner(target)
     elif callable(target):
-        PLANNERS[name] = target
+        factory = target
     else:
         raise TypeError(f"planner {name!r}: target must be 'module:Class' or a callable, "
                         f"got {type(target).__name__}")
+    PLANNERS[name] = PlannerSpec(name, factory, dict(kwargs), tuple(shared))
 
 
-def make_planner(name: str | Planner) -> Planner:
-    """A fresh planner from its registered name; planner objects pass through.
-    ValueError naming the registered planners for an unknown name."""
-    if isinstance(name, Planner):
-        return name
+def planner_spec(name: str) -> PlannerSpec:
+    """The registry entry of ``name``; ValueError naming the registered planners if unknown."""
     try:
-        factory = PLANNERS[name]
-    except KeyError:
+        spec = PLANNERS[name]
+    except (KeyError, TypeError):
         raise ValueError(f"unknown planner {name!r}: choose one of {', '.join(sorted(PLANNERS))}") from None
-    return factory()
+    if not isinstance(spec, PlannerSpec):  # a factory put into PLANNERS by hand (version 0.1 did so)
+        spec = PlannerSpec(name, spec)
+    return spec
+
+
+def make_planner(name: str | Planner, **kwargs: Any) -> Planner:
+    """A fresh planner from its registered name, its registered arguments updated by
+    ``kwargs``; planner objects pass through (with no ``kwargs``). ValueError naming the
+    registered planners for an unknown name; TypeError for arguments it does not take."""
+    if isinstance(name, Planner):
+        if kwargs:
+            raise TypeError(f"make_planner: arguments {sorted(kwargs)} given with a planner object; "
+                            "pass a registered name to build one with them")
+        _check_reset(type(name))
+        return name
+    return planner_spec(name).make(**kwargs)
+
+
+def planner_arguments(name: str, **kwargs: Any) -> dict[str, Any]:
+    """The JSON constructor arguments of planner ``name`` with ``kwargs`` (what a stored run
+    keeps; ``make_planner(name, **planner_arguments(name, **kwargs))`` builds the same)."""
+    return planner_spec(name).bind(**kwargs).arguments()
+
+
+#: The shared settings a registered planner may take from a run's CDF configuration.
+_SHARED: dict[str, Callable[[Any], Any]] = {"cdf": lambda cdf: cdf, "risk": lambda cdf: cdf.risk}
+
+
+def shared_arguments(name: str, cdf: Any) -> dict[str, Any]:
+    """The constructor arguments planner ``name`` takes from a run's shared
+    :class:`~cdf_mj.config.CDFConfig` ``cdf`` (its ``shared`` settings: the CDF planners
+    the whole configuration, the ``-risk`` baselines its risk rule); ``{}`` for the others."""
+    return {key: _SHARED[key](cdf) for key in planner_spec(name).shared}
+
+
+def bind_planner(name: str, cdf: CDFConfig | None = None, arguments: Mapping[str, Any] | None = None) -> PlannerSpec:
+    """The registry entry of planner ``name`` bound to a run's arguments: what it takes of
+    the run's shared :class:`~cdf_mj.config.CDFConfig` (:func:`shared_arguments`; default
+    ``CDFConfig()``), updated by its own ``arguments``. Every component that runs planners
+    (experiments, sweeps, videos, reports) builds them through it. A picklable
+    zero-argument factory; ValueError for an unknown name."""
+    return planner_spec(name).bind(**shared_arguments(name, cdf if cdf is not None else CDFConfig()),
+                                   **(arguments or {}))
+
+
+def stored_planner_arguments(settings: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
+    """Each planner's constructor arguments in a stored run's settings (``settings.json``):
+    its ``planner_args``, or, for a run stored before they were kept, what each registered
+    planner took of the run's ``cdf`` settings (:func:`bind_planner`). ValueError (or
+    TypeError) for ``cdf`` settings this version cannot read."""
+    stored = settings.get("planner_args")
+    if isinstance(stored, Mapping):
+        return {str(k): dict(v) for k, v in stored.items() if isinstance(v, Mapping)}
+    cdf = as_config(settings.get("cdf"), CDFConfig, "settings.json cdf")
+    return {name: bind_planner(name, cdf).arguments() if name in PLANNERS else {}
+            for name in settings.get("planners", ())}
 
 
 register("constant", "cdf_mj.planners.simple:ConstantPlanner")
 register("reactive", "cdf_mj.planners.simple:ReactivePlanner")
-register("cdf", "cdf_mj.planners.cdf:CDFPlanner")
-register("cdf-threshold", "cdf_mj.planners.cdf:ThresholdCDFPlanner")
+register("cdf", "cdf_mj.planners.cdf:CDFPlanner", shared=("cdf",))
+register("cdf-threshold", "cdf_mj.planners.cdf:ThresholdCDFPlanner", shared=("cdf",))
 register("cv", "cdf_mj.planners.baselines:CVPlanner")
-register("cv-risk", "cdf_mj.planners.baselines:CVRiskPlanner")
+register("cv-risk", "cdf_mj.planners.baselines:CVRiskPlanner", shared=("risk",))
 register("imm", "cdf_mj.planners.baselines:IMMPlanner")
-register("imm-risk", "cdf_mj.planners.baselines:IMMRiskPlanner")
+register("imm-risk", "cdf_mj.planners.baselines:IMMRiskPlanner", shared=("risk",))

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -41,13 +42,12 @@ import numpy as np
 from filterpy.common import Q_discrete_white_noise
 from filterpy.kalman import IMMEstimator, KalmanFilter
 
-from cdf_mj.config import RiskConfig, ScenarioConfig
+from cdf_mj.config import MAX_SPEED, RiskConfig
 from cdf_mj.model.conflict import Futures
 from cdf_mj.model.driver import Intent
 from cdf_mj.model.geometry import Polyline, boxes_overlap, wrap_angle
-from cdf_mj.model.layout import Layout
 from cdf_mj.model.vehicle import CarGeometry
-from cdf_mj.planners.base import DecidingPlanner, PlannerInput
+from cdf_mj.planners.base import DecidingPlanner, PlannerContext, PlannerInput, as_config
 from cdf_mj.planners.decision import RiskRule, ThresholdRule
 
 __all__ = [
@@ -122,7 +122,12 @@ class IMMConfig:
     # than the car's own limits allow): the filter follows the measured progress closely.
     accel_change_std: float = 10.0
     init_std: tuple[float, float, float] = (0.2, 0.3, 1.5)  # [m, m/s, m/s^2] of [s, v, a] at t=0
-    max_speed: float | None = None  # [m/s] cap of predicted speed; None: obstacle_turn_speed
+    # The IMM's own model of the other driver (never the world's): the prior P(left) of
+    # its intent (the paper's 0.75) and the cap of its predicted speed [m/s], the middle of
+    # the CDF prior's turn speeds (6-10 m/s). Before version 0.2 both were read from the
+    # world's scenario, which told the IMM the true values of every preset.
+    p_left: float = 0.75
+    max_speed: float = 8.0
     heading_window: float = 0.5  # [m] half window of the route tangent's central difference
 
     def __post_init__(self) -> None:
@@ -140,8 +145,10 @@ class IMMConfig:
         init = tuple(self.init_std)
         _require(len(init) == 3 and all(_finite_number(v) and v > 0 for v in init), "init_std",
                  self.init_std, "3 finite numbers > 0 ([s m, v m/s, a m/s^2])")
-        _require(self.max_speed is None or (_finite_number(self.max_speed) and self.max_speed > 0),
-                 "max_speed", self.max_speed, "None or a finite number > 0 [m/s]")
+        _require(_finite_number(self.max_speed) and 0 < self.max_speed <= MAX_SPEED, "max_speed", self.max_speed,
+                 f"in (0, {MAX_SPEED:g}] [m/s]")
+        _require(_finite_number(self.p_left) and 0 <= self.p_left <= 1, "p_left", self.p_left,
+                 "in [0, 1] (a probability)")
 
     def replace(self, **changes: Any) -> IMMConfig:
         """A copy with some fields changed (validated again)."""
@@ -208,15 +215,17 @@ class CVPlanner(DecidingPlanner):
 
     name = "cv"
 
-    def __init__(self, params: CVConfig | None = None, risk: RiskConfig | None = None) -> None:
-        self.params = params or CVConfig()
-        self.rule = RiskRule(risk) if risk is not None else ThresholdRule(1.0)
+    def __init__(self, params: CVConfig | Mapping[str, Any] | None = None,
+                 risk: RiskConfig | Mapping[str, Any] | None = None) -> None:
+        self.params = as_config(params, CVConfig, "params")
+        self.rule = RiskRule(as_config(risk, RiskConfig, "risk")) if risk is not None else ThresholdRule(1.0)
 
-    def reset(self, layout: Layout, config: ScenarioConfig, rng: np.random.Generator) -> None:
-        """Take the cars' footprints from ``layout`` and the tick ``dt`` from ``config``."""
-        super().reset(layout, config, rng)
-        self._ego, self._obstacle, self._dt = layout.ego, layout.obstacle, config.dt
-        self._times = _times(self.params.horizon, config.dt)
+    def reset(self, context: PlannerContext, rng: np.random.Generator) -> None:
+        """Take the cars' footprints from the layout and the tick ``dt`` from ``context``."""
+        super().reset(context, rng)
+        layout = context.layout
+        self._ego, self._obstacle, self._dt = layout.ego, layout.obstacle, context.dt
+        self._times = _times(self.params.horizon, context.dt)
         self.conflict_in: float | None = None
         self._obstacle_pose = np.zeros(4)
 
@@ -257,8 +266,9 @@ class CVRiskPlanner(CVPlanner):
 
     name = "cv-risk"
 
-    def __init__(self, params: CVConfig | None = None, risk: RiskConfig | None = None) -> None:
-        super().__init__(params, risk or RiskConfig())
+    def __init__(self, params: CVConfig | Mapping[str, Any] | None = None,
+                 risk: RiskConfig | Mapping[str, Any] | None = None) -> None:
+        super().__init__(params, RiskConfig() if risk is None else risk)
 
 
 # ----------------------------------------------------------------- intent-only IMM
@@ -316,7 +326,7 @@ class IMMPlanner(DecidingPlanner):
     P(conflict) = sum over intents of the IMM's mode probability times 1 if that intent's
     filter, extrapolated along its route at constant acceleration (speed kept in
     ``[0, max_speed]``), meets the ego holding its speed within ``horizon``. The prior
-    P(left) is the scenario's ``p_left``. Its prediction for the episode is ``Cutoff`` if
+    P(left) is its own ``IMMConfig.p_left``. Its prediction for the episode is ``Cutoff`` if
     it braked, else its most probable intent at the end (left -> ``Yield``, right ->
     ``Right``), as for ``cdf``. ``summary()`` holds the prediction, the decision time and
     the per-tick history of P(left) and P(conflict).
@@ -334,20 +344,23 @@ class IMMPlanner(DecidingPlanner):
     name = "imm"
     history_keys = ("p_left", "p_conflict")
 
-    def __init__(self, params: IMMConfig | None = None, risk: RiskConfig | None = None) -> None:
-        self.params = params or IMMConfig()
-        self.rule = RiskRule(risk) if risk is not None else ThresholdRule(self.params.threshold)
+    def __init__(self, params: IMMConfig | Mapping[str, Any] | None = None,
+                 risk: RiskConfig | Mapping[str, Any] | None = None) -> None:
+        self.params = as_config(params, IMMConfig, "params")
+        self.rule = (RiskRule(as_config(risk, RiskConfig, "risk")) if risk is not None
+                     else ThresholdRule(self.params.threshold))
 
-    def reset(self, layout: Layout, config: ScenarioConfig, rng: np.random.Generator) -> None:
-        """Take the routes and footprints from ``layout``, ``dt``, the prior P(left) and the
-        obstacle's turn speed from ``config``; the IMM starts at the first measurement."""
-        super().reset(layout, config, rng)
-        p = self.params
-        self._ego, self._obstacle, self._dt = layout.ego, layout.obstacle, config.dt
+    def reset(self, context: PlannerContext, rng: np.random.Generator) -> None:
+        """Take the routes and footprints from the layout and ``dt`` from ``context``; its
+        prior P(left) and speed cap are its own (:class:`IMMConfig`). The IMM starts at the
+        first measurement."""
+        super().reset(context, rng)
+        p, layout = self.params, context.layout
+        self._ego, self._obstacle, self._dt = layout.ego, layout.obstacle, context.dt
         self._routes = dict(zip((Intent.LEFT, Intent.RIGHT), layout.obstacle_routes, strict=True))
-        self._times = _times(p.horizon, config.dt)
-        self._max_speed = p.max_speed if p.max_speed is not None else config.obstacle_turn_speed
-        self._p_left = config.p_left
+        self._times = _times(p.horizon, context.dt)
+        self._max_speed = p.max_speed
+        self._p_left = p.p_left
         self._p_conflict = 0.0
         self.imm: IMMEstimator | None = None
 
@@ -432,5 +445,6 @@ class IMMRiskPlanner(IMMPlanner):
 
     name = "imm-risk"
 
-    def __init__(self, params: IMMConfig | None = None, risk: RiskConfig | None = None) -> None:
-        super().__init__(params, risk or RiskConfig())
+    def __init__(self, params: IMMConfig | Mapping[str, Any] | None = None,
+                 risk: RiskConfig | Mapping[str, Any] | None = None) -> None:
+        super().__init__(params, RiskConfig() if risk is None else risk)

@@ -5,18 +5,28 @@ brake once P(cutoff) >= tau)."""
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Mapping
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.inference.particle_filter import ParticleFilter, Posterior
 from cdf_mj.model.conflict import Futures
-from cdf_mj.model.layout import Layout
-from cdf_mj.planners.base import DecidingPlanner, PlannerInput
+from cdf_mj.planners.base import DecidingPlanner, PlannerContext, PlannerInput, as_config
 from cdf_mj.planners.decision import RiskRule, ThresholdRule
 
-__all__ = ["CDFPlanner", "ThresholdCDFPlanner"]
+__all__ = ["CDFPlanner", "ThresholdCDFPlanner", "WeightedParticles"]
+
+
+class WeightedParticles(NamedTuple):
+    """The filter's particles behind one tick's posterior (after the update, before they
+    move on): read-only arrays, world frame."""
+
+    pose: np.ndarray  # (N, 4) obstacle rear-axle pose [x m, y m, theta rad, v m/s]
+    intent: np.ndarray  # (N,) cdf_mj.model.driver.Intent
+    has_belief: np.ndarray  # (N,) the driver has seen the ego
+    weights: np.ndarray  # (N,) normalised
 
 
 class CDFPlanner(DecidingPlanner):
@@ -33,21 +43,23 @@ class CDFPlanner(DecidingPlanner):
     skipped measurements and re-initialisations, and the per-tick posterior history.
 
     Args:
-        cdf: filter and decision parameters (default :class:`CDFConfig`).
+        cdf: filter and decision parameters, with the filter's own model of the other driver
+            (default :class:`CDFConfig`; a mapping of its fields is read, as stored runs keep it).
     """
 
     name = "cdf"
     history_keys = ("p_left", "p_seen", "p_cutoff", "ess")
 
-    def __init__(self, cdf: CDFConfig | None = None) -> None:
-        self.cdf = cdf = cdf or CDFConfig()
+    def __init__(self, cdf: CDFConfig | Mapping[str, Any] | None = None) -> None:
+        self.cdf = cdf = as_config(cdf, CDFConfig, "cdf")
         self.rule = (RiskRule(cdf.risk, cdf.ego_brake) if cdf.decision == "risk"
                      else ThresholdRule(cdf.tau))
 
-    def reset(self, layout: Layout, config: ScenarioConfig, rng: np.random.Generator) -> None:
-        """A new filter for this junction, drawing from the episode's planner ``rng``."""
-        super().reset(layout, config, rng)
-        self.filter = ParticleFilter.from_layout(layout, config, self.cdf, rng)
+    def reset(self, context: PlannerContext, rng: np.random.Generator) -> None:
+        """A new filter for this junction and tick, drawing from the episode's planner ``rng``."""
+        super().reset(context, rng)
+        # TODO(schema part): the filter's own model replaces the stand-in world config.
+        self.filter = ParticleFilter.from_layout(context.layout, ScenarioConfig(dt=context.dt), self.cdf, rng)
         self._started = False
         self._post: Posterior | None = None
 
@@ -64,6 +76,8 @@ class CDFPlanner(DecidingPlanner):
         self._futures: Futures | None = None
         if self.rule.releases:  # the risk rule reads the particles of now, before they move
             self._futures = pf.futures(self.rule.react_ticks)  # type: ignore[attr-defined]
+        # References, not copies: predicting gives the filter new arrays.
+        self._particles = WeightedParticles(pf.pose, pf.intent, pf.has_belief, pf.weights)
         pf.predict(obs.poses)
         self.record(obs.t, p_left=post.p_left, p_seen=post.p_seen, p_cutoff=post.p_cutoff,
                     ess=post.ess)
@@ -74,6 +88,14 @@ class CDFPlanner(DecidingPlanner):
         if self._post is None:
             raise RuntimeError("no filter tick yet: call brake() first")
         return self._post
+
+    @property
+    def particles(self) -> WeightedParticles:
+        """The particles behind the last tick's posterior (what a video draws; an observer
+        of the episode reads them after each tick); RuntimeError before the first."""
+        if self._post is None:
+            raise RuntimeError("no filter tick yet: call brake() first")
+        return self._particles
 
     def alarm(self) -> float:
         """P(cutoff) of this tick's posterior."""
@@ -102,5 +124,5 @@ class ThresholdCDFPlanner(CDFPlanner):
 
     name = "cdf-threshold"
 
-    def __init__(self, cdf: CDFConfig | None = None) -> None:
-        super().__init__((cdf or CDFConfig()).replace(decision="threshold"))
+    def __init__(self, cdf: CDFConfig | Mapping[str, Any] | None = None) -> None:
+        super().__init__(as_config(cdf, CDFConfig, "cdf").replace(decision="threshold"))

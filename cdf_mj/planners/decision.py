@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cdf_mj.config import RiskConfig, ScenarioConfig
+from cdf_mj.config import RiskConfig
 from cdf_mj.inference.particle_filter import ParticleFilter
 from cdf_mj.model.conflict import (
     BRAKE,
@@ -53,8 +53,7 @@ from cdf_mj.model.conflict import (
     widened,
 )
 from cdf_mj.model.geometry import boxes_overlap
-from cdf_mj.model.layout import Layout
-from cdf_mj.planners.base import DecisionRule, Predictor, ThresholdRule
+from cdf_mj.planners.base import DecisionRule, PlannerContext, Predictor, ThresholdRule
 
 #: Bit masks of :func:`collision_masses`' index: the masses that collide going on and when
 #: deferring (unavoidable if deferred), when braking now, and going on.
@@ -126,20 +125,22 @@ class RiskRule:
         """Ticks before a decision deferred now could act: the next decision, plus the latency."""
         return self._defer
 
-    def reset(self, layout: Layout, config: ScenarioConfig) -> None:
+    def reset(self, context: PlannerContext) -> None:
         """The junction's conflict map, the ego's limits and its nominal controller."""
         cfg = self.config
+        layout, dt = context.layout, context.dt
         self.map: ConflictMap = conflict_map(layout, cfg.margin)
         self._layout = layout
-        self._dt = config.dt
-        self._steps = max(1, math.ceil(cfg.horizon / config.dt - 1e-9))
-        self._defer = 1 + math.ceil(cfg.latency / config.dt - 1e-9)
+        self._dt = dt
+        self._steps = max(1, math.ceil(cfg.horizon / dt - 1e-9))
+        self._defer = 1 + math.ceil(cfg.latency / dt - 1e-9)
         brake = self.ego_brake if self.ego_brake is not None else layout.ego.max_brake
-        self._nominal = (config.ego_speed, config.ego_speed_gain, layout.ego.max_accel, brake)
-        need = self._defer * config.dt + config.ego_speed / brake  # [s] to defer, then stop from v_nominal
+        speed = context.nominal_speed
+        self._nominal = (speed, context.speed_gain, layout.ego.max_accel, brake)
+        need = self._defer * dt + speed / brake  # [s] to defer, then stop from v_nominal
         if cfg.horizon < need:
             raise ValueError(f"RiskConfig.horizon={cfg.horizon:g} s is shorter than the {need:.2f} s the ego "
-                             f"needs to defer and then stop from {config.ego_speed:g} m/s: collisions after "
+                             f"needs to defer and then stop from {speed:g} m/s: collisions after "
                              "the horizon would go unseen; give a longer horizon")
         self.last = None
 

@@ -15,6 +15,16 @@ The world itself is :class:`cdf_mj.scenario.world.World` (``reset(seed)``, ``mea
    get process noise;
 5. MuJoCo steps ``dt / timestep`` physics steps; the episode ends at the ego's first contact.
 
+Observers (``run_episode(..., observers=[...])``, in the style of filterpy's ``Saver``)
+are called after every tick with an :class:`EpisodeTick` (the measurement, the decision,
+the world's tick and the planner after its tick): they read what they need (a video's
+particles, a trace) and never run the simulation again with choices of their own. The
+per-tick trace of a record is one such observer (:class:`TraceRecorder`).
+
+The scenario label of a seed comes from one rule (:func:`seed_label`): a run whose ego
+never braked is the constant-speed counterfactual itself; only when every run of the
+seed braked is the counterfactual simulated.
+
 Randomness: the seed makes a ``numpy.random.SeedSequence`` that is split into
 independent streams for the scenario draw (intent, ego start), the obstacle (observation
 draws, observation noise, process noise), the ego (process noise) and the planner. Every
@@ -26,18 +36,54 @@ the episode (the ego holding its speed) is the same world with a different ego.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from cdf_mj.config import ScenarioConfig
 from cdf_mj.model.driver import Intent, ego_control
-from cdf_mj.planners.base import Planner, PlannerInput, make_planner
+from cdf_mj.planners.base import Planner, PlannerContext, PlannerInput, make_planner
 from cdf_mj.records import EpisodeRecord, Label
-from cdf_mj.scenario.world import World
+from cdf_mj.scenario.world import Measurement, Tick, World
 from cdf_mj.sim.scene import Scene
 
-__all__ = ["counterfactual", "episode_label", "label_of", "run_episode"]
+__all__ = ["EpisodeTick", "Observer", "TraceRecorder", "counterfactual", "episode_label", "label_of",
+           "run_episode", "seed_label"]
+
+
+@dataclass(frozen=True)
+class EpisodeTick:
+    """One tick of an episode as an observer sees it, after the world has stepped."""
+
+    measurement: Measurement  # what the planner was given (time t [s], system pose, lane flag)
+    braking: bool  # whether the ego braked over this tick
+    tick: Tick  # the world's tick: the poses after it, the obstacle's mode, look and belief
+    planner: Planner  # the planner after its tick (a filter's particles of time t, ...)
+    world: World  # the world after the tick (read only)
+
+
+#: Called after every tick of an episode with its :class:`EpisodeTick`.
+Observer = Callable[[EpisodeTick], None]
+
+
+@dataclass
+class TraceRecorder:
+    """The observer behind a record's ``trace``: per tick the time [s], the system pose,
+    the obstacle's mode, whether it saw the ego, its belief and the ego's brake flag."""
+
+    trace: dict[str, list[Any]] = field(
+        default_factory=lambda: {k: [] for k in ("t", "poses", "mode", "seen", "belief", "brake")})
+
+    def __call__(self, step: EpisodeTick) -> None:
+        tick, tr = step.tick, self.trace
+        tr["t"].append(tick.t)
+        tr["poses"].append(tick.poses.tolist())
+        tr["mode"].append(tick.mode)
+        tr["seen"].append(tick.seen)
+        tr["belief"].append(tick.belief.tolist())
+        tr["brake"].append(step.braking)
 
 
 @dataclass
@@ -55,18 +101,17 @@ class _Run:
     brake_time: float | None = None
     time_lost: float = 0.0
     end_time: float = 0.0
-    trace: dict | None = None
 
 
 def _simulate(scene: Scene, config: ScenarioConfig, seed: int, planner: Planner,
-              record_trace: bool) -> _Run:
+              observers: Sequence[Observer] = ()) -> _Run:
     world = World(scene, config)
     world.reset(seed)
-    planner.reset(world.layout, config, world.rng["planner"])
+    # The planner is told only what the ego knows: the map, the tick, its own controller.
+    planner.reset(PlannerContext.of(world.layout, config), world.rng["planner"])
     braking = False
     brake_time: float | None = None
     releases = bool(getattr(planner, "releases_brake", False))
-    tr: dict[str, list] = {k: [] for k in ("t", "poses", "mode", "seen", "belief", "brake")}
     while not world.done:
         m = world.measure()
         # The ego decides (its first yes to braking is held, unless the planner releases).
@@ -75,16 +120,15 @@ def _simulate(scene: Scene, config: ScenarioConfig, seed: int, planner: Planner,
         if braking and brake_time is None:
             brake_time = m.t
         tick = world.step(ego_control(world.driver, world.layout.ego, m.poses[0], braking))
-        if record_trace:
-            for key, val in (("t", tick.t), ("poses", tick.poses.tolist()), ("mode", tick.mode),
-                             ("seen", tick.seen), ("belief", tick.belief.tolist()),
-                             ("brake", braking)):
-                tr[key].append(val)
+        if observers:
+            step = EpisodeTick(measurement=m, braking=braking, tick=tick, planner=planner, world=world)
+            for observe in observers:
+                observe(step)
     return _Run(intent=int(world.intent), offset=world.ego_start_offset,
                 first_seen=world.first_seen, yielded=world.yielded, entered=world.entered_lane,
                 collision=world.collision, collision_time=world.collision_time,
                 min_gap=world.min_gap, brake_time=brake_time, time_lost=world.time_lost,
-                end_time=world.end_time, trace=tr if record_trace else None)
+                end_time=world.end_time)
 
 
 def _label(intent: int, counterfactual_collision: bool) -> str:
@@ -102,7 +146,7 @@ def label_of(intent: str, counterfactual_collision: bool) -> str:
 def counterfactual(config: ScenarioConfig, seed: int, scene: Scene) -> tuple[str, bool]:
     """``(label, counterfactual_collision)`` of a seed, from its run with the ego holding
     its speed (resets ``scene``)."""
-    cf = _simulate(scene, config, seed, make_planner("constant"), False)
+    cf = _simulate(scene, config, seed, make_planner("constant"))
     hit = cf.collision == "obstacle"
     return _label(cf.intent, hit), hit
 
@@ -113,46 +157,62 @@ def episode_label(config: ScenarioConfig, seed: int, scene: Scene) -> str:
     return counterfactual(config, seed, scene)[0]
 
 
+def seed_label(config: ScenarioConfig, seed: int, scene: Scene,
+               runs: Iterable[tuple[str, float | None, str | None]] = ()) -> tuple[str, bool]:
+    """``(label, counterfactual_collision)`` of a seed: the one labelling rule.
+
+    ``runs`` are the seed's finished runs as ``(intent, brake_time, collision_with)``
+    (``"left"``/``"right"``, [s] or None, ``"obstacle"``/... or None: fields of its
+    records). A run whose ego never braked *is* the constant-speed counterfactual (the same
+    random streams, the same controls: a planner's own stream does not touch the world),
+    so its collision labels the seed; only when every run braked (or none is given) is the
+    counterfactual simulated, once (it resets ``scene``).
+    """
+    for intent, brake_time, collision_with in runs:
+        if brake_time is None:
+            hit = collision_with == "obstacle"
+            return label_of(intent, hit), hit
+    return counterfactual(config, seed, scene)
+
+
 def run_episode(config: ScenarioConfig | None = None, seed: int = 0,
                 planner: str | Planner = "reactive", scene: Scene | None = None,
-                label: bool = True, trace: bool = False) -> EpisodeRecord:
+                label: bool = True, trace: bool = False,
+                observers: Sequence[Observer] = ()) -> EpisodeRecord:
     """Run one episode and return its record.
 
     Args:
         config: scenario parameters (default :class:`ScenarioConfig`).
         seed: episode seed; the same seed gives the same record.
-        planner: planner name (``constant``, ``reactive``, ...) or object.
+        planner: planner name (``constant``, ``reactive``, ...; built by
+            :func:`~cdf_mj.planners.make_planner` with its registered arguments) or object.
         scene: a loaded scene (reused between episodes for speed); default scene.xml.
-        label: also run the counterfactual (ego holding its speed) to label the episode.
+        label: also label the episode (:func:`seed_label`).
         trace: include per-tick poses, modes and beliefs in the record.
+        observers: called after every tick with an :class:`EpisodeTick`, in order.
     """
     config = config or ScenarioConfig()
-    if not isinstance(seed, (int, np.integer)) or seed < 0:
+    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
         raise ValueError(f"seed={seed!r} is out of range: must be a non-negative integer")
     seed = int(seed)
     scene = scene or Scene.load(names=config.names)
     plan = make_planner(planner)
-    run = _simulate(scene, config, seed, plan, trace)
+    recorder = TraceRecorder() if trace else None
+    run = _simulate(scene, config, seed, plan, (*observers, recorder) if recorder else tuple(observers))
     info = plan.summary()
+    intent = Intent(run.intent).name.lower()
 
     cf_collision: bool | None = None
     lab: str | None = None
     if label:
-        # A run whose ego never braked is the constant-speed run: the same random streams,
-        # the same controls (the planner's own stream does not touch the world). Only a
-        # braking run needs the counterfactual simulated.
-        if run.brake_time is None:
-            cf_collision = run.collision == "obstacle"
-            lab = _label(run.intent, cf_collision)
-        else:
-            lab, cf_collision = counterfactual(config, seed, scene)
+        lab, cf_collision = seed_label(config, seed, scene, [(intent, run.brake_time, run.collision)])
 
     return EpisodeRecord(
-        seed=seed, planner=plan.name, intent=Intent(run.intent).name.lower(), label=lab,
+        seed=seed, planner=plan.name, intent=intent, label=lab,
         ego_start_offset=run.offset, first_seen_time=run.first_seen, yielded=run.yielded,
         entered_lane_time=run.entered, collision=run.collision is not None,
         collision_with=run.collision, collision_time=run.collision_time,
         min_gap=float(run.min_gap), brake_time=run.brake_time, time_lost=run.time_lost,
         end_time=run.end_time, counterfactual_collision=cf_collision, planner_info=info,
-        trace=run.trace,
+        trace=recorder.trace if recorder else None,
     )

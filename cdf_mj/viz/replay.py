@@ -1,8 +1,10 @@
 """An episode re-simulated with what a video of it needs at every tick.
 
 :func:`record_episode` runs one episode with its trace (the same record as
-:func:`cdf_mj.scenario.episode.run_episode` for that seed and planner) and, for the ``cdf``
-planner, the particle filter's weighted particles at every tick. The :class:`Replay` it
+:func:`cdf_mj.scenario.episode.run_episode` for that seed and planner) and, for a planner
+with a particle filter (``cdf``, ``cdf-threshold``), the filter's weighted particles at
+every tick, read by an observer of the episode (:class:`ParticleRecorder`): the planner
+is built by the registry with the run's arguments and runs as in any episode. The :class:`Replay` it
 returns gives the scene at any time ``t``: the cars' poses interpolated between the 0.1 s
 ticks (positions and speed linearly, headings along the shorter arc), the filter's state
 that of the last tick at or before ``t``. ::
@@ -16,24 +18,22 @@ that of the last tick at or before ``t``. ::
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, NamedTuple, cast
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from cdf_mj.config import CDFConfig, ScenarioConfig
-from cdf_mj.inference.particle_filter import ParticleFilter
-from cdf_mj.planners import CDFPlanner, Planner, make_planner
+from cdf_mj.planners.base import Planner, bind_planner
+from cdf_mj.planners.cdf import CDFPlanner
 from cdf_mj.planners.decision import RiskRule
 from cdf_mj.records import EpisodeRecord
-from cdf_mj.scenario.episode import episode_label, run_episode
+from cdf_mj.scenario.episode import EpisodeTick, run_episode, seed_label
 from cdf_mj.sim.gl import RenderError
 from cdf_mj.sim.scene import Scene
 
-if TYPE_CHECKING:
-    from cdf_mj.model.layout import Layout
-
-__all__ = ["POSTERIOR_KEYS", "Particles", "Replay", "check_frame_time", "record_episode"]
+__all__ = ["POSTERIOR_KEYS", "ParticleRecorder", "Particles", "Replay", "check_frame_time", "record_episode"]
 
 #: The probabilities a planner's ``history`` may hold that a replay keeps, in panel order
 #: (``cdf``: p_left, p_seen, p_cutoff, risk; ``cdf-threshold``: p_left, p_seen, p_cutoff;
@@ -50,28 +50,20 @@ class Particles(NamedTuple):
     heading: np.ndarray  # (M,) float32 [rad] the weighted circular mean heading of the merged
 
 
-class _RecordingFilter(ParticleFilter):
-    """The CDF's particle filter, keeping each tick's weighted particles before it predicts."""
+class ParticleRecorder:
+    """An episode observer keeping, per tick, the distinct weighted particles behind a CDF
+    planner's posterior (:attr:`cdf_mj.planners.cdf.CDFPlanner.particles`); it reads them
+    only, so the recorded run is the plain run."""
 
-    snapshots: list[Particles]
+    def __init__(self) -> None:
+        self.snapshots: list[Particles] = []
 
-    def predict(self, system_pose: np.ndarray | None = None) -> None:
-        self.snapshots.append(_distinct_particles(self.pose[:, :2], self.intent, self.has_belief,
-                                                  self.weights, self.pose[:, 2]))
-        super().predict(system_pose)
-
-
-class _RecordingCDFPlanner(CDFPlanner):
-    """The ``cdf`` planner with a :class:`_RecordingFilter`: the same decisions, the same
-    random draws, plus a particle snapshot per tick."""
-
-    filter: _RecordingFilter
-
-    def reset(self, layout: Layout, config: ScenarioConfig, rng: np.random.Generator) -> None:
-        super().reset(layout, config, rng)
-        # Building a filter draws nothing from rng: the recorded run is the plain run.
-        self.filter = cast(_RecordingFilter, _RecordingFilter.from_layout(layout, config, self.cdf, rng))
-        self.filter.snapshots = []
+    def __call__(self, step: EpisodeTick) -> None:
+        planner = step.planner
+        if isinstance(planner, CDFPlanner):
+            p = planner.particles
+            self.snapshots.append(_distinct_particles(p.pose[:, :2], p.intent, p.has_belief, p.weights,
+                                                      p.pose[:, 2]))
 
 
 def _distinct_particles(xy: np.ndarray, intent: np.ndarray, seen: np.ndarray,
@@ -160,43 +152,41 @@ class Replay:
 
 def record_episode(seed: int, planner: str | Planner = "cdf", config: ScenarioConfig | None = None,
                    scene: Scene | None = None, cdf: CDFConfig | None = None,
-                   label: bool = True) -> Replay:
-    """Run one episode with its trace (and, for ``cdf``, the filter's particles per tick).
+                   label: bool = True, planner_args: Mapping[str, Any] | None = None) -> Replay:
+    """Run one episode with its trace (and, for a CDF planner, the filter's particles per tick).
 
     Args:
         seed: episode seed.
-        planner: planner name or object; the name ``cdf`` records the filter's particles.
+        planner: a registered planner name (built as an experiment builds it:
+            :func:`~cdf_mj.planners.base.bind_planner`) or a planner object.
         config: scenario parameters (default :class:`~cdf_mj.config.ScenarioConfig`).
         scene: a loaded scene (default the package's ``scene.xml``); left at the end state.
-        cdf: the filter of the ``cdf`` planner (default :class:`~cdf_mj.config.CDFConfig`).
-        label: also run the constant-speed counterfactual for the scenario label.
+        cdf: the run's shared CDF settings (what the CDF planners and the risk rules take;
+            default :class:`~cdf_mj.config.CDFConfig`).
+        label: also label the episode (:func:`~cdf_mj.scenario.episode.seed_label`).
+        planner_args: the planner's own constructor arguments on top (a stored run's
+            ``planner_args`` entry).
 
     The record is the one :func:`cdf_mj.scenario.episode.run_episode` gives for the same
     seed and planner.
     """
     config = config or ScenarioConfig()
     scene = scene or Scene.load(names=config.names)
-    if planner in ("cdf", "cdf-threshold"):
-        cdf = cdf or CDFConfig()
-        plan: Planner = _RecordingCDFPlanner(cdf.replace(decision="threshold") if planner == "cdf-threshold"
-                                             else cdf)
-        plan.name = planner
-    else:
-        plan = make_planner(planner)
-    record = run_episode(config, seed, plan, scene, label=False, trace=True)
+    plan = planner if isinstance(planner, Planner) else bind_planner(planner, cdf, planner_args).make()
+    particle_recorder = ParticleRecorder()
+    record = run_episode(config, seed, plan, scene, label=False, trace=True, observers=[particle_recorder])
     final = scene.poses()  # the scene holds the state at end_time
     trace = record.trace or {}
     times = np.append(np.asarray(trace["t"], dtype=float), record.end_time)
     poses = np.concatenate([np.asarray(trace["poses"], dtype=float).reshape(-1, 2, 4), final[None]])
-    lab = episode_label(config, seed, scene) if label else None
-    particles: list[Particles] | None = None
+    lab = seed_label(config, seed, scene, [(record.intent, record.brake_time, record.collision_with)])[0] \
+        if label else None
+    particles = particle_recorder.snapshots if isinstance(plan, CDFPlanner) else None
     tau: float | None
-    if isinstance(plan, _RecordingCDFPlanner):
-        particles = plan.filter.snapshots
     rule = getattr(plan, "rule", None)
     if isinstance(rule, RiskRule):  # the braking quantity is the risk (the last key)
         tau = rule.config.brake
-    elif isinstance(plan, _RecordingCDFPlanner):
+    elif isinstance(plan, CDFPlanner):
         tau = plan.cdf.tau
     else:  # a baseline with a probability history (imm): its own threshold
         tau = getattr(getattr(plan, "params", None), "threshold", None)

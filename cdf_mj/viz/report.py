@@ -47,12 +47,11 @@ import numpy as np
 
 from cdf_mj.analysis.metrics import Rate, confusion_matrix, planner_metrics
 from cdf_mj.analysis.tables import PAPER_CONFUSION, PAPER_PLANNERS, experiment_tables
-from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames
+from cdf_mj.config import ScenarioConfig, SceneNames
 from cdf_mj.extras import require
 from cdf_mj.model.geometry import box_corners
 from cdf_mj.model.layout import Layout
-from cdf_mj.planners.base import Planner, make_planner
-from cdf_mj.planners.cdf import CDFPlanner
+from cdf_mj.planners.base import PLANNERS, PlannerSpec, bind_planner, stored_planner_arguments
 from cdf_mj.records import (
     FAILED,
     LABELS,
@@ -161,16 +160,21 @@ def _scenario(settings: dict[str, Any]) -> ScenarioConfig:
                                    .split())) from None
 
 
-def _cdf(settings: dict[str, Any]) -> CDFConfig:
+def _planner_factory(settings: dict[str, Any], name: str) -> PlannerSpec:
+    """Planner ``name`` as the run built it: its stored arguments (``planner_args``, or
+    for an older run what it took of the stored ``cdf`` settings). ValueError for a
+    planner not registered in this process; ReportError for arguments this version
+    cannot read."""
     try:
-        return CDFConfig(**{k: _tuples(v) for k, v in settings["cdf"].items()})
+        arguments = stored_planner_arguments(settings).get(name, {})
+        spec = bind_planner(name, arguments=arguments)
+        spec.make()  # arguments the planner does not take, or out of range
     except (TypeError, ValueError) as exc:
-        raise ReportError(" ".join(f"settings.json: CDF settings this version cannot read ({exc})"
+        if name not in PLANNERS:
+            raise ValueError(f"unknown planner {name!r}") from None
+        raise ReportError(" ".join(f"settings.json: arguments of planner {name} this version cannot read ({exc})"
                                    .split())) from None
-
-
-def _planner(name: str, cdf: CDFConfig) -> Planner:
-    return CDFPlanner(cdf) if name == "cdf" else make_planner(name)
+    return spec
 
 
 # ----------------------------------------------------------------- figures
@@ -355,9 +359,11 @@ def trajectories_figure(exp: Experiment, planner: str, seeds: Sequence[int],
     notes = [] if notes is None else notes
     if not seeds:
         return f"no records of planner {planner}"
-    config, cdf = _scenario(exp.settings), _cdf(exp.settings)
+    config = _scenario(exp.settings)
     try:
-        _planner(planner, cdf)
+        factory = _planner_factory(exp.settings, planner)
+    except ReportError:
+        raise
     except ValueError:
         return f"planner {planner!r} is not registered in this process, so it cannot be re-run"
     scene_path = Path(exp.settings.get("scene") or DEFAULT_SCENE)
@@ -369,7 +375,7 @@ def trajectories_figure(exp: Experiment, planner: str, seeds: Sequence[int],
     stored = {int(r["seed"]): r for r in exp.by_planner(planner)}
     runs = []
     for seed in seeds:
-        rec = run_episode(config, seed, _planner(planner, cdf), scene, label=False, trace=True)
+        rec = run_episode(config, seed, factory(), scene, label=False, trace=True)
         old = stored.get(seed)
         if old is not None and old.get("brake_time") != rec.brake_time:
             notes.append(f"Seed {seed} re-simulated with brake time {rec.brake_time} against "
