@@ -2,7 +2,7 @@
 
 Layers, lowest first (a name is a top-level module or subpackage of ``cdf_mj``)::
 
-    config, records, extras -> model -> sim -> inference -> planners, analysis -> scenario
+    config, records, extras, presets, traits -> model -> sim -> inference -> planners, analysis -> scenario
     -> viz -> envs -> experiments -> cli, __main__
 
 Every module's source is read with ``ast`` and every ``cdf_mj`` import counted, also
@@ -25,7 +25,7 @@ import cdf_mj
 
 PACKAGE = Path(cdf_mj.__file__).resolve().parent
 LAYERS: list[set[str]] = [
-    {"config", "records", "extras", "presets"},
+    {"config", "records", "extras", "presets", "traits"},
     {"model"},
     {"sim"},
     {"inference"},
@@ -163,7 +163,8 @@ def test_the_command_modules_share_only_the_arguments_module():
 
 
 @pytest.mark.parametrize("module", ["cdf_mj.model.driver", "cdf_mj.model.layout", "cdf_mj.model.occlusion",
-                                    "cdf_mj.model.vehicle", "cdf_mj.inference.particle_filter"])
+                                    "cdf_mj.model.vehicle", "cdf_mj.inference.particle_filter",
+                                    "cdf_mj.scenario.trace_file"])
 def test_the_models_and_the_filter_run_without_mujoco(module):
     """Importing the NumPy layers loads neither MuJoCo nor the simulator (fresh interpreter)."""
     code = (f"import sys, {module}\n"

@@ -1,0 +1,171 @@
+"""The CDF monitor's trace file: what :meth:`cdf_mj.scenario.monitor.CDFMonitor.save_trace`
+writes and :func:`read_trace` reads back (``cdf-mj render --trace`` draws it,
+:mod:`cdf_mj.viz.trace`).
+
+JSON lines: a header object (``"format": TRACE_FORMAT``, the scene names, the scenario and
+CDF configs, the decision rule and its threshold, both cars' geometries), then one object
+per observation ``{"t", "ego", "obstacle", "posterior", "brake"}`` (and ``"risk"`` with the
+risk rule): time [s], rear-axle poses ``[x m, y m, yaw rad, v m/s]`` in the world frame,
+the posterior's probabilities, the brake decision. ::
+
+    from cdf_mj.scenario.trace_file import read_trace
+
+    trace = read_trace("episode.jsonl")
+    trace.times, trace.poses[:, 1], trace.posterior["p_cutoff"], trace.brake_time
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cdf_mj.config import SceneNames
+from cdf_mj.model.vehicle import CarGeometry
+from cdf_mj.records import write_atomic
+
+__all__ = ["TRACE_FORMAT", "MonitorTrace", "TraceError", "read_trace", "write_trace"]
+
+#: The ``format`` of the header line of a trace file (:meth:`CDFMonitor.save_trace`).
+TRACE_FORMAT = "cdf_mj.monitor_trace/1"
+
+
+def write_trace(path: str | Path, header: dict[str, Any], rows: Iterable[dict[str, Any]]) -> Path:
+    """Write ``header`` and then each of ``rows`` as one line of strict JSON (no NaN) to
+    ``path``; the file appears complete or not at all (:func:`cdf_mj.records.write_atomic`).
+    Returns ``path``."""
+    lines = [json.dumps(header, allow_nan=False)]
+    lines += [json.dumps(row, allow_nan=False) for row in rows]
+    return write_atomic(path, "\n".join(lines) + "\n")
+
+
+class TraceError(ValueError):
+    """A trace file that cannot be read: one line naming ``file:line`` and what is wrong."""
+
+
+@dataclass(frozen=True)
+class MonitorTrace:
+    """A trace file read back (:func:`read_trace`).
+
+    ``times`` (K,) [s]; ``poses`` (K, 2, 4) rear-axle ``[x m, y m, yaw rad, v m/s]`` of ego
+    and obstacle, world frame; ``posterior`` maps ``t`` and each probability (``p_left``,
+    ``p_right``, ``p_seen``, ``p_cutoff``, ``ess``, and ``risk`` for the risk rule) to (K,)
+    arrays. ``rule`` is the decision rule (``threshold`` for traces written before the
+    risk rule) and ``threshold`` the value at which it brakes on its quantity.
+    """
+
+    path: Path
+    header: dict[str, Any]
+    names: SceneNames
+    ego: CarGeometry
+    obstacle: CarGeometry
+    tau: float
+    times: np.ndarray
+    poses: np.ndarray
+    posterior: dict[str, np.ndarray]
+    brake: np.ndarray  # (K,) bool: the brake decision per observation
+    rule: str = "threshold"
+    threshold: float = math.nan
+
+    @property
+    def brake_time(self) -> float | None:
+        """[s] the first observation with the brake decision, None if never."""
+        idx = np.flatnonzero(self.brake)
+        return round(float(self.times[idx[0]]), 6) if idx.size else None
+
+
+_POSTERIOR_KEYS = ("p_left", "p_right", "p_seen", "p_cutoff", "ess")
+
+
+def read_trace(path: str | Path) -> MonitorTrace:
+    """Read a file of :meth:`CDFMonitor.save_trace`. TraceError ``file:line: what`` for a
+    file that is missing, not JSON lines, of another format, or with a bad field."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise TraceError(f"{path}: cannot read the trace ({getattr(exc, 'strerror', None) or exc})") from None
+    lines = [(i + 1, line) for i, line in enumerate(text.splitlines()) if line.strip()]
+    if not lines:
+        raise TraceError(f"{path}:1: empty file; a trace starts with a header line ({TRACE_FORMAT})")
+    rows: list[tuple[int, dict[str, Any]]] = []
+    for no, line in lines:
+        try:
+            obj = json.loads(line)
+        except json.JSONDecodeError as exc:
+            raise TraceError(f"{path}:{no}: not JSON ({exc.msg} at column {exc.colno})") from None
+        if not isinstance(obj, dict):
+            raise TraceError(f"{path}:{no}: expected a JSON object, got {type(obj).__name__}")
+        rows.append((no, obj))
+    no, header = rows[0]
+    if header.get("format") != TRACE_FORMAT:
+        raise TraceError(f"{path}:{no}: not a monitor trace: the header's format is "
+                         f"{header.get('format')!r}, expected {TRACE_FORMAT!r}")
+    valid = [f.name for f in dataclasses.fields(SceneNames)]
+    unknown = sorted(set(header.get("names") or {}) - set(valid)) if isinstance(header.get("names"), dict) else []
+    if "names" in header and not isinstance(header["names"], dict):
+        raise TraceError(f"{path}:{no}: the header's 'names' must be an object of SceneNames fields")
+    if unknown:
+        raise TraceError(f"{path}:{no}: the header's 'names' has unknown key(s) {', '.join(unknown)}; "
+                         f"valid: {', '.join(valid)}")
+    try:
+        names = SceneNames(**header["names"])
+        ego = CarGeometry.from_dict(header["ego"])
+        obstacle = CarGeometry.from_dict(header["obstacle"])
+        tau = float(header["tau"])
+    except KeyError as exc:
+        raise TraceError(f"{path}:{no}: the header lacks {exc.args[0]!r}") from None
+    except (TypeError, ValueError) as exc:
+        raise TraceError(f"{path}:{no}: bad header: {' '.join(str(exc).split())}") from None
+    rule, threshold = header.get("rule", "threshold"), header.get("threshold", tau)
+    for key, value in (("tau", tau), ("threshold", threshold)):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
+                math.isfinite(value) and 0.0 < value <= 1.0):
+            raise TraceError(f"{path}:{no}: the header's {key!r} must be in (0, 1], got {header.get(key, value)!r}")
+    if rule not in ("threshold", "risk"):
+        raise TraceError(f"{path}:{no}: the header's 'rule' must be 'threshold' or 'risk', got {rule!r}")
+    keys = (*_POSTERIOR_KEYS, "risk") if rule == "risk" else _POSTERIOR_KEYS
+    if len(rows) < 2:
+        raise TraceError(f"{path}:{no}: the trace has no observation after its header")
+    times: list[float] = []
+    poses: list[np.ndarray] = []
+    brake: list[bool] = []
+    post: dict[str, list[float]] = {k: [] for k in keys}
+    for no, row in rows[1:]:
+        try:
+            t = float(row["t"])
+            pose = np.array([row["ego"], row["obstacle"]], dtype=float)
+            p = {**row["posterior"], **({"risk": row["risk"]} if rule == "risk" else {})}
+            values = [float(p[k]) for k in keys]
+            b = row["brake"]
+        except KeyError as exc:
+            raise TraceError(f"{path}:{no}: the observation lacks {exc.args[0]!r}") from None
+        except (TypeError, ValueError) as exc:
+            raise TraceError(f"{path}:{no}: bad observation: {' '.join(str(exc).split())}") from None
+        if pose.shape != (2, 4) or not np.all(np.isfinite(pose)) or not math.isfinite(t):
+            raise TraceError(f"{path}:{no}: 'ego' and 'obstacle' must be 4 finite numbers each "
+                             "and 't' a finite time")
+        if times and t <= times[-1]:
+            raise TraceError(f"{path}:{no}: time {t:g} s does not follow {times[-1]:g} s")
+        if not isinstance(b, bool):
+            raise TraceError(f"{path}:{no}: 'brake' must be true or false, got {b!r}")
+        bad = [k for k, v in zip(keys, values, strict=True)
+               if not math.isfinite(v) or (v < 0.0 if k == "ess" else not 0.0 <= v <= 1.0)]
+        if bad:
+            raise TraceError(f"{path}:{no}: 'posterior' has {', '.join(bad)} out of range "
+                             "(probabilities in [0, 1], ess a finite number >= 0)")
+        times.append(t)
+        poses.append(pose)
+        brake.append(b)
+        for k, v in zip(keys, values, strict=True):
+            post[k].append(v)
+    posterior = {"t": np.array(times)} | {k: np.array(v) for k, v in post.items()}
+    return MonitorTrace(path=path, header=header, names=names, ego=ego, obstacle=obstacle, tau=tau,
+                        times=np.array(times), poses=np.array(poses), posterior=posterior,
+                        brake=np.array(brake, dtype=bool), rule=rule, threshold=float(threshold))
