@@ -162,6 +162,16 @@ def test_the_command_modules_share_only_the_arguments_module():
     assert commands <= cli["cdf_mj.cli.app"]
 
 
+def test_the_records_schema_and_rules_need_no_file_io():
+    """Inside ``cdf_mj.records``: ``schema`` imports no other module of it, ``counting``
+    only ``schema``; ``files`` (the records and settings files) is beside them."""
+    graph = _graph()
+    inner = {m: {t for t in graph[m] if _layer(t) == "records"} for m in graph if _layer(m) == "records"}
+    assert inner["cdf_mj.records.schema"] == set()
+    assert inner["cdf_mj.records.counting"] == {"cdf_mj.records.schema"}
+    assert inner["cdf_mj.records.files"] == {"cdf_mj.records.schema"}
+
+
 @pytest.mark.parametrize("module", ["cdf_mj.model.driver", "cdf_mj.model.layout", "cdf_mj.model.occlusion",
                                     "cdf_mj.model.vehicle", "cdf_mj.inference.particle_filter",
                                     "cdf_mj.scenario.trace_file"])

@@ -1,0 +1,205 @@
+"""The files of an experiment directory: the records file (``episodes.jsonl``, one JSON
+record a line, read and checked by :func:`read_records`), the settings file
+(``settings.json``, :func:`read_settings`), and writes that survive a crash
+(:func:`write_atomic`, :func:`fsync_directory`)."""
+
+from __future__ import annotations
+
+import json
+import os
+import stat
+import tempfile
+from collections.abc import Sequence
+from contextlib import suppress
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from cdf_mj.records.schema import check_record
+
+__all__ = ["RECORDS_FILE", "SETTINGS_FILE", "RecordsFile", "check_settings", "fsync_directory", "load_records",
+           "read_records", "read_settings", "write_atomic"]
+
+#: The name of the records file in an experiment directory.
+RECORDS_FILE = "episodes.jsonl"
+
+
+@dataclass(frozen=True)
+class RecordsFile:
+    """What :func:`read_records` found in a records file."""
+
+    path: Path
+    records: list[dict[str, Any]]  # every complete line, in file order (failed records included)
+    complete_bytes: int  # length of the complete lines; a half-written last line may follow
+    size: int  # [bytes] of the file
+
+    @property
+    def partial(self) -> bool:
+        """The file ends in a half-written line (a run killed, or still writing), left out."""
+        return self.complete_bytes < self.size
+
+
+def read_records(path: str | Path, seeds: range | None = None,
+                 planners: Sequence[str] | None = None) -> RecordsFile:
+    """Read a records file (one JSON object a line), checking every record before any is used.
+
+    Every line must be a record (:func:`check_record`: each field of its type, ``seed`` a
+    non-negative integer, times finite numbers or null, ...), no ``(seed, planner)`` may
+    appear twice, and where the run's ``seeds`` (a range) and ``planners`` are given, every
+    record must be of one of them. Everything after the last newline is a line cut short
+    by a killed run (or one still being written): it is left out, and reported by
+    :attr:`RecordsFile.partial`. Blank lines are skipped. Any other line that fails is a
+    ValueError naming the file, the line number and the reason; a path that is not a
+    regular file (a directory, a FIFO) is a ValueError too. The file is not changed.
+    """
+    path = Path(path)
+    data = _read_regular(path)
+    end = data.rfind(b"\n") + 1
+    records: list[dict[str, Any]] = []
+    seen: dict[tuple[int, str], int] = {}
+    known = None if planners is None else tuple(planners)
+    for number, line in enumerate(data[:end].splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            rec = json.loads(line)
+            check_record(rec)
+        except (ValueError, RecursionError) as exc:  # JSONDecodeError, UnicodeDecodeError included
+            reason = (f"not JSON ({exc.msg})" if isinstance(exc, json.JSONDecodeError) else
+                      "not JSON (nested too deeply)" if isinstance(exc, RecursionError) else
+                      "not JSON (not UTF-8 text)" if isinstance(exc, UnicodeDecodeError) else str(exc))
+            raise ValueError(f"{path}:{number} is not an episode record: {reason}") from None
+        key = (rec["seed"], rec["planner"])
+        problem = None
+        if seeds is not None and rec["seed"] not in seeds:
+            problem = f"seed {rec['seed']} is outside the run's seeds {seeds.start}-{seeds.stop - 1}"
+        elif known is not None and rec["planner"] not in known:
+            problem = f"planner {rec['planner']!r} is not one of the run's planners ({', '.join(known)})"
+        elif key in seen:
+            problem = f"seed {key[0]} of planner {key[1]!r} is recorded twice (first on line {seen[key]})"
+        if problem is not None:
+            raise ValueError(f"{path}:{number} is not a record of this run: {' '.join(problem.split())[:200]}")
+        seen[key] = number
+        records.append(rec)
+    return RecordsFile(path, records, end, len(data))
+
+
+def _read_regular(path: Path) -> bytes:
+    """The bytes of ``path``; ValueError (naming it) unless it is a regular file, so that
+    a FIFO or a device never blocks the reader."""
+    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise ValueError(f"{path} is not a regular file: move it away or choose another directory")
+        with os.fdopen(fd, "rb", closefd=False) as fh:
+            return fh.read()
+    finally:
+        os.close(fd)
+
+
+#: The name of the settings file beside the records file in an experiment directory.
+SETTINGS_FILE = "settings.json"
+
+
+def check_settings(data: object, path: str | Path = SETTINGS_FILE) -> dict[str, Any]:
+    """``data`` (a parsed ``settings.json``), checked: a JSON object whose ``seeds`` is a
+    pair ``[first, stop)`` of non-negative integers, ``planners`` a non-empty list of
+    distinct names, ``scenario`` and ``cdf`` objects (``scenario.names`` an object if
+    given), ``scene`` a path string, and ``scene_files`` (path -> SHA-256) and ``version``
+    strings where present. ValueError naming ``path`` and the first key that fails."""
+    def bad(key: str, want: str, value: object) -> ValueError:
+        shown = "null" if value is None else f"{type(value).__name__} {value!r}"
+        return ValueError(" ".join(f"{path}: key {key!r} must be {want}, got {shown}"[:240].split()))
+
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: settings are a JSON object, got {type(data).__name__}")
+    seeds = data.get("seeds")
+    if not (isinstance(seeds, list) and len(seeds) == 2
+            and all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in seeds)
+            and seeds[0] <= seeds[1]):
+        raise bad("seeds", "a pair [first, stop) of non-negative integers", seeds)
+    planners = data.get("planners")
+    if not (isinstance(planners, list) and planners and all(isinstance(p, str) for p in planners)
+            and len(set(planners)) == len(planners)):
+        raise bad("planners", "a non-empty list of distinct planner names", planners)
+    for key in ("scenario", "cdf"):
+        if not isinstance(data.get(key), dict):
+            raise bad(key, "an object", data.get(key))
+    names = data["scenario"].get("names")
+    if names is not None and not isinstance(names, dict):
+        raise bad("scenario.names", "an object of scene element names", names)
+    if not isinstance(data.get("scene"), str):
+        raise bad("scene", "the path of the scene file", data.get("scene"))
+    files = data.get("scene_files", {})
+    if not (isinstance(files, dict) and all(isinstance(v, str) for v in files.values())):
+        raise bad("scene_files", "an object of file -> SHA-256", files)
+    if not isinstance(data.get("version", ""), str):
+        raise bad("version", "a version string", data.get("version"))
+    return data
+
+
+def read_settings(path: str | Path) -> dict[str, Any]:
+    """The settings file at ``path``, read and checked (:func:`check_settings`). ValueError
+    naming the file if it is not a regular file, not JSON, or fails the check."""
+    path = Path(path)
+    try:
+        data = json.loads(_read_regular(path))
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not JSON ({exc.msg})") from None
+    except (UnicodeDecodeError, RecursionError):
+        raise ValueError(f"{path}: not JSON (not UTF-8 text, or nested too deeply)") from None
+    return check_settings(data, path)
+
+
+def fsync_directory(directory: str | Path) -> None:
+    """``fsync`` a directory, so that a rename or a new file in it survives a power loss
+    (nothing where directories cannot be opened, on Windows)."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass  # some file systems cannot sync a directory; the rename itself stands
+    finally:
+        os.close(fd)
+
+
+def write_atomic(path: str | Path, data: str | bytes) -> Path:
+    """Write ``data`` (text as UTF-8) to ``path`` whole or not at all, never through a link.
+
+    The bytes go to a new temporary file beside ``path`` (created exclusively, so a file or
+    a symlink planted under any name is never written through), are ``fsync``-ed, and the
+    file is renamed over ``path``: a symlink at ``path`` is replaced, its target untouched.
+    The directory is ``fsync``-ed after the rename. On any error the temporary file is
+    removed and ``path`` is as it was. Returns ``path``.
+    """
+    path = Path(path)
+    raw = data.encode("utf-8") if isinstance(data, str) else data
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(raw)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.chmod(tmp, 0o666 & ~_umask())
+        os.replace(tmp, path)
+    except BaseException:
+        with suppress(OSError):
+            os.unlink(tmp)
+        raise
+    fsync_directory(path.parent)
+    return path
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def load_records(out_dir: str | Path) -> list[dict[str, Any]]:
+    """The records of an experiment directory (its ``episodes.jsonl``, read by
+    :func:`read_records`), failed ones included: one dict a line, in file order."""
+    return read_records(Path(out_dir) / RECORDS_FILE).records
