@@ -11,18 +11,53 @@ calibration story. Objects are frozen and validated when built::
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import json
 import math
 import numbers
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from types import MappingProxyType
+from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
 import numpy as np
 
-__all__ = ["MAX_ACCEL", "MAX_BRAKE", "MAX_DURATION", "MAX_EPISODES", "MAX_LENGTH", "MAX_PARTICLES",
-           "MAX_SEED", "MAX_SPEED", "MAX_START_SPREAD", "MAX_WORKERS", "CDFConfig", "DriverPrior",
-           "RiskConfig", "ScenarioConfig", "SceneNames"]
+from cdf_mj.traits import MAX_ACCEL, MAX_DURATION, MAX_LENGTH, MAX_SPEED, bounded, validate, with_traits
+from cdf_mj.traits import check as _check
+from cdf_mj.traits import within as _within
+
+__all__ = [
+    "FLAT_KEYS",
+    "GROUPS",
+    "MAX_ACCEL",
+    "MAX_BRAKE",
+    "MAX_DURATION",
+    "MAX_EPISODES",
+    "MAX_LENGTH",
+    "MAX_PARTICLES",
+    "MAX_SEED",
+    "MAX_SPEED",
+    "MAX_START_SPREAD",
+    "MAX_WORKERS",
+    "SCENARIO_KEYS",
+    "CDFConfig",
+    "DriverPrior",
+    "Ego",
+    "Observation",
+    "ObstacleDriver",
+    "ProcessNoise",
+    "Pursuit",
+    "RiskConfig",
+    "ScenarioConfig",
+    "SceneNames",
+    "Timing",
+    "normalise_settings",
+    "scaled",
+    "scenario_key",
+    "unit_of",
+]
 
 #: Maximum braking of a passenger car on a moderate-friction road, 16 ft/s^2 [m/s^2].
 MAX_BRAKE = 16 * 0.3048
@@ -38,54 +73,8 @@ MAX_EPISODES = 10**7
 MAX_SEED = 2**53 - 1
 #: Worker processes of one run: beyond any single machine's cores [1].
 MAX_WORKERS = 1024
-#: Episode length: the junction is crossed in ~4 s; 10 minutes is 6000 ticks at dt 0.1 s [s].
-MAX_DURATION = 600.0
 #: Shift of the ego start along its route, either way: a junction scene's scale [m].
 MAX_START_SPREAD = 200.0
-#: Any other length (margins, look-ahead, creep, std of a position) [m].
-MAX_LENGTH = 1000.0
-#: Any speed or speed std: 360 km/h [m/s].
-MAX_SPEED = 100.0
-#: Any acceleration, braking or its std: about 10 g [m/s^2].
-MAX_ACCEL = 100.0
-
-
-def _check(cond: bool, name: str, value: object, allowed: str) -> None:
-    if not cond:
-        text = repr(value)  # a 400-digit number or a long list: its start and length suffice
-        shown = text if len(text) <= 60 else f"{text[:40]}...({len(text)} characters)"
-        raise ValueError(f"{name}={shown} is out of range: must be {allowed}")
-
-
-def _finite(*values: Any) -> bool:
-    """Whether every value is a real number (not a bool, not a string) that is finite as a
-    float (a 400-digit integer is not)."""
-    try:
-        return all(isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
-                   for v in values)
-    except OverflowError:
-        return False
-
-
-def _within(value: Any, low: float, high: float, *, open_low: bool = False) -> bool:
-    """Whether ``value`` is a finite real in ``[low, high]`` (``(low, high]`` with ``open_low``)."""
-    return _finite(value) and (value > low if open_low else value >= low) and value <= high
-
-
-def _pair_ok(pair: Any, low: float, positive: bool = False, high: float = math.inf) -> bool:
-    """Whether ``pair`` is a finite ``(lo, hi)`` of numbers with ``low <= lo <= hi <= high``
-    (``lo > low`` where ``positive``)."""
-    if isinstance(pair, (str, bytes, Mapping)):
-        return False
-    try:
-        first, second = pair
-    except (TypeError, ValueError):
-        return False
-    if not _finite(first, second):
-        return False
-    lo, hi = float(first), float(second)
-    return (lo > low if positive else lo >= low) and lo <= hi <= high
-
 
 @dataclass(frozen=True)
 class SceneNames:
@@ -141,173 +130,330 @@ class SceneNames:
         return (self.joint_x, self.joint_y, self.joint_yaw)
 
 
-@dataclass(frozen=True)
-class ScenarioConfig:
-    """Behavioural and statistical parameters of the T-intersection scenario.
+G = TypeVar("G", bound="_Group")
 
-    Units: metres, seconds, radians. ``dt`` is the paper's planner/filter tick. ValueError
-    naming the field and its range for any value that is not a finite number within its
-    physical range (the ``MAX_*`` bounds of this module: e.g. ``duration`` <= 600 s,
-    ``ego_start_spread`` within +-200 m of site ``ego_start``), and for ``names`` that are
-    not a :class:`SceneNames` (a mapping of its fields is converted).
-    """
 
-    # --- timing -------------------------------------------------------------------
-    dt: float = 0.1  # [s] planner, driver and observation tick (paper: 0.1 s)
-    duration: float = 8.0  # [s] episode length; the ego passes the junction in ~4 s
+class _Group:
+    """A group of :class:`ScenarioConfig`: a frozen dataclass whose fields are checked
+    against their ranges (:func:`cdf_mj.traits.bounded`), named ``<group>.<field>`` in
+    errors."""
 
-    # --- observation model (paper section 2) --------------------------------------
-    beta: float = 0.05  # [1/step] P(obstacle observes the ego | ego visible), paper: 0.05
-    obs_noise_pos: float = 0.5  # [m] std of the observed ego position e_t
-    obs_noise_heading: float = 0.02  # [rad] std of the observed ego heading
-    obs_noise_speed: float = 0.5  # [m/s] std of the observed ego speed
-
-    # --- intent -------------------------------------------------------------------
-    p_left: float = 0.75  # prior P(intent = left), paper: 0.75
-
-    # --- ego ----------------------------------------------------------------------
-    ego_speed: float = 13.4  # [m/s] nominal speed, about 30 mph (paper)
-    # Uniform spread of the ego start along its route, added to site `ego_start` [m].
-    # Calibrated so that about half the cut-offs enter the ego lane beyond the
-    # reactive planner's stopping distance (see docs/PARAMETERS.md).
-    ego_start_spread: tuple[float, float] = (-8.0, 8.0)
-    ego_speed_gain: float = 1.0  # [1/s] proportional speed hold of the nominal controller
-
-    # --- obstacle driver ----------------------------------------------------------
-    obstacle_accel: float = 2.5  # [m/s^2] pulling-out acceleration (moderate, urban)
-    obstacle_turn_speed: float = 8.0  # [m/s] cruise speed through and after the turn
-    obstacle_yield_brake: float = 4.0  # [m/s^2] braking when it decides to yield
-    # Critical gap: the obstacle goes if the believed ego needs longer than this to
-    # reach the conflict point. 5 s is a typical accepted gap for a left turn from a
-    # minor road (HCM gives 6-7 s); any ego seen in this scenario is inside it.
-    critical_gap: float = 5.0  # [s]
-    passed_margin: float = 3.0  # [m] believed ego beyond the conflict point by this = gone
-    # Clearance in space: a believed ego nearer than this to the conflict point (and not
-    # past it by passed_margin) is never clear, whatever its speed. About two car lengths
-    # measured at the ego's rear axle: its 3.65 m nose plus the width the left-turner
-    # sweeps in the ego lane, with a margin. Without it a stopped ego a few metres before
-    # the conflict point has a time to arrive of ahead / 0.1 m/s = 45-65 s and looks clear.
-    clear_distance: float = 10.0  # [m]
-    # Dwell at the stop line: uniform (low, high) [s], drawn once per episode. t = 0 is
-    # the end of the obstacle's full stop in the paper's scenario (it pulls out at once;
-    # the calibration of the commit point and of the ego's start assumes it), so the
-    # default is (0, 0); a driver at a stop sign typically waits 0.5-2 s after stopping
-    # (the stop-and-wait preset).
-    stop_dwell: tuple[float, float] = (0.0, 0.0)
-    # P(the driver looks once more, on the tick it would leave the line, and sees the ego
-    # if it is in its line of sight), on top of the beta draw. 0 keeps the paper's
-    # observation process (beta alone); a careful driver at a stop sign: about 0.5.
-    departure_look: float = 0.0
-    # A driver who hesitates: with probability `hesitation` per episode, once it has left
-    # the line it stops again after `hesitation_creep` [m] (nosing out to see, within the
-    # 1.45 m to the commit point of models/xml; a longer creep would be past it), stands a
-    # pause drawn uniformly from `hesitation_pause` [s], then goes on as its belief says
-    # (looking again with `departure_look`). The filter's model has no such stop: it is a
-    # test of model mismatch (the hesitant preset). 0 by default: the paper's driver.
-    hesitation: float = 0.0
-    hesitation_creep: float = 0.7  # [m] travelled from the line before the stop
-    hesitation_pause: tuple[float, float] = (0.5, 1.5)  # [s] uniform
-    lookahead: float = 3.0  # [m] pure-pursuit look-ahead at standstill
-    lookahead_gain: float = 0.3  # [s] look-ahead grows with speed: L = lookahead + gain * v
-
-    # --- process noise nu (paper eq. for f) -----------------------------------------
-    noise_accel: float = 0.3  # [m/s^2] std of nu_1, added to the commanded acceleration
-    noise_steer: float = 0.01  # [rad] std of nu_2, added to the commanded steering
-
-    # Names of the scene elements the code reads (defaults match models/xml/scene.xml).
-    names: SceneNames = field(default_factory=lambda: SceneNames())
+    _prefix: ClassVar[str] = ""
 
     def __post_init__(self) -> None:
-        # Every number finite and within a physical range (the MAX_* bounds of this module).
-        if isinstance(self.names, Mapping):  # read back from JSON (settings.json)
-            try:
-                object.__setattr__(self, "names", SceneNames(**self.names))
-            except TypeError as exc:
-                raise ValueError(f"names: {exc}; the keys are SceneNames fields") from None
-        _check(isinstance(self.names, SceneNames), "names", self.names,
-               "a SceneNames (e.g. SceneNames(route_ego='av_path'))")
-        _check(_within(self.dt, 0.0, 1.0, open_low=True), "dt", self.dt,
-               "> 0 and <= 1 [s] (the paper's tick is 0.1 s)")
-        _check(_within(self.duration, self.dt if _finite(self.dt) else 0.0, MAX_DURATION), "duration",
-               self.duration, f"in [dt = {self.dt}, {MAX_DURATION:g}] [s]")
-        for name in ("beta", "p_left", "departure_look", "hesitation"):
-            v = getattr(self, name)
-            _check(_within(v, 0.0, 1.0), name, v, "in [0, 1] (a probability)")
-        for name, high, unit in (("obs_noise_pos", MAX_LENGTH, "m"), ("obs_noise_heading", math.pi, "rad"),
-                                 ("obs_noise_speed", MAX_SPEED, "m/s"), ("noise_accel", MAX_ACCEL, "m/s^2"),
-                                 ("noise_steer", math.pi, "rad"), ("passed_margin", MAX_LENGTH, "m"),
-                                 ("lookahead_gain", MAX_DURATION, "s"), ("clear_distance", MAX_LENGTH, "m")):
-            v = getattr(self, name)
-            _check(_within(v, 0.0, high), name, v, f"in [0, {high:g}] [{unit}]")
-        for name, high, unit in (("ego_speed", MAX_SPEED, "m/s"), ("obstacle_accel", MAX_ACCEL, "m/s^2"),
-                                 ("obstacle_turn_speed", MAX_SPEED, "m/s"),
-                                 ("obstacle_yield_brake", MAX_ACCEL, "m/s^2"),
-                                 ("critical_gap", MAX_DURATION, "s"), ("lookahead", MAX_LENGTH, "m"),
-                                 ("ego_speed_gain", 1000.0, "1/s"), ("hesitation_creep", MAX_LENGTH, "m")):
-            v = getattr(self, name)
-            _check(_within(v, 0.0, high, open_low=True), name, v, f"> 0 and <= {high:g} [{unit}]")
-        _check(_pair_ok(self.ego_start_spread, -MAX_START_SPREAD, high=MAX_START_SPREAD),
-               "ego_start_spread", self.ego_start_spread,
-               f"a finite (low, high) pair with -{MAX_START_SPREAD:g} <= low <= high <= "
-               f"{MAX_START_SPREAD:g} [m] (a shift of the start site along the ego's route)")
-        for name in ("stop_dwell", "hesitation_pause"):
-            v = getattr(self, name)
-            _check(_pair_ok(v, 0.0, high=MAX_DURATION), name, v,
-                   f"a finite (low, high) pair with 0 <= low <= high <= {MAX_DURATION:g} [s]")
+        validate(self, self._prefix)
+
+    def replace(self: G, **changes: Any) -> G:
+        """A copy with some fields changed (validated again)."""
+        return dataclasses.replace(self, **changes)  # type: ignore[type-var]
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-serialisable view."""
+        return dataclasses.asdict(self)  # type: ignore[call-overload]
+
+
+@dataclass(frozen=True)
+class Timing(_Group):
+    """The tick and the episode's length. ValueError unless ``0 < dt <= 1`` and
+    ``dt <= duration <= 600`` [s]."""
+
+    _prefix: ClassVar[str] = "timing."
+    dt: float = bounded(0.1, 0.0, 1.0, "s", open_low=True, note="(the paper's tick is 0.1 s)")  # planner, driver
+    # and observation tick [s] (paper: 0.1 s)
+    duration: float = 8.0  # [s] episode length; the ego passes the junction in ~4 s
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check(_within(self.duration, self.dt, MAX_DURATION), "timing.duration", self.duration,
+               f"in [dt = {self.dt}, {MAX_DURATION:g}] [s]")
 
     @property
     def n_ticks(self) -> int:
         """Number of planner ticks in an episode."""
         return round(self.duration / self.dt)
 
-    def replace(self, **changes: Any) -> ScenarioConfig:
-        """A copy with some fields changed (validated again)."""
-        return dataclasses.replace(self, **changes)
 
-    def to_dict(self) -> dict:
-        """JSON-serialisable view, for records and result directories."""
-        return dataclasses.asdict(self)
+@dataclass(frozen=True)
+class Ego(_Group):
+    """The ego's nominal controller: what the ego knows of itself (its planner gets it)."""
+
+    _prefix: ClassVar[str] = "ego."
+    speed: float = bounded(13.4, 0.0, MAX_SPEED, "m/s", open_low=True)  # nominal speed, about 30 mph (paper)
+    # Uniform spread of the ego start along its route, added to site `ego_start` [m].
+    # Calibrated so that about half the cut-offs enter the ego lane beyond the
+    # reactive planner's stopping distance (see docs/PARAMETERS.md).
+    start_spread: tuple[float, float] = bounded((-8.0, 8.0), -MAX_START_SPREAD, MAX_START_SPREAD, "m",
+                                                note="(a shift of the start site along the ego's route)")
+    speed_gain: float = bounded(1.0, 0.0, 1000.0, "1/s", open_low=True)  # proportional speed hold
 
 
 @dataclass(frozen=True)
+@with_traits("world")
+class ObstacleDriver(_Group):
+    """The world's obstacle driver: one field per trait of :data:`cdf_mj.traits.TRAITS`
+    (``accel``, ``turn_speed``, ``critical_gap``, ``stop_dwell``, ...), each with the
+    trait's default and checked against its range; the schema gives each one's unit and
+    meaning, docs/PARAMETERS.md its calibration. Read only by the world: the filter has
+    its own model of the driver (:class:`DriverPrior`)."""
+
+    _prefix: ClassVar[str] = "obstacle."
+    if TYPE_CHECKING:  # the fields are the schema's (cdf_mj.traits.with_traits)
+        def __init__(self, **traits: Any) -> None: ...
+        def __getattr__(self, name: str) -> Any: ...
+
+
+@dataclass(frozen=True)
+class Observation(_Group):
+    """The obstacle driver's observation noise: std of the observed ego pose ``e_t``."""
+
+    _prefix: ClassVar[str] = "observation."
+    pos: float = bounded(0.5, 0.0, MAX_LENGTH, "m")  # of the observed ego position
+    heading: float = bounded(0.02, 0.0, math.pi, "rad")  # of the observed ego heading
+    speed: float = bounded(0.5, 0.0, MAX_SPEED, "m/s")  # of the observed ego speed
+
+
+@dataclass(frozen=True)
+class Pursuit(_Group):
+    """Route following (pure pursuit) of a car: look-ahead ``L = lookahead + gain * v``."""
+
+    _prefix: ClassVar[str] = "pursuit."
+    lookahead: float = bounded(3.0, 0.0, MAX_LENGTH, "m", open_low=True)  # at standstill
+    lookahead_gain: float = bounded(0.3, 0.0, MAX_DURATION, "s")  # growth with speed
+
+
+@dataclass(frozen=True)
+class ProcessNoise(_Group):
+    """Process noise ``nu`` (paper eq. for f): std of what is added to each control."""
+
+    _prefix: ClassVar[str] = "noise."
+    accel: float = bounded(0.3, 0.0, MAX_ACCEL, "m/s^2")  # nu_1, on the commanded acceleration
+    steer: float = bounded(0.01, 0.0, math.pi, "rad")  # nu_2, on the commanded steering
+
+
+#: The groups of :class:`ScenarioConfig` (all but ``names``) and their classes.
+GROUPS: Mapping[str, type[Any]] = MappingProxyType({
+    "timing": Timing, "ego": Ego, "obstacle": ObstacleDriver, "observation": Observation, "pursuit": Pursuit,
+    "noise": ProcessNoise})
+#: Every settable key of a :class:`ScenarioConfig`, dotted: ``"timing.dt"``, ``"obstacle.beta"``, ...
+SCENARIO_KEYS: tuple[str, ...] = tuple(f"{g}.{f.name}" for g, cls in GROUPS.items() for f in dataclasses.fields(cls))
+#: The flat keys of version 0.1 (``ScenarioConfig(beta=...)``, old ``--set`` keys, preset
+#: files and settings.json) -> their dotted keys. Read by everything that reads old input.
+FLAT_KEYS: Mapping[str, str] = MappingProxyType({
+    "dt": "timing.dt", "duration": "timing.duration",
+    "ego_speed": "ego.speed", "ego_start_spread": "ego.start_spread", "ego_speed_gain": "ego.speed_gain",
+    "p_left": "obstacle.p_left", "beta": "obstacle.beta", "obstacle_accel": "obstacle.accel",
+    "obstacle_turn_speed": "obstacle.turn_speed", "obstacle_yield_brake": "obstacle.yield_brake",
+    "critical_gap": "obstacle.critical_gap", "clear_distance": "obstacle.clear_distance",
+    "passed_margin": "obstacle.passed_margin", "stop_dwell": "obstacle.stop_dwell",
+    "departure_look": "obstacle.departure_look", "hesitation": "obstacle.hesitation",
+    "hesitation_creep": "obstacle.hesitation_creep", "hesitation_pause": "obstacle.hesitation_pause",
+    "obs_noise_pos": "observation.pos", "obs_noise_heading": "observation.heading",
+    "obs_noise_speed": "observation.speed", "lookahead": "pursuit.lookahead",
+    "lookahead_gain": "pursuit.lookahead_gain", "noise_accel": "noise.accel", "noise_steer": "noise.steer"})
+
+
+def scenario_key(key: str) -> str:
+    """The dotted key of a dotted or flat (:data:`FLAT_KEYS`) key; ValueError naming it and
+    the valid keys if it is neither."""
+    dotted = FLAT_KEYS.get(key, key)
+    if dotted not in SCENARIO_KEYS:
+        raise ValueError(f"unknown scenario key {key!r}; valid keys: {', '.join(SCENARIO_KEYS)}")
+    return dotted
+
+
+@dataclass(frozen=True, init=False)
+class ScenarioConfig:
+    """Behavioural and statistical parameters of the T-intersection scenario, by owner:
+
+    ==============  ===========================================================================
+    ``timing``      :class:`Timing`: ``dt`` (the paper's planner/filter tick), ``duration``
+    ``ego``         :class:`Ego`: the ego's nominal ``speed``, ``start_spread``, ``speed_gain``
+    ``obstacle``    :class:`ObstacleDriver`: the world's obstacle driver (the traits)
+    ``observation`` :class:`Observation`: the obstacle driver's noise on the ego it observes
+    ``pursuit``     :class:`Pursuit`: both cars' route following
+    ``noise``       :class:`ProcessNoise`: process noise on both cars' controls
+    ``names``       :class:`SceneNames`: the scene elements the code reads
+    ==============  ===========================================================================
+
+    Units: metres, seconds, radians. Build it from groups, from dotted keys
+    (``ScenarioConfig().with_values({"obstacle.beta": 0.1})``) or from a dict
+    (:meth:`from_dict`: nested as :meth:`to_dict` gives, or the flat settings of version
+    0.1). The flat keywords of version 0.1 (``ScenarioConfig(beta=0.1)``,
+    ``config.replace(beta=0.1)``, reading ``config.beta``) still work through
+    :data:`FLAT_KEYS`, with a DeprecationWarning naming the dotted key. ValueError naming
+    the field (dotted) and its range for any value that is not a finite number within its
+    physical range (e.g. ``timing.duration`` <= 600 s), and for ``names`` that are not a
+    :class:`SceneNames` (a mapping of its fields is converted).
+    """
+
+    timing: Timing = field(default_factory=Timing)
+    ego: Ego = field(default_factory=Ego)
+    obstacle: ObstacleDriver = field(default_factory=ObstacleDriver)
+    observation: Observation = field(default_factory=Observation)
+    pursuit: Pursuit = field(default_factory=Pursuit)
+    noise: ProcessNoise = field(default_factory=ProcessNoise)
+    # Names of the scene elements the code reads (defaults match models/xml/scene.xml).
+    names: SceneNames = field(default_factory=SceneNames)
+
+    def __init__(self, timing: Timing | Mapping[str, Any] | None = None, ego: Ego | Mapping[str, Any] | None = None,
+                 obstacle: ObstacleDriver | Mapping[str, Any] | None = None,
+                 observation: Observation | Mapping[str, Any] | None = None,
+                 pursuit: Pursuit | Mapping[str, Any] | None = None,
+                 noise: ProcessNoise | Mapping[str, Any] | None = None,
+                 names: SceneNames | Mapping[str, Any] | None = None, **keys: Any) -> None:
+        given = {"timing": timing, "ego": ego, "obstacle": obstacle, "observation": observation,
+                 "pursuit": pursuit, "noise": noise, "names": names}
+        values = {**{k: v for k, v in given.items() if v is not None}, **keys}
+        for name, value in _apply(_DEFAULT_GROUPS, values, TypeError, warn=True).items():
+            object.__setattr__(self, name, value)
+        _check(isinstance(self.names, SceneNames), "names", self.names,
+               "a SceneNames (e.g. SceneNames(route_ego='av_path'))")
+        for name, cls in GROUPS.items():
+            _check(isinstance(getattr(self, name), cls), name, getattr(self, name), f"a {cls.__name__}")
+
+    if not TYPE_CHECKING:  # the flat reads of version 0.1: not for the package's own code
+        def __getattr__(self, name: str) -> Any:
+            dotted = FLAT_KEYS.get(name)
+            if dotted is None:
+                raise AttributeError(f"'ScenarioConfig' object has no attribute {name!r}")
+            warnings.warn(f"ScenarioConfig.{name} is deprecated; read config.{dotted}", DeprecationWarning,
+                          stacklevel=2)
+            return self.get(dotted)
+
+    @property
+    def n_ticks(self) -> int:
+        """Number of planner ticks in an episode."""
+        return self.timing.n_ticks
+
+    def get(self, key: str) -> Any:
+        """The value of a dotted key (``"obstacle.beta"``); ValueError for an unknown key."""
+        group, _, name = scenario_key(key).partition(".")
+        return getattr(getattr(self, group), name)
+
+    def with_values(self, values: Mapping[str, Any]) -> ScenarioConfig:
+        """A copy with the given values (validated again): dotted keys (``"obstacle.beta"``),
+        groups (a group object, or a mapping of some of its fields) or flat keys of version
+        0.1 (with a DeprecationWarning). ValueError naming an unknown key."""
+        return ScenarioConfig(**_apply(self._groups(), values, ValueError, warn=True, stacklevel=3))
+
+    def replace(self, **changes: Any) -> ScenarioConfig:
+        """A copy with some fields changed (validated again), as :meth:`with_values`."""
+        return ScenarioConfig(**_apply(self._groups(), changes, TypeError, warn=True, stacklevel=3))
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> ScenarioConfig:
+        """The config of a dict: nested (:meth:`to_dict`, groups may leave fields out) or
+        flat (a settings.json of version 0.1; no warning: stored results stay readable)."""
+        return cls(**_apply(_DEFAULT_GROUPS, data, ValueError, warn=False))
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-serialisable view, nested by group, for records and result directories."""
+        return dataclasses.asdict(self)
+
+    def _groups(self) -> dict[str, Any]:
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+
+
+_DEFAULT_GROUPS: Mapping[str, Any] = MappingProxyType({**{g: cls() for g, cls in GROUPS.items()},
+                                                       "names": SceneNames()})
+
+
+def _apply(base: Mapping[str, Any], values: Mapping[str, Any], error: type[Exception], *, warn: bool,
+           stacklevel: int = 3) -> dict[str, Any]:
+    """The groups of ``base`` (group name -> object) with ``values`` applied: group objects
+    replace, mappings of a group's fields and dotted or flat keys change fields (a flat key
+    with a DeprecationWarning where ``warn``). ``error`` for an unknown key."""
+    out = dict(base)
+    changes: dict[str, dict[str, Any]] = {}
+    for key, value in values.items():
+        if key in out:
+            if isinstance(value, Mapping):
+                changes.setdefault(key, {}).update(value)
+            else:
+                out[key] = value  # its type is checked by ScenarioConfig
+            continue
+        if key in FLAT_KEYS and warn:
+            warnings.warn(f"ScenarioConfig: the flat key {key!r} is deprecated; use {FLAT_KEYS[key]!r}",
+                          DeprecationWarning, stacklevel=stacklevel)
+        try:
+            group, _, name = scenario_key(key).partition(".")
+        except ValueError as exc:
+            raise error(f"ScenarioConfig: {exc}") from None
+        changes.setdefault(group, {})[name] = value
+    for group, fields in changes.items():
+        current = out[group]
+        if not dataclasses.is_dataclass(current) or isinstance(current, type):
+            current = _DEFAULT_GROUPS[group]  # not a group: the error is ScenarioConfig's
+        try:
+            out[group] = dataclasses.replace(current, **fields)
+        except TypeError:
+            known = ", ".join(f.name for f in dataclasses.fields(current))
+            raise ValueError(f"{group}: unknown key among {sorted(fields)}; the keys are {known}") from None
+    return out
+
+
+def normalise_settings(settings: Mapping[str, Any]) -> dict[str, Any]:
+    """A settings dict (settings.json) as this version writes it: its ``scenario`` (flat or
+    nested) and ``cdf`` rebuilt with today's fields (defaults for those it lacks), as JSON
+    would read them back; a part that cannot be rebuilt is left as it is."""
+    out = dict(settings)
+    for key, cls in (("scenario", ScenarioConfig), ("cdf", CDFConfig)):
+        if isinstance(out.get(key), Mapping):
+            with contextlib.suppress(TypeError, ValueError):
+                out[key] = json.loads(json.dumps(cls.from_dict(out[key]).to_dict()))
+    return out
+
+
+@dataclass(frozen=True)
+@with_traits("prior")
 class DriverPrior:
     """The CDF filter's own model of the other driver: priors, not the world's values.
 
-    Each particle draws its own parameters at reset (uniform on ``(low, high)``; the
-    departure hazard log-uniform), so the filter covers plausible drivers and survives a
-    world whose driver differs from its defaults. A pair with ``low == high`` fixes a
-    value. ValueError on a range that is not a finite ``(low, high)`` with
+    The traits of :data:`cdf_mj.traits.TRAITS` that the filter models, by the same names
+    as :class:`ObstacleDriver`: each particle draws its own parameters at reset (uniform on
+    ``(low, high)``: ``beta``, ``accel``, ``turn_speed``, ``yield_brake``,
+    ``critical_gap``, ``clear_distance``; the departure hazard log-uniform), so the filter
+    covers plausible drivers and survives a world whose driver differs from its defaults.
+    A pair with ``low == high`` fixes a value. ``p_left`` and ``passed_margin`` are single
+    values; ``observation`` and ``pursuit`` are the driver's perception noise and route
+    following as the filter models them. Defaults equal the world's defaults where the
+    filter takes one value. ValueError on a range that is not a finite ``(low, high)`` with
     ``low <= high`` inside the field's domain.
     """
 
-    p_left: float = 0.75  # prior P(intent = left), the paper's 0.75
-    beta: tuple[float, float] = (0.03, 0.07)  # [1/tick] P(observes a visible ego); paper 0.05
-    critical_gap: tuple[float, float] = (4.0, 7.0)  # [s] accepted gap (HCM: 6-7 s for a left turn)
-    accel: tuple[float, float] = (1.5, 3.0)  # [m/s^2] pulling-out acceleration (car limit 3.0)
-    turn_speed: tuple[float, float] = (6.0, 10.0)  # [m/s] cruise speed through the turn
-    yield_brake: tuple[float, float] = (3.0, 5.0)  # [m/s^2] braking when it yields
-    clear_distance: tuple[float, float] = (7.0, 13.0)  # [m] a nearer ego is never clear
     # Departure hazard [1/s]: a driver waiting at the line whose belief says clear leaves
     # with this rate (memoryless; per tick 1 - exp(-h dt)), so a standing car stays
     # explained by "still waiting" and the going and right-turn hypotheses live on. Mean
     # dwell 1/h: 0.25 s (pulls out at once) to 2.5 s (waits); log-uniform.
-    departure_hazard: tuple[float, float] = (0.4, 4.0)
+    departure_hazard: tuple[float, float] = bounded((0.4, 4.0), 0.0, 1000.0, "1/s", open_low=True)
+    observation: Observation = field(default_factory=Observation)  # noise of the ego it observes
+    pursuit: Pursuit = field(default_factory=Pursuit)  # its route following
+
+    if TYPE_CHECKING:  # the trait fields are the schema's (cdf_mj.traits.with_traits)
+        def __init__(self, **values: Any) -> None: ...
+        def __getattr__(self, name: str) -> Any: ...
 
     def __post_init__(self) -> None:
-        _check(_within(self.p_left, 0.0, 1.0), "DriverPrior.p_left", self.p_left, "in [0, 1]")
-        _check(_pair_ok(self.beta, 0.0, high=1.0), "DriverPrior.beta", self.beta,
-               "a (low, high) pair with 0 <= low <= high <= 1")
-        for name, high, unit in (("critical_gap", MAX_DURATION, "s"), ("accel", MAX_ACCEL, "m/s^2"),
-                                 ("turn_speed", MAX_SPEED, "m/s"), ("yield_brake", MAX_ACCEL, "m/s^2"),
-                                 ("departure_hazard", 1000.0, "1/s")):
-            _check(_pair_ok(getattr(self, name), 0.0, positive=True, high=high), f"DriverPrior.{name}",
-                   getattr(self, name), f"a finite (low, high) pair with 0 < low <= high <= {high:g} [{unit}]")
-        _check(_pair_ok(self.clear_distance, 0.0, high=MAX_LENGTH), "DriverPrior.clear_distance",
-               self.clear_distance, f"a finite (low, high) pair with 0 <= low <= high <= {MAX_LENGTH:g} [m]")
+        _groups_of_mappings(self, {"observation": Observation, "pursuit": Pursuit})
+        validate(self, "DriverPrior.")
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         """JSON-serialisable view."""
         return dataclasses.asdict(self)
+
+
+def _groups_of_mappings(obj: Any, kinds: Mapping[str, type]) -> None:
+    """Fields of the frozen ``obj`` read back from JSON as mappings, made objects of their
+    classes; ValueError naming a field that is neither."""
+    for name, cls in kinds.items():
+        value = getattr(obj, name)
+        if isinstance(value, Mapping):
+            try:
+                value = cls(**value)
+            except TypeError as exc:
+                raise ValueError(f"{name}: {exc}") from None
+            object.__setattr__(obj, name, value)
+        _check(isinstance(value, cls), name, value, f"a {cls.__name__}")
 
 
 @dataclass(frozen=True)
@@ -381,8 +527,10 @@ class CDFConfig:
     # All likelihoods vanish when every particle is further than this Mahalanobis
     # distance from the measurement; the filter then re-initialises around it.
     reinit_mahalanobis: float = 12.0
-    # Filter process noise = this factor x the scenario's (a little wider than the truth).
+    # Filter process noise = this factor x process_noise (a little wider than the world's).
     process_noise_scale: float = 1.5
+    # The filter's own process noise nu [m/s^2, rad] before the factor: the world's defaults.
+    process_noise: ProcessNoise = field(default_factory=ProcessNoise)
     # The filter's own driver model (priors of its parameters), not the world's.
     prior: DriverPrior = field(default_factory=lambda: DriverPrior())
     # Rejuvenation of the discrete state, so that no hypothesis dies for good:
@@ -416,13 +564,8 @@ class CDFConfig:
     risk: RiskConfig = field(default_factory=lambda: RiskConfig())
 
     def __post_init__(self) -> None:
-        if isinstance(self.prior, dict):  # read back from JSON (settings.json): lists -> pairs
-            raw: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in self.prior.items()}
-            object.__setattr__(self, "prior", DriverPrior(**raw))
-        if isinstance(self.risk, dict):  # read back from JSON (settings.json)
-            object.__setattr__(self, "risk", RiskConfig(**self.risk))
-        _check(isinstance(self.prior, DriverPrior), "prior", self.prior, "a DriverPrior")
-        _check(isinstance(self.risk, RiskConfig), "risk", self.risk, "a RiskConfig")
+        # read back from JSON (settings.json)
+        _groups_of_mappings(self, {"prior": DriverPrior, "risk": RiskConfig, "process_noise": ProcessNoise})
         _check(isinstance(self.decision, str) and self.decision in ("risk", "threshold"), "decision",
                self.decision, "'risk' or 'threshold' (the paper's)")
         _check(_within(self.mode_jump, 0.0, 0.5), "mode_jump", self.mode_jump, "in [0, 0.5] [1/tick]")
@@ -479,6 +622,93 @@ class CDFConfig:
         """A copy with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
 
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> CDFConfig:
+        """The config of a dict (:meth:`to_dict`, as read from settings.json); fields it
+        leaves out take their defaults."""
+        return cls(**data)
+
     def to_dict(self) -> dict:
         """JSON-serialisable view."""
         return dataclasses.asdict(self)
+
+
+# ------------------------------------------------------------------ a testbed at another scale
+C = TypeVar("C")
+#: Exponent of the length scale by unit under :func:`scaled`'s law (kinematic similarity).
+KINEMATIC_SCALING: Mapping[str, int] = MappingProxyType(
+    {"m": 1, "m/s": 1, "m/s^2": 1, "s": 0, "1/s": 0, "1/tick": 0, "rad": 0, "1": 0})
+_POSE_UNITS = ("m", "m", "rad", "m/s")  # [x, y, theta, v]
+#: Units of the numbers of configurations whose fields declare none (:func:`cdf_mj.traits.bounded`
+#: does): ``Class.field`` -> unit, per component for a pose (or its covariance's rows and columns).
+UNITS: Mapping[str, Any] = MappingProxyType({
+    "Timing.duration": "s", "RiskConfig.brake": "1", "RiskConfig.release": "1", "RiskConfig.latency": "s",
+    "RiskConfig.horizon": "s", "RiskConfig.margin": "m", "CDFConfig.n_particles": "1",
+    "CDFConfig.likelihood_std": _POSE_UNITS, "CDFConfig.likelihood_cov": (_POSE_UNITS, _POSE_UNITS),
+    "CDFConfig.tau": "1", "CDFConfig.resample_ess_fraction": "1", "CDFConfig.reinit_mahalanobis": "1",
+    "CDFConfig.process_noise_scale": "1", "CDFConfig.mode_jump": "1/tick", "CDFConfig.intent_floor": "1",
+    "CDFConfig.param_jitter": "1", "CDFConfig.ego_brake": "m/s^2", "CDFConfig.ego_latency": "s"})
+
+
+def unit_of(config: Any, name: str) -> Any:
+    """The unit of field ``name`` of the configuration dataclass ``config``: its declared
+    range's (:func:`cdf_mj.traits.bounded`, the traits) or :data:`UNITS`'; None if neither."""
+    f = next(f for f in dataclasses.fields(config) if f.name == name)
+    declared = f.metadata.get("range")
+    return declared.unit if declared is not None else UNITS.get(f"{type(config).__name__}.{name}")
+
+
+def _factor(unit: Any, s: float) -> Any:
+    """The factor (an array for a pose, a matrix for its covariance) of ``unit`` at scale ``s``."""
+    if isinstance(unit, tuple):
+        if isinstance(unit[0], tuple):
+            return np.outer(_factor(unit[0], s), _factor(unit[1], s))
+        return np.array([_factor(u, s) for u in unit])
+    return s ** KINEMATIC_SCALING[unit]
+
+
+def scaled(config: C, length_scale: float) -> C:
+    """``config`` (:class:`ScenarioConfig`, :class:`CDFConfig`, :class:`RiskConfig`, any of
+    their groups) for a testbed at ``length_scale`` times full size (0.1: 1:10), by the
+    law of kinematic similarity: every length [m], speed [m/s] and acceleration [m/s^2]
+    (and the std of one) times ``length_scale``; times [s], rates, angles [rad],
+    probabilities and counts unchanged. A pose ``[x, y, theta, v]`` scales by component.
+
+    Why this law: the filter's model is kinematic (a bicycle: dx/dt = v cos(theta),
+    dtheta/dt = v tan(delta) / wheelbase, dv/dt = a) with a driver who decides in time
+    (the tick, the per-tick probability of a look, the critical gap, the departure
+    hazard), and it has no mass, force or gravity. Under this law every trajectory of the
+    full-size scenario is one of the testbed's, at the same times and steering angles, so
+    what was tuned at full size (on seeds 0-199) and the risk rule's horizon and latency
+    hold unchanged at the same 0.1 s tick. Froude similarity (lengths x s, speeds and
+    times x sqrt(s), accelerations unchanged) keeps what gravity and tyre grip do alike,
+    which the model has not; it would shorten the tick and every time of the tuning, and
+    change what each per-tick probability means. The cars are not configurations: give
+    their :class:`~cdf_mj.model.vehicle.CarGeometry` as measured (the risk rule plans the
+    ego's braking with its ``accel_range``).
+
+    The result is validated as any config. ValueError for a scale outside (0, 100] or a
+    number of ``config`` whose unit is not declared (a field added without one).
+    """
+    _check(_within(length_scale, 0.0, 100.0, open_low=True), "length_scale", length_scale,
+           "in (0, 100] (0.1: a testbed at 1:10)")
+    changes: dict[str, Any] = {}
+    for f in dataclasses.fields(config):  # type: ignore[arg-type]
+        value = getattr(config, f.name)
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            changes[f.name] = scaled(value, length_scale)
+        elif value is None or isinstance(value, (str, bool)) or not isinstance(value, (numbers.Real, tuple, list)):
+            continue  # names, rules, switches, a covariance not given
+        elif (unit := unit_of(config, f.name)) is None:
+            raise ValueError(f"scaled: {type(config).__name__}.{f.name} declares no unit; give it one "
+                             "(cdf_mj.traits.bounded, or cdf_mj.config.UNITS)")
+        elif unit != "1":
+            k = _factor(unit, length_scale)
+            if isinstance(value, numbers.Real):
+                changes[f.name] = value * k
+            elif np.ndim(k) == 2:  # a pose's covariance
+                changes[f.name] = tuple(tuple(float(x) for x in row) for row in np.asarray(value, dtype=float) * k)
+            else:  # a pose (a factor per component) or a (low, high) pair
+                changes[f.name] = tuple(float(v) * float(kv) for v, kv in
+                                        zip(value, np.broadcast_to(k, (len(value),)), strict=True))
+    return dataclasses.replace(config, **changes)  # type: ignore[type-var]

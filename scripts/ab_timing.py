@@ -30,8 +30,9 @@ from pathlib import Path
 
 # Runs inside the child interpreter, importing cdf_mj from the checkout on PYTHONPATH.
 # Only APIs that every version since the layer subpackages has (run_episode,
-# ParticleFilter): a filter is built from the scene's layout, or from the scene itself
-# before Scene.layout() existed.
+# ParticleFilter): a filter is built from the scene's layout and the tick, from the layout
+# and the world's config before the config had groups, or from the scene itself before
+# Scene.layout() existed.
 _CHILD = r"""
 import json, statistics, time
 import numpy as np
@@ -44,7 +45,9 @@ from cdf_mj.sim.scene import Scene
 scene, cfg = Scene.load(), ScenarioConfig()
 poses = np.array(run_episode(cfg, 1, "constant", scene, trace=True).trace["poses"])
 args = (cfg, CDFConfig(n_particles=1000), np.random.default_rng(0))
-if hasattr(scene, "layout"):
+if hasattr(cfg, "timing"):  # the filter takes the tick, not the world's config
+    pf = ParticleFilter.from_layout(scene.layout(), *args[1:], cfg.timing.dt)
+elif hasattr(scene, "layout"):
     pf = ParticleFilter.from_layout(scene.layout(), *args)
 else:
     pf = ParticleFilter.from_scene(scene, *args)

@@ -129,7 +129,7 @@ def main() -> int:
     trace = run_episode(cfg, 1, "constant", scene, label=False, trace=True).trace
     assert trace is not None  # asked for
     poses = np.array(trace["poses"])
-    pf = ParticleFilter.from_layout(layout, cfg, CDFConfig(n_particles=N), np.random.default_rng(0))
+    pf = ParticleFilter.from_layout(layout, CDFConfig(n_particles=N), np.random.default_rng(0), cfg.timing.dt)
     pf.reset(poses[0])
     for k in range(1, 21):
         pf.predict(poses[k - 1])
@@ -164,8 +164,8 @@ def main() -> int:
               "per pair")]
 
     def resample(jitter: float) -> Callable[[], object]:
-        other = ParticleFilter.from_layout(layout, cfg, CDFConfig(n_particles=N, param_jitter=jitter),
-                                           np.random.default_rng(0))
+        other = ParticleFilter.from_layout(layout, CDFConfig(n_particles=N, param_jitter=jitter),
+                                           np.random.default_rng(0), cfg.timing.dt)
         other.reset(poses[0])
         for k in range(1, 21):
             other.predict(poses[k - 1])

@@ -143,7 +143,7 @@ def make_frame(opts: Options) -> None:
 
 def make_gif(opts: Options) -> None:
     """docs/img/episode.gif: the README's top picture, a few hundred KB."""
-    cdf_mj(["render", "--seed", "1", "--planner", "cdf", "--set", "duration=4.0", "--width", "320",
+    cdf_mj(["render", "--seed", "1", "--planner", "cdf", "--set", "timing.duration=4.0", "--width", "320",
             "--height", "240", "--fps", "10", "--out", str(opts.docs / "episode.gif")], opts)
 
 

@@ -62,8 +62,8 @@ def main(argv: list[str] | None = None) -> int:
 
     scene, cfg = Scene.load(), ScenarioConfig()
     poses = np.array(run_episode(cfg, 1, "constant", scene, trace=True).trace["poses"])
-    pf = ParticleFilter.from_layout(scene.layout(), cfg, CDFConfig(n_particles=args.particles),
-                                    np.random.default_rng(0))
+    pf = ParticleFilter.from_layout(scene.layout(), CDFConfig(n_particles=args.particles), np.random.default_rng(0),
+                                    cfg.timing.dt)
 
     rule = RiskRule(CDFConfig().risk)
     rule.reset(PlannerContext.of(scene.layout(), cfg))

@@ -42,7 +42,7 @@ def test_same_seed_same_json(capsys):
 
 def test_flags_and_overrides_reach_the_episode(capsys):
     status, out, err = run_cli(capsys, "episode", "--seed", "2", "--no-label", "--trace",
-                               "--set", "ego_start_spread=[1.5, 1.5]", "--set", "beta=0")
+                               "--set", "ego.start_spread=[1.5, 1.5]", "--set", "obstacle.beta=0")
     assert status == 0, err
     record = json.loads(out)
     assert record["label"] is None
@@ -61,14 +61,25 @@ def test_negative_seed(capsys):
 
 
 def test_out_of_range_parameter_names_it_and_its_range(capsys):
-    assert_one_line_error(*run_cli(capsys, "episode", "--set", "beta=1.5"), "beta", "[0, 1]")
+    assert_one_line_error(*run_cli(capsys, "episode", "--set", "obstacle.beta=1.5"), "obstacle.beta", "[0, 1]")
+
+
+def test_a_flat_key_of_version_0_1_still_works_with_a_note(capsys):
+    """``--set beta=...`` as scripts of version 0.1 wrote it: the same episode, and one line
+    on stderr naming the dotted key."""
+    argv = ["episode", "--seed", "2", "--no-label", "--planner", "constant"]
+    status, old, err = run_cli(capsys, *argv, "--set", "beta=0", "--set", "ego_start_spread=[1.5, 1.5]")
+    assert status == 0 and err.splitlines() == ["cdf-mj: note: --set beta is now --set obstacle.beta",
+                                                "cdf-mj: note: --set ego_start_spread is now --set ego.start_spread"]
+    status, new, err = run_cli(capsys, *argv, "--set", "obstacle.beta=0", "--set", "ego.start_spread=[1.5, 1.5]")
+    assert status == 0 and err == "" and new == old
 
 
 @pytest.mark.parametrize(("assignment", "needle"), [
     ("nosuch=1", "nosuch"),
-    ("beta=abc", "beta"),
-    ("ego_start_spread=[1,2,3]", "ego_start_spread"),
-    ("beta", "key=value"),
+    ("obstacle.beta=abc", "obstacle.beta"),
+    ("ego.start_spread=[1,2,3]", "ego.start_spread"),
+    ("obstacle.beta", "key=value"),
 ])
 def test_bad_override(capsys, assignment, needle):
     assert_one_line_error(*run_cli(capsys, "episode", "--set", assignment), needle)
@@ -161,8 +172,8 @@ def test_other_settings_are_refused_with_the_keys_that_differ(capsys, tmp_path):
     out = tmp_path / "run"
     assert run_cli(capsys, "experiment", *SMALL_RUN, "--out", str(out))[0] == 0
     before = (out / "episodes.jsonl").read_bytes()
-    assert_one_line_error(*run_cli(capsys, "experiment", *SMALL_RUN, "--out", str(out), "--set", "beta=0.1"),
-                          "other settings", "scenario.beta", "--force")
+    assert_one_line_error(*run_cli(capsys, "experiment", *SMALL_RUN, "--out", str(out), "--set",
+                                   "obstacle.beta=0.1"), "other settings", "scenario.obstacle.beta", "--force")
     assert "resume=" not in capsys.readouterr().err
     assert (out / "episodes.jsonl").read_bytes() == before
 
@@ -172,11 +183,11 @@ def test_force_starts_over_and_removes_only_that_runs_files(capsys, tmp_path):
     assert run_cli(capsys, "experiment", *SMALL_RUN, "--out", str(out))[0] == 0
     (out / "report.md").write_text("a file of the user's\n")
     status, text, err = run_cli(capsys, "experiment", *SMALL_RUN, "--out", str(out), "--force",
-                                "--set", "beta=0.1")
+                                "--set", "obstacle.beta=0.1")
     assert status == 0, err
     assert "2 run in" in text and "already on disk" not in text
     settings = json.loads((out / "settings.json").read_text())
-    assert settings["scenario"]["beta"] == 0.1
+    assert settings["scenario"]["obstacle"]["beta"] == 0.1
     assert len((out / "episodes.jsonl").read_text().splitlines()) == 2
     assert (out / "report.md").read_text() == "a file of the user's\n"
 
@@ -204,8 +215,8 @@ def test_force_and_retry_failed_together_are_refused(capsys, tmp_path):
 
 
 def test_parse_overrides_types_values_like_the_config():
-    assert cli.parse_overrides(["beta=0", "ego_start_spread=[-4, 4]", "beta=0.1"]) == {
-        "beta": 0.1, "ego_start_spread": (-4.0, 4.0)}
+    assert cli.parse_overrides(["obstacle.beta=0", "ego.start_spread=[-4, 4]", "obstacle.beta=0.1"]) == {
+        "obstacle.beta": 0.1, "ego.start_spread": (-4.0, 4.0)}
     with pytest.raises(ValueError, match="names"):
         cli.parse_overrides(["names=x"])  # the nested SceneNames is not a --set field
 
@@ -237,7 +248,7 @@ def test_the_first_run_after_an_install_says_it_compiles(tmp_path):
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
     env["PYTHONPATH"] = os.pathsep.join(filter(None, [str(REPO), env.get("PYTHONPATH")]))
     command = [sys.executable, "-m", "cdf_mj", "episode", "--seed", "0", "--planner", "constant",
-               "--set", "duration=0.5"]
+               "--set", "timing.duration=0.5"]
     first, again = (subprocess.run(command, cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
                     for _ in range(2))
     assert first.returncode == 0 and again.returncode == 0, first.stderr + again.stderr

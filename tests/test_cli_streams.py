@@ -51,5 +51,5 @@ def test_stderr_closed_runs_and_keeps_the_records_clean(tmp_path):
     lines = (out / "episodes.jsonl").read_text(encoding="utf-8").splitlines()
     assert [json.loads(line)["seed"] for line in lines] == [0, 1]
     # A failure with stderr closed still says so through the status.
-    bad = _cdf_mj("episode", "--set", "beta=7", close=(2,), cwd=tmp_path)
+    bad = _cdf_mj("episode", "--set", "obstacle.beta=7", close=(2,), cwd=tmp_path)
     assert bad.returncode == 2 and bad.stdout == ""

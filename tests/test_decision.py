@@ -315,7 +315,7 @@ def _futures_reference(pf: Any, react_ticks: int) -> Futures:
     b = pf.belief[left]
     ahead = (pf.model.conflict[0] - b[:, 0]) * np.cos(b[:, 2]) + (pf.model.conflict[1] - b[:, 1]) * np.sin(b[:, 2])
     with np.errstate(divide="ignore", invalid="ignore"):
-        passes = np.where(b[:, 3] > 0.1, (ahead + pf.model.config.passed_margin) / b[:, 3], np.inf)
+        passes = np.where(b[:, 3] > 0.1, (ahead + pf.model.passed_margin) / b[:, 3], np.inf)
     delay[held] = np.where(clear, 0.0, np.maximum(passes, 0.0))[held]
     w *= np.where(waiting, 1.0 - (1.0 - theta[:, 6]) ** react_ticks, 1.0)
     # A look stops it only where its clear rule finds the (true) ego it sees not clear.
@@ -325,7 +325,7 @@ def _futures_reference(pf: Any, react_ticks: int) -> Futures:
     u = (mode != Mode.COMMITTED) & visible & ~seen_clear
     remaining = np.maximum(pf.model.s_commit[0] - s, 0.0)
     t_commit = (np.sqrt(v * v + 2.0 * theta[:, 0] * remaining) - v) / theta[:, 0]
-    w[u] *= (1.0 - theta[u, 5]) ** np.ceil(t_commit[u] / pf.scenario.dt - 1e-9)
+    w[u] *= (1.0 - theta[u, 5]) ** np.ceil(t_commit[u] / pf.dt - 1e-9)
     keep = np.isfinite(delay) & (w > 0.0)
     return Futures(w[keep], s[keep], v[keep], theta[keep, 0], theta[keep, 1], delay[keep])
 

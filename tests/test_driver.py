@@ -51,7 +51,7 @@ def test_obstacle_cuts_off_when_it_never_sees_the_ego(scene):
 
 def test_vectorised_controller_equals_one_at_a_time(scene):
     """The same function drives one obstacle and N particles: rows are independent."""
-    model = DriverModel.from_layout(scene.layout(), ScenarioConfig())
+    model = DriverModel.of_world(scene.layout(), ScenarioConfig())
     rng = np.random.default_rng(0)
     n = 64
     pose = np.column_stack([rng.uniform(-4, 2, n), rng.uniform(-2, 8.5, n),
@@ -71,7 +71,7 @@ def test_vectorised_controller_equals_one_at_a_time(scene):
 
 
 def test_mode_transitions(scene):
-    model = DriverModel.from_layout(scene.layout(), ScenarioConfig())
+    model = DriverModel.of_world(scene.layout(), ScenarioConfig())
     start = scene.layout().obstacle_start[None]
     near_ego = np.array([[-30.0, -1.85, 0.0, 13.4]])  # ~2.4 s from the conflict point
     left, right = np.array([Intent.LEFT]), np.array([Intent.RIGHT])

@@ -31,6 +31,7 @@ SEEDS = range(50)
 # Rounding slack for probabilities computed as sums of N weights. Posterior probabilities
 # have been seen to leave [0, 1] by one ulp (P(cutoff) = 1.0000000000000002).
 EPS = 1e-12
+DT = ScenarioConfig().timing.dt  # [s] the planner's tick, the filter's
 
 
 def _cdf(**changes) -> CDFConfig:
@@ -57,7 +58,7 @@ def constant_traces(scene):
 
 
 def _filter(scene, cdf: CDFConfig | None = None, seed: int = 0) -> ParticleFilter:
-    return ParticleFilter.from_layout(scene.layout(), ScenarioConfig(), cdf or _cdf(), np.random.default_rng(seed))
+    return ParticleFilter.from_layout(scene.layout(), cdf or _cdf(), np.random.default_rng(seed), DT)
 
 
 def _p_true(rec) -> np.ndarray:
@@ -274,8 +275,7 @@ def test_cdf_planner_brakes_before_a_cutoff_and_not_for_a_right_turner(cdf_recor
 
 
 def test_weights_are_read_only_and_follow_new_log_weights(scene):
-    pf = ParticleFilter.from_layout(scene.layout(), ScenarioConfig(), CDFConfig(n_particles=4),
-                                    np.random.default_rng(0))
+    pf = ParticleFilter.from_layout(scene.layout(), CDFConfig(n_particles=4), np.random.default_rng(0), DT)
     pf.reset(np.array([[-40.0, -1.85, 0.0, 13.4], [-1.85, 8.35, -np.pi / 2, 0.0]]))
     w = pf.weights
     assert pf.weights is w and not w.flags.writeable  # computed once, shared, not editable

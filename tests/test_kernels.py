@@ -68,8 +68,8 @@ def traces(scenes: dict[str, Scene]) -> dict[str, list[np.ndarray]]:
 
 
 def _filter(layout: Layout, seed: int = 0, **changes: Any) -> ParticleFilter:
-    return ParticleFilter.from_layout(layout, ScenarioConfig(), CDFConfig(n_particles=N, **changes),
-                                      np.random.default_rng(seed))
+    return ParticleFilter.from_layout(layout, CDFConfig(n_particles=N, **changes), np.random.default_rng(seed),
+                                      ScenarioConfig().timing.dt)
 
 
 def _run(pf: ParticleFilter, poses: np.ndarray, check=None, ticks: int | None = None) -> None:
@@ -130,7 +130,7 @@ def test_tracked_projection_follows_moves_both_ways(scenes, which):
     (within 1e-9 m) after a move of less than the shortest segment, forwards or backwards
     (across waypoints either way), 1 m off the route at most."""
     layout = scenes[which].layout()
-    model = DriverModel.from_layout(layout, ScenarioConfig())
+    model = DriverModel.of_world(layout, ScenarioConfig())
     table = model.table
     rng = np.random.default_rng(12)
     n = 4000
@@ -297,7 +297,7 @@ def test_obstacle_control_rows_equal_one_row_at_a_time(scenes, which):
     """obstacle_control on N rows with per-row parameters and stop flags returns exactly
     what N calls of one row each (float parameters, one bool) return."""
     layout = scenes[which].layout()
-    model = DriverModel.from_layout(layout, ScenarioConfig())
+    model = DriverModel.of_world(layout, ScenarioConfig())
     rng = np.random.default_rng(3)
     n = 300
     pose, mode, belief, has, intent, params, may_go = _random_rows(layout, model, n, rng)
@@ -322,7 +322,7 @@ def test_kept_segment_drives_as_the_full_search(scenes, which):
     controls and modes it gives without one (full search)."""
     layout = scenes[which].layout()
     cfg = ScenarioConfig()
-    model = DriverModel.from_layout(layout, cfg)
+    model = DriverModel.of_world(layout, cfg)
     n = 4
     params = DriverParams(accel=np.array([1.5, 2.0, 2.5, 3.0]), turn_speed=np.array([6.0, 7.5, 9.0, 10.0]),
                           yield_brake=np.full(n, 4.0), critical_gap=np.full(n, 5.0),

@@ -1,6 +1,6 @@
 """Scenario presets: every shipped file loads, ``--preset`` on the command line (``--set``
-after it, recorded in an experiment's settings), one-line errors for every broken file, and
-``scripts/mismatch.py`` end to end."""
+after it, recorded in an experiment's settings), a file of version 0.1 (flat keys) still
+reads, one-line errors for every broken file, and ``scripts/mismatch.py`` end to end."""
 
 from __future__ import annotations
 
@@ -47,14 +47,14 @@ def test_every_shipped_preset_is_a_valid_config(name):
     elif name != "paper":  # a preset that changed nothing would test nothing (paper pins today's values)
         assert preset.changes(), f"preset {name} changes no field from the defaults"
         for key, (default, value) in preset.changes().items():
-            assert getattr(config, key) == value != default
+            assert config.get(key) == value != default
 
 
 def test_the_paper_preset_leaves_the_stop_line_at_once_and_others_wait():
     """The paper's driver pins no dwell and no second look, whatever the defaults become."""
     paper = read_preset("paper").scenario
-    assert paper["stop_dwell"] == (0.0, 0.0) and paper["departure_look"] == 0.0
-    default, waiting = ScenarioConfig().stop_dwell, load_preset("stop-and-wait").stop_dwell
+    assert paper["obstacle.stop_dwell"] == (0.0, 0.0) and paper["obstacle.departure_look"] == 0.0
+    default, waiting = ScenarioConfig().obstacle.stop_dwell, load_preset("stop-and-wait").obstacle.stop_dwell
     assert sum(waiting) > sum(default) and waiting[1] >= 2.0
 
 
@@ -62,8 +62,8 @@ def test_the_fast_ego_reaches_the_conflict_point_when_the_default_ego_does():
     """The start spread moves back with the speed: the same arrival times, in seconds."""
     default, fast = ScenarioConfig(), load_preset("fast-ego")
     to_conflict = 43.3  # [m] from site ego_start to site conflict (models/xml/intersection.xml)
-    for d, f in zip(default.ego_start_spread, fast.ego_start_spread, strict=True):
-        assert (to_conflict - f) / fast.ego_speed == pytest.approx((to_conflict - d) / default.ego_speed, abs=0.02)
+    for d, f in zip(default.ego.start_spread, fast.ego.start_spread, strict=True):
+        assert (to_conflict - f) / fast.ego.speed == pytest.approx((to_conflict - d) / default.ego.speed, abs=0.02)
 
 
 # ----------------------------------------------------------------- the command line
@@ -73,17 +73,17 @@ def test_presets_lists_every_preset_and_shows_one(capsys):
     assert [line.split()[0] for line in out.splitlines()[:len(preset_names())]] == preset_names()
     status, out, _ = run_cli(capsys, "presets", "slow-pull-out")
     assert status == 0
-    assert "obstacle_accel = 1.2  (default 2.5)" in out
+    assert "obstacle.accel = 1.2  (default 2.5)" in out
     assert "slow-pull-out.toml" in out
 
 
 def test_set_applies_after_the_preset_whatever_the_order():
     parser = cli.build_parser()
-    for argv in (["episode", "--preset", "slow-pull-out", "--set", "obstacle_accel=2.0"],
-                 ["episode", "--set", "obstacle_accel=2.0", "--preset", "slow-pull-out"]):
+    for argv in (["episode", "--preset", "slow-pull-out", "--set", "obstacle.accel=2.0"],
+                 ["episode", "--set", "obstacle.accel=2.0", "--preset", "slow-pull-out"]):
         config = cli.config_from_args(parser.parse_args(argv))
-        assert config.obstacle_accel == 2.0  # --set wins
-        assert config.obstacle_turn_speed == load_preset("slow-pull-out").obstacle_turn_speed  # the preset's
+        assert config.obstacle.accel == 2.0  # --set wins
+        assert config.obstacle.turn_speed == load_preset("slow-pull-out").obstacle.turn_speed  # the preset's
     assert cli.config_from_args(parser.parse_args(["episode"])) == ScenarioConfig()
 
 
@@ -94,15 +94,29 @@ def test_every_scenario_command_takes_a_preset(command):
 
 
 def test_a_users_own_file_is_a_preset(tmp_path, capsys):
-    path = write(tmp_path, 'description = "A bold driver of my own."\n[scenario]\ncritical_gap = 2\n'
-                           'ego_start_spread = [-2, 2]\n')
+    path = write(tmp_path, 'description = "A bold driver of my own."\n[scenario.obstacle]\ncritical_gap = 2\n'
+                           '[scenario.ego]\nstart_spread = [-2, 2]\n')
     config = load_preset(path)
-    assert config.critical_gap == 2.0 and isinstance(config.critical_gap, float)
-    assert config.ego_start_spread == (-2.0, 2.0)
+    assert config.obstacle.critical_gap == 2.0 and isinstance(config.obstacle.critical_gap, float)
+    assert config.ego.start_spread == (-2.0, 2.0)
     args = cli.build_parser().parse_args(["episode", "--preset", str(path)])
     assert cli.config_from_args(args) == config
     status, out, _ = run_cli(capsys, "presets", str(path))
-    assert status == 0 and "critical_gap = 2.0  (default 5.0)" in out
+    assert status == 0 and "obstacle.critical_gap = 2.0  (default 5.0)" in out
+
+
+def test_a_flat_file_of_version_0_1_still_reads_with_a_note(tmp_path):
+    """The flat keys of version 0.1 directly in [scenario]: the same config, and a
+    DeprecationWarning naming the table and key to write instead."""
+    flat = write(tmp_path, 'description = "A bold driver of version 0.1."\n[scenario]\ncritical_gap = 2\n'
+                           'obstacle_accel = 1.5\nego_start_spread = [-2, 2]\n', "flat.toml")
+    nested = write(tmp_path, 'description = "A bold driver of version 0.1."\n[scenario.obstacle]\n'
+                             'critical_gap = 2\naccel = 1.5\n[scenario.ego]\nstart_spread = [-2, 2]\n', "nested.toml")
+    with pytest.warns(DeprecationWarning, match=r"obstacle_accel is a flat key.*accel in \[scenario\.obstacle\]"):
+        old = read_preset(flat)
+    assert old.scenario == read_preset(nested).scenario
+    assert old.config() == load_preset(nested) == ScenarioConfig().with_values(
+        {"obstacle.critical_gap": 2.0, "obstacle.accel": 1.5, "ego.start_spread": (-2.0, 2.0)})
 
 
 def test_an_unknown_name_lists_the_shipped_ones(capsys):
@@ -113,12 +127,13 @@ def test_an_unknown_name_lists_the_shipped_ones(capsys):
 
 
 @pytest.mark.parametrize(("text", "needles"), [
-    ('description = "x x"\n[scenario]\nbeta = 0.1\ncritcal_gap = 3\n',
-     ["unknown field 'critcal_gap'", "valid fields: dt", "critical_gap"]),
-    ('description = "x x"\n[scenario]\nbeta = 2.0\n', ["[scenario]", "beta=2.0", "in [0, 1]"]),
-    ('description = "x x"\n[scenario]\nbeta = "high"\n', ["beta must be a number", "'high'"]),
-    ('description = "x x"\n[scenario]\nego_start_spread = [1, 2, 3]\n',
-     ["ego_start_spread must be an array of 2 numbers"]),
+    ('description = "x x"\n[scenario.obstacle]\nbeta = 0.1\ncritcal_gap = 3\n',
+     ["unknown field 'obstacle.critcal_gap'", "valid fields: timing.dt", "obstacle.critical_gap"]),
+    ('description = "x x"\n[scenario]\ncritcal_gap = 3\n', ["unknown field 'critcal_gap'"]),
+    ('description = "x x"\n[scenario.obstacle]\nbeta = 2.0\n', ["[scenario]", "obstacle.beta=2.0", "in [0, 1]"]),
+    ('description = "x x"\n[scenario.obstacle]\nbeta = "high"\n', ["obstacle.beta must be a number", "'high'"]),
+    ('description = "x x"\n[scenario.ego]\nstart_spread = [1, 2, 3]\n',
+     ["ego.start_spread must be an array of 2 numbers"]),
     ('description = "x x"\n[scenario]\nbeta = 0.1\n[cdf]\ntau = 0.5\n',
      ["unknown key 'cdf'", "CDF always keeps its own defaults"]),
     ('[scenario]\nbeta = 0.1\n', ["needs description"]),
@@ -153,7 +168,7 @@ def test_the_experiment_records_the_presets_config_and_refuses_another(tmp_path,
     settings = json.loads((out_dir / "settings.json").read_text())
     assert settings["scenario"] == json.loads(json.dumps(load_preset("slow-pull-out").to_dict()))
     status, out, err = run_cli(capsys, *common, "--preset", "fast-ego")
-    assert_one_line_error(status, out, err, "other settings", "scenario.ego_speed", "scenario.obstacle_accel")
+    assert_one_line_error(status, out, err, "other settings", "scenario.ego.speed", "scenario.obstacle.accel")
     status, out, _ = run_cli(capsys, *common, "--preset", "slow-pull-out")  # the same preset: resumed
     assert status == 0 and "already in" in out
 

@@ -152,7 +152,7 @@ def test_overlay_is_visible(backend, scene, tmp_path) -> None:
 def test_cli_renders_a_frame(backend, tmp_path, capsys) -> None:
     out = tmp_path / "frame.png"
     status = main(["render", "--seed", "1", "--frame", "0.3", "--out", str(out), "--width", "96",
-                   "--height", "64", "--set", "duration=1.0", "--particles", "200"])
+                   "--height", "64", "--set", "timing.duration=1.0", "--particles", "200"])
     assert status == 0, capsys.readouterr().err
     assert iio.imread(out).shape == (64, 96, 3)
     assert "wrote" in capsys.readouterr().out
@@ -222,7 +222,7 @@ def test_compare_and_planner_together_is_an_error(tmp_path, capsys) -> None:
 def test_a_frame_past_the_end_is_one_line_naming_the_end(backend, tmp_path, capsys) -> None:
     out = tmp_path / "late.png"
     status = main(["render", "--seed", "1", "--frame", "20", "--out", str(out), "--width", "96",
-                   "--height", "64", "--set", "duration=1.0", "--particles", "200"])
+                   "--height", "64", "--set", "timing.duration=1.0", "--particles", "200"])
     err = capsys.readouterr().err
     assert status == 2 and err.count("\n") == 1
     assert "--frame 20" in err and "1.00 s" in err

@@ -188,7 +188,7 @@ def test_resume_with_other_settings_is_refused(serial, tmp_path):
     with pytest.raises(ValueError, match="planners"):
         run_experiment(out, SEEDS, ("reactive",), cdf=SMALL, progress=False, resume=True)
     assert main(["experiment", "--episodes", "8", "--seed0", "30", "--out", str(out),
-                 "--set", "beta=0.1", "--quiet"]) == 2
+                 "--set", "obstacle.beta=0.1", "--quiet"]) == 2
     assert (out / "episodes.jsonl").read_bytes() == before
     # The same settings: nothing left to run, the same records.
     again = run_experiment(out, SEEDS, ("cdf", "reactive"), cdf=SMALL, progress=False, resume=True)

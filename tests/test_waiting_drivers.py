@@ -184,7 +184,7 @@ def test_a_slow_or_stopped_ego_near_the_conflict_point_is_not_clear(scene):
     to arrive of 50 s at the 0.1 m/s floor and looked clear. Nearer than clear_distance it
     never is, whatever its speed; far and stopped it is; passed it is."""
     layout = scene.layout()
-    model = DriverModel.from_layout(layout, ScenarioConfig())
+    model = DriverModel.of_world(layout, ScenarioConfig())
     cx, cy = layout.conflict
     seen, left = np.array([True] * 5), np.array([Intent.LEFT] * 5)
     belief = np.array([[cx - 5.0, cy, 0.0, 0.0],  # stopped 5 m before
@@ -194,8 +194,8 @@ def test_a_slow_or_stopped_ego_near_the_conflict_point_is_not_clear(scene):
                        [cx + 5.0, cy, 0.0, 0.0]])  # 5 m past
     assert road_clear(model, belief, seen, left).tolist() == [False, False, True, False, True]
     # Without the clearance in space, both near ones look clear (the bug).
-    far = ScenarioConfig(clear_distance=0.0)
-    assert road_clear(DriverModel.from_layout(layout, far), belief, seen, left)[:2].tolist() == [True, True]
+    far = ScenarioConfig(obstacle={"clear_distance": 0.0})
+    assert road_clear(DriverModel.of_world(layout, far), belief, seen, left)[:2].tolist() == [True, True]
 
 
 def test_particles_draw_their_parameters_from_the_prior_and_reinit_restores_diversity(scene):
@@ -203,8 +203,7 @@ def test_particles_draw_their_parameters_from_the_prior_and_reinit_restores_dive
     a measurement far from every particle redraws intents, modes, sightings and parameters
     from the prior (both intents, both seen and unseen, parameters spread again)."""
     prior = DriverPrior()
-    pf = ParticleFilter.from_layout(scene.layout(), ScenarioConfig(), CDFConfig(n_particles=N),
-                                    np.random.default_rng(0))
+    pf = ParticleFilter.from_layout(scene.layout(), CDFConfig(n_particles=N), np.random.default_rng(0), 0.1)
     poses = scene.poses()
     pf.reset(poses)
     for j, name in enumerate(THETA[:-1]):
@@ -261,8 +260,7 @@ def test_ego_braking_and_latency_set_the_last_tick_to_stop(scene):
     margin = layout.ego.hull_offset[0] + layout.ego.hull_half[0] + layout.obstacle.hull_half[1]
 
     def ticks(**changes) -> float:
-        pf = ParticleFilter.from_layout(layout, ScenarioConfig(), CDFConfig(n_particles=8, **changes),
-                                        np.random.default_rng(0))
+        pf = ParticleFilter.from_layout(layout, CDFConfig(n_particles=8, **changes), np.random.default_rng(0), 0.1)
         pf.reset(np.stack([ego, obstacle]))
         return pf.ego_ticks_to_stop()
 
@@ -284,8 +282,7 @@ def test_a_left_turner_that_pulls_out_behind_the_ego_is_no_cutoff(scene):
 
     def p_cutoff(ego_back: float) -> float:
         ego = np.array([layout.conflict[0] - ego_back, layout.conflict[1], 0.0, 13.4])
-        pf = ParticleFilter.from_layout(layout, ScenarioConfig(), CDFConfig(n_particles=50),
-                                        np.random.default_rng(0))
+        pf = ParticleFilter.from_layout(layout, CDFConfig(n_particles=50), np.random.default_rng(0), 0.1)
         pf.reset(np.stack([ego, obstacle]))
         pf.intent[:] = Intent.LEFT
         pf.mode[:] = Mode.GOING

@@ -11,8 +11,8 @@ The command modules (``cdf_mj.cli.episode``, ``.experiment``, ...) build their p
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
+import sys
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any, get_args
 
@@ -23,6 +23,8 @@ from cdf_mj.config import (
     MAX_SEED,
     MAX_WORKERS,
     CDFConfig,
+    FLAT_KEYS,
+    SCENARIO_KEYS,
     RiskConfig,
     ScenarioConfig,
 )
@@ -35,8 +37,9 @@ PROG = "cdf-mj"
 EXIT_USAGE = 2  # argparse's status for bad input
 EXIT_FAILED_EPISODES = 1  # an experiment finished, but some of its episodes raised
 
-#: ScenarioConfig fields that ``--set`` may change (``names`` is a nested object).
-SETTABLE = tuple(f.name for f in dataclasses.fields(ScenarioConfig) if f.name != "names")
+#: ScenarioConfig fields that ``--set`` may change, by dotted key (``names`` is given with
+#: ``--names``); the flat keys of version 0.1 (:data:`cdf_mj.config.FLAT_KEYS`) still work.
+SETTABLE = SCENARIO_KEYS
 
 
 class CLIError(ValueError):
@@ -101,9 +104,10 @@ def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
                              "--set applies after it")
     parser.add_argument("--set", dest="overrides", metavar="KEY=VALUE", action="append",
                         default=[],
-                        help="override a ScenarioConfig field, e.g. beta=0.1 or "
-                             "ego_start_spread=[-4,4]; values are JSON, else strings; "
-                             "repeatable. Fields: " + ", ".join(SETTABLE))
+                        help="override a ScenarioConfig field by its dotted key, e.g. obstacle.beta=0.1 "
+                             "or ego.start_spread=[-4,4]; values are JSON, else strings; "
+                             "repeatable (the flat keys of version 0.1, e.g. beta=0.1, still work). "
+                             "Keys: " + ", ".join(SETTABLE))
 
 
 def _parse_value(text: str) -> Any:
@@ -138,9 +142,11 @@ def _coerce(name: str, value: Any, default: Any) -> Any:
 
 
 def parse_overrides(items: Iterable[str]) -> dict[str, Any]:
-    """``["beta=0.1", "ego_start_spread=[-4, 4]"]`` -> ``{"beta": 0.1, ...}``, each value in
-    its ScenarioConfig field's type; later items win. CLIError (a ValueError) on an unknown
-    field, a missing ``=`` or a value of the wrong type; ranges are checked by the config."""
+    """``["obstacle.beta=0.1", "ego.start_spread=[-4, 4]"]`` -> ``{"obstacle.beta": 0.1, ...}``
+    (dotted keys), each value in its ScenarioConfig field's type; later items win. A flat
+    key of version 0.1 (``beta=0.1``) is taken with a one-line note on stderr naming its
+    dotted key. CLIError (a ValueError) on an unknown field, a missing ``=`` or a value of
+    the wrong type; ranges are checked by the config."""
     base = ScenarioConfig()
     changes: dict[str, Any] = {}
     for item in items:
@@ -148,9 +154,12 @@ def parse_overrides(items: Iterable[str]) -> dict[str, Any]:
         key = key.strip()
         if not sep or not key:
             raise CLIError(f"--set: expected key=value, got {item!r}")
+        if key in FLAT_KEYS:
+            print(f"{PROG}: note: --set {key} is now --set {FLAT_KEYS[key]}", file=sys.stderr)
+            key = FLAT_KEYS[key]
         if key not in SETTABLE:
             raise CLIError(f"--set {key}: unknown parameter; choose from {', '.join(SETTABLE)}")
-        changes[key] = _coerce(key, _parse_value(text), getattr(base, key))
+        changes[key] = _coerce(key, _parse_value(text), base.get(key))
     return changes
 
 
@@ -162,7 +171,7 @@ def config_from_args(args: argparse.Namespace) -> ScenarioConfig:
     names_file = getattr(args, "names", None)
     if names_file is not None:
         base = base.replace(names=read_names(names_file))  # SceneError: one line naming the file
-    return base.replace(**parse_overrides(args.overrides))  # ValueError names field and range
+    return base.with_values(parse_overrides(args.overrides))  # ValueError names field and range
 
 
 def scene_from_args(args: argparse.Namespace, config: ScenarioConfig) -> Scene:

@@ -220,8 +220,8 @@ def bench_filter(n_values: tuple[int, ...] = (250, 1000, 10000), passes: int = 3
     rule.reset(PlannerContext.of(world.layout(), cfg))
     targets = {1000: 1.5e-4, 10000: 1e-3}  # [s] issue 16
     for n in n_values:
-        pf = ParticleFilter.from_layout(world.layout(), cfg, CDFConfig(n_particles=n),
-                                        np.random.default_rng(0))
+        pf = ParticleFilter.from_layout(world.layout(), CDFConfig(n_particles=n), np.random.default_rng(0),
+                                        cfg.timing.dt)
         predictor = _FilterFutures(pf)
         times: dict[str, list[float]] = {s: [] for s in ("tick", *stages)}
         for pass_i in range(passes + 1):  # the first pass warms up and is not timed

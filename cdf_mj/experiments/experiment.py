@@ -40,7 +40,7 @@ from xml.etree import ElementTree
 from tqdm import tqdm
 
 from cdf_mj import __version__
-from cdf_mj.config import CDFConfig, ScenarioConfig
+from cdf_mj.config import CDFConfig, ScenarioConfig, normalise_settings
 from cdf_mj.experiments.runner import (
     START_METHOD,
     Backend,
@@ -345,7 +345,7 @@ def _check_directory(out: Path, settings: dict[str, Any], resume: bool) -> None:
                                     f"since the run in {out} started: the records would mix two worlds; "
                                     "restore it, or choose another directory")
     old = {**old, "planner_args": stored_planner_arguments(old)}  # a run stored before they were kept
-    diff = _differences(old, json.loads(json.dumps(settings)))
+    diff = _differences(normalise_settings(old), json.loads(json.dumps(settings)))  # a run of 0.1 reads flat
     if diff:
         raise SettingsMismatchError(f"{out} holds results from other settings (differing: {', '.join(diff)}); "
                                     "choose another directory")

@@ -31,6 +31,7 @@ test is the same separating-axis test as :meth:`Occluders.visible` (touching blo
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 import numba
 import numpy as np
@@ -38,21 +39,45 @@ import numpy as np
 from cdf_mj.model import kernels as drv
 from cdf_mj.model.kernels import COMMITTED, GOING, LEFT, RIGHT, WAITING, YIELDING, helper
 from cdf_mj.model.occlusion import Occluders
+from cdf_mj.traits import THETA
 
-__all__ = ["FILTER_FIELDS", "pack_boxes"]
+__all__ = ["FILTER_FIELDS", "LAYOUT", "LAYOUTS", "pack_boxes", "pack_filter"]
 
-#: Entries of the filter's float vector ``cfg`` after the driver's (:data:`cdf_mj.model.kernels.DRIVER_FIELDS`).
+#: Entries of the filter's float vector ``cfg`` after the driver's (:data:`cdf_mj.model.kernels.DRIVER_FIELDS`):
+#: mode jump [1/tick], the obstacle's actuator ranges, its process noise, the driver's
+#: observation noise, its eye, the ego's terms, the cut-off rule and the re-initialisation.
 FILTER_FIELDS = ("mode_jump", "accel_lo", "accel_hi", "steer_lo", "steer_hi", "nu_accel", "nu_steer",
                  "obs_pos", "obs_heading", "obs_speed", "eye_x", "eye_y", "s_enter", "stop_margin",
                  "clear_margin", "ego_brake", "ego_latency", "t_slowest", "paper_rule", "reinit_maha2")
-(F_JUMP, F_ACC_LO, F_ACC_HI, F_STEER_LO, F_STEER_HI, F_NU_A, F_NU_S, F_OBS_POS, F_OBS_HEAD, F_OBS_SPEED,
- F_EYE_X, F_EYE_Y, F_S_ENTER, F_STOP_MARGIN, F_CLEAR_MARGIN, F_EGO_BRAKE, F_EGO_LATENCY, F_T_SLOWEST, F_PAPER,
- F_REINIT) = range(11, 31)
-# Columns of the per-particle parameters theta (cdf_mj.inference.particle_filter.THETA).
-T_ACCEL, T_TURN, T_YIELD, T_GAP, T_CLEAR, T_BETA, T_PGO = range(7)
+# Index constants, plain ints computed from the names at import (compile-time constants to Numba).
+_AT = drv.offsets(drv.DRIVER_FIELDS + FILTER_FIELDS)
+F_JUMP, F_ACC_LO, F_ACC_HI, F_STEER_LO, F_STEER_HI = (_AT[n] for n in ("mode_jump", "accel_lo", "accel_hi",
+                                                                       "steer_lo", "steer_hi"))
+F_NU_A, F_NU_S, F_OBS_POS, F_OBS_HEAD, F_OBS_SPEED = (_AT[n] for n in ("nu_accel", "nu_steer", "obs_pos",
+                                                                       "obs_heading", "obs_speed"))
+F_EYE_X, F_EYE_Y, F_S_ENTER, F_STOP_MARGIN, F_CLEAR_MARGIN = (_AT[n] for n in ("eye_x", "eye_y", "s_enter",
+                                                                               "stop_margin", "clear_margin"))
+F_EGO_BRAKE, F_EGO_LATENCY, F_T_SLOWEST, F_PAPER, F_REINIT = (_AT[n] for n in ("ego_brake", "ego_latency",
+                                                                               "t_slowest", "paper_rule",
+                                                                               "reinit_maha2"))
+# Columns of the per-particle parameters theta (cdf_mj.traits.THETA).
+T_ACCEL, T_TURN, T_YIELD, T_GAP, T_CLEAR, T_BETA, T_PGO = (THETA.index(n) for n in (
+    "accel", "turn_speed", "yield_brake", "critical_gap", "clear_distance", "beta", "p_go"))
+#: The names the index constants above and those of the driver kernels it calls are computed from.
+LAYOUTS = (*drv.LAYOUTS, FILTER_FIELDS, THETA)
+#: Numba's cache keys a kernel on this file's text, not on :data:`LAYOUTS`: their digest
+#: (:func:`cdf_mj.model.kernels.layout_digest`) written here puts them in the text, so that
+#: a new layout recompiles. tests/test_traits.py checks it and gives the new value.
+LAYOUT = "49c203255b40"
 
 _TWO_PI = 2.0 * math.pi
 _BELOW_ONE = np.nextafter(1.0, 0.0)
+
+
+def pack_filter(values: Mapping[str, float]) -> np.ndarray:
+    """The filter's float vector ``cfg``: the driver's entries and :data:`FILTER_FIELDS`,
+    each by name (:func:`cdf_mj.model.kernels.pack`)."""
+    return drv.pack(drv.DRIVER_FIELDS + FILTER_FIELDS, values)
 
 
 def pack_boxes(occluders: Occluders, eye_height: float) -> np.ndarray:

@@ -5,10 +5,10 @@ obstacle driver's mode and its own driver parameters: the obstacle's pose, wheth
 seen the ego and what it believes, its intent, its state-machine mode, and its beta,
 critical gap, clear distance, acceleration, turn speed, yield braking and departure
 hazard, drawn at reset from the filter's own prior (``CDFConfig.prior``, a
-:class:`cdf_mj.config.DriverPrior`), not copied from the world. The filter reads from the
-:class:`ScenarioConfig` only the tick ``dt``, the observation and process noise, the
-route-following look-ahead and ``passed_margin`` (a believed ego this far past the
-conflict point is gone: a geometric margin of the junction, not a trait of the driver).
+:class:`cdf_mj.config.DriverPrior`), not copied from the world. The filter reads nothing
+of the world's :class:`~cdf_mj.config.ScenarioConfig`: its tick ``dt`` is the planner's,
+and the driver's observation noise, route following and ``passed_margin`` are the
+prior's, its process noise ``CDFConfig.process_noise`` (defaults: the world's defaults).
 The ego's pose is known to the ego and is shared by all particles (it is the measured
 one).
 
@@ -42,7 +42,7 @@ driver to see it is no option. It is counted while the ego itself is exposed
 :meth:`ParticleFilter.futures` gives the left-turners' futures that the risk decision
 rule (:mod:`cdf_mj.planners.decision`) rolls forward. ::
 
-    pf = ParticleFilter.from_layout(scene.layout(), ScenarioConfig(), CDFConfig(), rng)
+    pf = ParticleFilter.from_layout(scene.layout(), CDFConfig(), rng, dt=0.1)
     pf.reset(S0)
     for S in measurements:
         pf.predict(S_prev); post = pf.update(S)
@@ -55,14 +55,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cdf_mj.config import CDFConfig, DriverPrior, ScenarioConfig
+from cdf_mj.config import CDFConfig, DriverPrior
 from cdf_mj.inference import kernels
 from cdf_mj.model.conflict import Futures
 from cdf_mj.model.driver import DriverModel, DriverParams, Intent, Mode
 from cdf_mj.model.geometry import OrientedBox
+from cdf_mj.model.kernels import DRIVER_FIELDS
 from cdf_mj.model.layout import Layout
 from cdf_mj.model.occlusion import Occluders, sight_targets
 from cdf_mj.model.vehicle import CarGeometry
+from cdf_mj.traits import PER_CAR, THETA
 
 __all__ = ["THETA", "ParticleFilter", "Posterior", "draw_parameters"]
 
@@ -70,12 +72,10 @@ __all__ = ["THETA", "ParticleFilter", "Posterior", "draw_parameters"]
 # Plain ints for the per-tick code (IntEnum attribute access costs a Python call each time).
 _LEFT, _RIGHT = int(Intent.LEFT), int(Intent.RIGHT)
 _WAITING, _GOING, _YIELDING, _COMMITTED = (int(m) for m in Mode)
-#: Columns of the per-particle parameter array ``ParticleFilter.theta`` (N, 7).
-THETA = ("accel", "turn_speed", "yield_brake", "critical_gap", "clear_distance", "beta", "p_go")
 
 
 def draw_parameters(prior: DriverPrior, n: int, dt: float, rng: np.random.Generator) -> np.ndarray:
-    """``n`` drivers' parameters drawn from ``prior``: an ``(n, 7)`` array with the columns
+    """``n`` drivers' parameters drawn from ``prior``: an ``(n, len(THETA))`` array with the columns
     :data:`THETA` (uniform on each range; the departure hazard log-uniform and stored as
     its per-tick probability ``p_go = 1 - exp(-h dt)``)."""
     theta = np.empty((n, len(THETA)))
@@ -127,14 +127,14 @@ class ParticleFilter:
     compiled (:mod:`cdf_mj.inference.kernels`).
 
     Args:
-        model: the junction's routes and points (the same as the simulation's); its
-            ``config`` gives only ``dt``, ``passed_margin`` and the pure-pursuit look-ahead.
+        model: the junction's routes and points (the same as the simulation's), the tick
+            ``dt`` [s] and the filter's route following and ``passed_margin`` (the model
+            built from ``cdf.prior``: :meth:`from_layout`).
         obstacle: the obstacle's dimensions (eye, wheelbase, actuator ranges).
         ego: the ego's dimensions (footprint for line of sight, braking).
         occluders: building boxes for line of sight.
-        scenario: the tick ``dt`` and the observation and process noise levels.
-        cdf: filter parameters (N, Sigma, thresholds, the driver prior, rejuvenation,
-            the ego's braking and latency).
+        cdf: filter parameters (N, Sigma, thresholds, the driver prior with its observation
+            noise, the process noise, rejuvenation, the ego's braking and latency).
         rng: the Generator of all the filter's randomness (nothing is drawn before reset).
         ego_lane: the ego's lane area: where the obstacle's route first puts it into the
             lane (without it: where its nose reaches the conflict point).
@@ -148,10 +148,10 @@ class ParticleFilter:
     """
 
     def __init__(self, model: DriverModel, obstacle: CarGeometry, ego: CarGeometry,
-                 occluders: Occluders, scenario: ScenarioConfig, cdf: CDFConfig,
-                 rng: np.random.Generator, ego_lane: OrientedBox | None = None) -> None:
+                 occluders: Occluders, cdf: CDFConfig, rng: np.random.Generator,
+                 ego_lane: OrientedBox | None = None) -> None:
         self.model, self.obstacle, self.ego, self.occluders = model, obstacle, ego, occluders
-        self.scenario, self.cdf, self.rng = scenario, cdf, rng
+        self.cdf, self.rng, self.dt = cdf, rng, model.dt
         self.n = cdf.n_particles
         self._cov_inv = np.ascontiguousarray(np.linalg.inv(cdf.covariance))
         self.prior = prior = cdf.prior
@@ -181,13 +181,18 @@ class ParticleFilter:
         self._jitter_std = cdf.param_jitter * (self._theta_hi - self._theta_lo)
         # [s] the slowest plausible driver needs from a standstill at the line into the lane.
         t_slowest = kernels.arrival(s_enter, 0.0, 0.0, prior.accel[0], prior.turn_speed[0])
-        nu = cdf.process_noise_scale * np.array([scenario.noise_accel, scenario.noise_steer])
-        # Everything the kernels read, as one float vector (kernels.FILTER_FIELDS).
-        self._cfg = np.concatenate([model.cfg, [
-            cdf.mode_jump, *obstacle.accel_range, *obstacle.steer_range, *nu, scenario.obs_noise_pos,
-            scenario.obs_noise_heading, scenario.obs_noise_speed, *obstacle.eye_offset[:2], s_enter,
-            stop_margin, clear_margin, ego_brake, cdf.ego_latency, t_slowest,
-            float(cdf.cutoff_rule == "paper"), cdf.reinit_mahalanobis ** 2]])
+        nu = cdf.process_noise_scale * np.array([cdf.process_noise.accel, cdf.process_noise.steer])
+        seen = prior.observation
+        # Everything the kernels read, as one float vector, by name (kernels.FILTER_FIELDS).
+        self._cfg = kernels.pack_filter({
+            **dict(zip(DRIVER_FIELDS, model.cfg.tolist(), strict=True)), "mode_jump": cdf.mode_jump,
+            "accel_lo": obstacle.accel_range[0], "accel_hi": obstacle.accel_range[1],
+            "steer_lo": obstacle.steer_range[0], "steer_hi": obstacle.steer_range[1], "nu_accel": nu[0],
+            "nu_steer": nu[1], "obs_pos": seen.pos, "obs_heading": seen.heading, "obs_speed": seen.speed,
+            "eye_x": obstacle.eye_offset[0], "eye_y": obstacle.eye_offset[1], "s_enter": s_enter,
+            "stop_margin": stop_margin, "clear_margin": clear_margin, "ego_brake": ego_brake,
+            "ego_latency": cdf.ego_latency, "t_slowest": t_slowest, "paper_rule": float(cdf.cutoff_rule == "paper"),
+            "reinit_maha2": cdf.reinit_mahalanobis ** 2})
         self._boxes = kernels.pack_boxes(occluders, float(obstacle.eye_offset[2]))
         # Read-only, as the driver model's own cfg and route table: the kernels they share
         # (the driver's) are then compiled for one array type, not two.
@@ -225,11 +230,12 @@ class ParticleFilter:
         self._sight_of: tuple[np.ndarray, np.ndarray] | None = None
 
     @classmethod
-    def from_layout(cls, layout: Layout, scenario: ScenarioConfig, cdf: CDFConfig,
-                    rng: np.random.Generator) -> ParticleFilter:
-        """A filter for a junction (``Scene.layout()``): its routes, buildings and cars."""
-        return cls(DriverModel.from_layout(layout, scenario), layout.obstacle, layout.ego,
-                   layout.occluders, scenario, cdf, rng, layout.ego_lane)
+    def from_layout(cls, layout: Layout, cdf: CDFConfig, rng: np.random.Generator, dt: float) -> ParticleFilter:
+        """A filter for a junction (``Scene.layout()``: its routes, buildings and cars),
+        ticked every ``dt`` [s] (the planner's tick), with its own driver model
+        (``cdf.prior``)."""
+        model = DriverModel.from_layout(layout, cdf.prior, cdf.prior.pursuit, dt)
+        return cls(model, layout.obstacle, layout.ego, layout.occluders, cdf, rng, layout.ego_lane)
 
     # ------------------------------------------------------------------ state
     def reset(self, system_pose: np.ndarray) -> Posterior:
@@ -245,7 +251,7 @@ class ParticleFilter:
         self.mode = np.full(n, _WAITING, dtype=np.int64)
         self.belief = np.zeros((n, 4))
         self.has_belief = np.zeros(n, dtype=bool)
-        self.theta = draw_parameters(self.prior, n, self.scenario.dt, self.rng)
+        self.theta = draw_parameters(self.prior, n, self.dt, self.rng)
         self._uniform()
         self._ego, self._ego_values = None, []
         self.set_ego(system_pose)
@@ -259,8 +265,7 @@ class ParticleFilter:
     def params(self) -> DriverParams:
         """The particles' driver parameters as ``(N,)`` arrays (views of ``theta``)."""
         t = self.theta
-        return DriverParams(accel=t[:, 0], turn_speed=t[:, 1], yield_brake=t[:, 2],
-                            critical_gap=t[:, 3], clear_distance=t[:, 4])
+        return DriverParams(**{name: t[:, j] for j, name in enumerate(PER_CAR)})  # THETA starts with PER_CAR
 
     @property
     def weights(self) -> np.ndarray:
@@ -490,10 +495,10 @@ class ParticleFilter:
         self.intent = self._draw_intent(n)
         self.mode = np.full(n, _GOING if measured[3] > 0.5 else _WAITING, dtype=np.int64)
         self.has_belief = rng.random(n) < 0.5
-        obs_std = self._cfg[kernels.F_OBS_POS:kernels.F_OBS_SPEED + 1][[0, 0, 1, 2]]
+        obs_std = self._cfg[[kernels.F_OBS_POS, kernels.F_OBS_POS, kernels.F_OBS_HEAD, kernels.F_OBS_SPEED]]
         self.belief = np.where(self.has_belief[:, None],
                                self._ego_pose() + rng.standard_normal((n, 4)) * obs_std, 0.0)
-        self.theta = draw_parameters(self.prior, n, self.scenario.dt, rng)
+        self.theta = draw_parameters(self.prior, n, self.dt, rng)
 
     def resample(self) -> None:
         """Stratified resampling of every particle array (their arc lengths and lines of

@@ -23,24 +23,28 @@ COMMITTED  past the commit point: keeps going whatever it believes
 the conflict point *and* needs more than the critical gap [s] to reach it. A right-turner
 does not cross the ego's lane and is always clear.
 
-The behaviour of a driver is a :class:`DriverParams`: floats for the simulated obstacle
+The behaviour of a driver is a :class:`DriverParams`, one field per per-car trait of
+:data:`cdf_mj.traits.PER_CAR`: floats for the simulated obstacle
 (``DriverParams.from_config``), ``(N,)`` arrays for the filter's particles, each of which
 draws its own from the filter's prior (:class:`cdf_mj.config.DriverPrior`).
 """
 
 from __future__ import annotations
 
+import operator
 from dataclasses import dataclass, field
 from enum import IntEnum
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from cdf_mj.config import ScenarioConfig
+from cdf_mj.config import DriverPrior, Ego, ObstacleDriver, Pursuit, ScenarioConfig
 from cdf_mj.model import kernels
 from cdf_mj.model.geometry import Polyline
-from cdf_mj.model.kernels import RouteTable, pack_driver
+from cdf_mj.model.kernels import RouteTable, pack_driver, pack_ego
 from cdf_mj.model.layout import Layout
 from cdf_mj.model.vehicle import CarGeometry
+from cdf_mj.traits import PER_CAR, with_traits
 
 __all__ = [
     "DriverModel",
@@ -75,9 +79,12 @@ class Intent(IntEnum):
 @dataclass(frozen=True)
 class DriverModel:
     """Everything the drivers need: the layout's routes and points, the obstacle car's
-    limits as plain floats (for the per-tick code), and the config's behaviour; and the
-    same packed for the compiled kernels (:mod:`cdf_mj.model.kernels`): ``table`` holds
-    the routes left, right, ego (route indexes 0, 1, 2) and ``cfg`` the driver's floats."""
+    limits as plain floats (for the per-tick code), the tick, the route following and the
+    traits shared by every car; and the same packed for the compiled kernels
+    (:mod:`cdf_mj.model.kernels`): ``table`` holds the routes left, right, ego (route
+    indexes 0, 1, 2) and ``cfg`` the driver's floats. ``params`` is the world's driver
+    (None in the filter's model, whose particles carry their own); ``ego`` the ego's
+    nominal controller (:func:`ego_control`; None where nobody drives the ego with it)."""
 
     routes: tuple[Polyline, Polyline]  # obstacle route per Intent
     route_ego: Polyline
@@ -87,26 +94,30 @@ class DriverModel:
     max_steer: float  # [rad] of the obstacle
     max_brake: float  # [m/s^2], positive
     max_accel: float  # [m/s^2]
-    config: ScenarioConfig
+    dt: float  # [s] the tick
+    pursuit: Pursuit  # the obstacle's route following (and the ego's, in ego_control)
+    passed_margin: float  # [m] a believed ego past the conflict point by this is gone
+    params: DriverParams | None = None  # the world's driver behaviour (floats)
+    ego: Ego | None = None
     table: RouteTable = field(init=False, repr=False, compare=False)
     cfg: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        c = self.config
-        cfg = pack_driver(c.dt, self.wheelbase, self.max_steer, self.max_brake, c.lookahead, c.lookahead_gain,
-                          c.passed_margin, np.asarray(self.conflict, dtype=float),
-                          np.asarray(self.s_commit, dtype=float))
+        conflict, s_commit = np.asarray(self.conflict, dtype=float), np.asarray(self.s_commit, dtype=float)
+        cfg = pack_driver({"dt": self.dt, "wheelbase": self.wheelbase, "max_steer": self.max_steer,
+                           "max_brake": self.max_brake, "lookahead": self.pursuit.lookahead,
+                           "lookahead_gain": self.pursuit.lookahead_gain, "passed_margin": self.passed_margin,
+                           "conflict_x": conflict[0], "conflict_y": conflict[1], "s_commit_left": s_commit[0],
+                           "s_commit_right": s_commit[1]})
         cfg.flags.writeable = False
         object.__setattr__(self, "table", RouteTable.of((*self.routes, self.route_ego)))
         object.__setattr__(self, "cfg", cfg)
 
-    @property
-    def params(self) -> DriverParams:
-        """The scenario's driver behaviour (floats), the default of the driver functions."""
-        return DriverParams.from_config(self.config)
-
     def param_rows(self, n: int) -> np.ndarray:
-        """:attr:`params` as ``(n, 5)`` rows for the kernels (one row kept: the world's car)."""
+        """:attr:`params` as ``(n, P)`` rows for the kernels (one row kept: the world's car).
+        ValueError for a model without one driver (the filter's)."""
+        if self.params is None:
+            raise ValueError("this driver model has no single driver (the filter's): give params")
         if n != 1:
             return self.params.rows(n)
         row: np.ndarray | None = self.__dict__.get("_param_row")
@@ -117,45 +128,60 @@ class DriverModel:
         return row
 
     @classmethod
-    def from_layout(cls, layout: Layout, config: ScenarioConfig) -> DriverModel:
+    def from_layout(cls, layout: Layout, driver: ObstacleDriver | DriverPrior, pursuit: Pursuit, dt: float, *,
+                    ego: Ego | None = None) -> DriverModel:
         """The drivers of a junction: routes, conflict and commit points of ``layout``,
-        the obstacle's limits from ``layout.obstacle``, behaviour from ``config``."""
+        the obstacle's limits from ``layout.obstacle``, ``passed_margin`` (and, for the
+        world's :class:`~cdf_mj.config.ObstacleDriver`, its behaviour ``params``) from
+        ``driver``: the world's driver, or the filter's model of it
+        (:class:`~cdf_mj.config.DriverPrior`); ``pursuit`` the route following, ``dt`` [s]
+        the tick, ``ego`` the ego's nominal controller (for :func:`ego_control`)."""
         routes = layout.obstacle_routes
         s_commit = np.array([r.project(layout.commit)[0] for r in routes])
         car = layout.obstacle
+        params = DriverParams.from_config(driver) if isinstance(driver, ObstacleDriver) else None
         return cls(routes=routes, route_ego=layout.route_ego, s_commit=s_commit,
                    conflict=layout.conflict, wheelbase=car.wheelbase, max_steer=car.max_steer,
-                   max_brake=car.max_brake, max_accel=car.max_accel, config=config)
+                   max_brake=car.max_brake, max_accel=car.max_accel, dt=float(dt), pursuit=pursuit,
+                   passed_margin=float(driver.passed_margin), params=params, ego=ego)
+
+    @classmethod
+    def of_world(cls, layout: Layout, config: ScenarioConfig) -> DriverModel:
+        """The world's drivers (:meth:`from_layout`): ``config``'s obstacle driver, pure
+        pursuit, tick and ego."""
+        return cls.from_layout(layout, config.obstacle, config.pursuit, config.timing.dt, ego=config.ego)
 
 
 #: Route index of the ego's route in ``DriverModel.table``.
 EGO_ROUTE = 2
+#: A row of per-car traits -> the per-car arguments of :func:`cdf_mj.model.kernels.control`, in its order.
+_CONTROL_ARGS = operator.itemgetter(kernels.P_ACCEL, kernels.P_TURN, kernels.P_YIELD, kernels.P_GAP, kernels.P_CLEAR)
 
 
 @dataclass(frozen=True)
+@with_traits("car")
 class DriverParams:
-    """A driver's behaviour: floats (one driver) or ``(N,)`` arrays (one per particle)."""
+    """A driver's behaviour: floats (one driver) or ``(N,)`` arrays (one per particle), one
+    field per per-car trait of :data:`cdf_mj.traits.PER_CAR` (``accel`` [m/s^2],
+    ``turn_speed`` [m/s], ``yield_brake`` [m/s^2], ``critical_gap`` [s], ``clear_distance``
+    [m]; see :data:`cdf_mj.traits.TRAITS`), in that order."""
 
-    accel: float | np.ndarray  # [m/s^2] pulling-out acceleration
-    turn_speed: float | np.ndarray  # [m/s] cruise speed through and after the turn
-    yield_brake: float | np.ndarray  # [m/s^2] braking when it yields, positive
-    critical_gap: float | np.ndarray  # [s] the believed ego's time to arrive must exceed it
-    clear_distance: float | np.ndarray  # [m] a believed ego nearer the conflict point is never clear
+    if TYPE_CHECKING:  # the fields are the schema's (cdf_mj.traits.with_traits)
+        def __init__(self, *values: float | np.ndarray, **traits: float | np.ndarray) -> None: ...
+        def __getattr__(self, name: str) -> float | np.ndarray: ...
 
     def rows(self, n: int) -> np.ndarray:
-        """The behaviour as an ``(n, 5)`` array, columns in field order (for the kernels)."""
-        out = np.empty((n, 5))
-        for j, value in enumerate((self.accel, self.turn_speed, self.yield_brake, self.critical_gap,
-                                   self.clear_distance)):
-            out[:, j] = value
+        """The behaviour as an ``(n, P)`` array, columns :data:`~cdf_mj.traits.PER_CAR` (for
+        the kernels)."""
+        out = np.empty((n, len(PER_CAR)))
+        for j, name in enumerate(PER_CAR):
+            out[:, j] = getattr(self, name)
         return out
 
     @classmethod
-    def from_config(cls, config: ScenarioConfig) -> DriverParams:
-        """The simulated obstacle's behaviour: the scenario's values."""
-        return cls(accel=config.obstacle_accel, turn_speed=config.obstacle_turn_speed,
-                   yield_brake=config.obstacle_yield_brake, critical_gap=config.critical_gap,
-                   clear_distance=config.clear_distance)
+    def from_config(cls, obstacle: ObstacleDriver) -> DriverParams:
+        """The simulated obstacle's behaviour: the world driver's values."""
+        return cls(**{name: getattr(obstacle, name) for name in PER_CAR})
 
 
 def _rows(a: np.ndarray, width: int) -> np.ndarray:
@@ -274,10 +300,9 @@ def _one_obstacle(model: DriverModel, pose: np.ndarray, mode: np.ndarray, belief
     tab = model.table
     x, y, th, v = pose[0].tolist()
     bx, by, bth, bv = belief[0].tolist()
-    accel, turn_speed, yield_brake, gap, distance = params[0].tolist()
     a, steer, new, segment[0] = kernels.control(tab.table, tab.nseg, tab.ends, model.cfg, int(intent[0]), x, y, th,
                                                 v, int(segment[0]), int(mode[0]), bool(has_belief[0]), bx, by, bth,
-                                                bv, bool(may_go[0]), accel, turn_speed, yield_brake, gap, distance)
+                                                bv, bool(may_go[0]), *_CONTROL_ARGS(params[0].tolist()))
     return np.array([[a, steer]]), np.array([new], dtype=np.int64)
 
 
@@ -308,17 +333,21 @@ def update_belief(belief: np.ndarray, has_belief: np.ndarray, observed: np.ndarr
 def ego_control(model: DriverModel, car: CarGeometry, pose: np.ndarray,
                 brake: np.ndarray | bool) -> np.ndarray:
     """The ego's nominal controller ``h(x2, x1, I2)``: follow its route at the nominal
-    speed, or brake at the car's maximum rate where ``brake``.
+    speed (``model.ego``) with the model's pure pursuit, or brake at the car's maximum rate
+    where ``brake``.
 
     ``car`` is the ego's geometry (``Layout.ego``: wheelbase, actuator limits); ``pose``
     ``(..., 4)`` ``[x m, y m, theta rad, v m/s]``, world frame; returns ``(..., 2)`` =
-    [acceleration m/s^2, steering rad].
+    [acceleration m/s^2, steering rad]. ValueError for a model built without ``ego``.
     """
-    cfg = model.config
+    ego = model.ego
+    if ego is None:
+        raise ValueError("ego_control: this driver model has no ego settings (DriverModel.from_layout(..., ego=...))")
     pose = np.asarray(pose, dtype=float)
     tab = model.table
-    limits = np.array([cfg.lookahead, cfg.lookahead_gain, car.wheelbase, car.max_steer, cfg.ego_speed,
-                       cfg.ego_speed_gain, car.max_brake, car.max_accel])
+    limits = pack_ego({"lookahead": model.pursuit.lookahead, "lookahead_gain": model.pursuit.lookahead_gain,
+                       "wheelbase": car.wheelbase, "max_steer": car.max_steer, "speed": ego.speed,
+                       "speed_gain": ego.speed_gain, "max_brake": car.max_brake, "max_accel": car.max_accel})
     if pose.shape == (4,) and isinstance(brake, (bool, np.bool_)):  # one car, the per-tick call
         x, y, th, v = pose.tolist()
         accel, steer = kernels.ego_control(tab.table, tab.nseg, tab.ends, EGO_ROUTE, x, y, th, v, bool(brake), limits)

@@ -32,9 +32,10 @@ World frame (x east, y north), metres, seconds, radians; poses are rear-axle
 
 from __future__ import annotations
 
+import hashlib
 import math
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
 
@@ -42,8 +43,10 @@ import numba
 import numpy as np
 
 from cdf_mj.model.geometry import Polyline
+from cdf_mj.traits import PER_CAR, SHARED
 
-__all__ = ["DRIVER_FIELDS", "RouteTable", "compile_pending", "helper", "pack_driver", "tracking_radius"]
+__all__ = ["DRIVER_FIELDS", "EGO_FIELDS", "LAYOUT", "LAYOUTS", "RouteTable", "compile_pending", "helper",
+           "layout_digest", "offsets", "pack", "pack_driver", "pack_ego", "tracking_radius"]
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -51,16 +54,61 @@ F = TypeVar("F", bound=Callable[..., Any])
 WAITING, GOING, YIELDING, COMMITTED = 0, 1, 2, 3
 LEFT, RIGHT = 0, 1
 
-#: Entries of the float vector ``cfg`` that the driver kernels read (:func:`pack_driver`).
-DRIVER_FIELDS = ("dt", "wheelbase", "max_steer", "max_brake", "lookahead", "lookahead_gain",
-                 "passed_margin", "conflict_x", "conflict_y", "s_commit_left", "s_commit_right")
+#: Entries of the float vector ``cfg`` that the driver kernels read (:func:`pack_driver`): the
+#: tick [s], the obstacle car's limits, its pure pursuit, the traits shared by every car
+#: (:data:`cdf_mj.traits.SHARED`), the conflict point and the commit point on each route [m].
+DRIVER_FIELDS = ("dt", "wheelbase", "max_steer", "max_brake", "lookahead", "lookahead_gain", *SHARED,
+                 "conflict_x", "conflict_y", "s_commit_left", "s_commit_right")
+#: Entries of the ego controller's float vector (:func:`pack_ego`, :func:`ego_control`).
+EGO_FIELDS = ("lookahead", "lookahead_gain", "wheelbase", "max_steer", "speed", "speed_gain", "max_brake",
+              "max_accel")
 #: [m] Beyond this distance from its route (or the route's tighter radius of turn,
 #: :func:`tracking_radius`) a car's tracked projection is checked by the full search.
 TRACK_RADIUS = 3.0
 #: The segment index that asks :func:`project` for the full search (an int64, not the
 #: literal -1, for which Numba would compile the projection a second time).
 NO_SEGMENT = np.int64(-1)
-C_DT, C_WHEELBASE, C_MAX_STEER, C_MAX_BRAKE, C_LOOKAHEAD, C_GAIN, C_PASSED, C_CX, C_CY, C_COMMIT = range(10)
+
+
+def offsets(fields: tuple[str, ...]) -> dict[str, int]:
+    """Name -> index of a packed float vector's entries."""
+    return {name: i for i, name in enumerate(fields)}
+
+
+def pack(fields: tuple[str, ...], values: Mapping[str, float]) -> np.ndarray:
+    """The float vector of ``fields``, each entry taken from ``values`` by its name;
+    ValueError naming the names missing or not among ``fields``."""
+    missing, extra = sorted(set(fields) - set(values)), sorted(set(values) - set(fields))
+    if missing or extra:
+        raise ValueError(f"pack: missing {missing}, unknown {extra}; the fields are {', '.join(fields)}")
+    return np.array([values[name] for name in fields], dtype=float)
+
+
+def layout_digest(*layouts: tuple[str, ...]) -> str:
+    """A short digest of the names (orders) of packed vectors and columns: see :data:`LAYOUT`."""
+    return hashlib.sha256(repr(layouts).encode()).hexdigest()[:12]
+
+
+# Index constants, plain ints computed from the names at import (Numba reads them as
+# compile-time constants): the driver's vector, the ego's and the per-car parameter columns.
+_AT, _EGO_AT = offsets(DRIVER_FIELDS), offsets(EGO_FIELDS)
+C_DT, C_WHEELBASE, C_MAX_STEER, C_MAX_BRAKE = _AT["dt"], _AT["wheelbase"], _AT["max_steer"], _AT["max_brake"]
+C_LOOKAHEAD, C_GAIN, C_PASSED = _AT["lookahead"], _AT["lookahead_gain"], _AT["passed_margin"]
+C_CX, C_CY, C_COMMIT = _AT["conflict_x"], _AT["conflict_y"], _AT["s_commit_left"]  # commit of intent i: C_COMMIT + i
+E_LOOKAHEAD, E_GAIN, E_WHEELBASE, E_MAX_STEER = (_EGO_AT[n] for n in ("lookahead", "lookahead_gain", "wheelbase",
+                                                                      "max_steer"))
+E_SPEED, E_SPEED_GAIN, E_MAX_BRAKE, E_MAX_ACCEL = (_EGO_AT[n] for n in ("speed", "speed_gain", "max_brake",
+                                                                        "max_accel"))
+P_ACCEL, P_TURN, P_YIELD, P_GAP, P_CLEAR = (PER_CAR.index(n) for n in ("accel", "turn_speed", "yield_brake",
+                                                                       "critical_gap", "clear_distance"))
+if _AT["s_commit_right"] != C_COMMIT + RIGHT:
+    raise ValueError("DRIVER_FIELDS: s_commit_right must follow s_commit_left (the kernels read C_COMMIT + intent)")
+#: The names the index constants above are computed from.
+LAYOUTS = (DRIVER_FIELDS, EGO_FIELDS, PER_CAR)
+#: Numba's cache keys a kernel on this file's text, not on :data:`LAYOUTS`: their digest
+#: (:func:`layout_digest`) written here puts them in the text, so that a new layout
+#: recompiles. tests/test_traits.py checks it and gives the new value.
+LAYOUT = "8cc0a86ccbca"
 
 
 @dataclass(frozen=True, eq=False)
@@ -113,14 +161,15 @@ def helper(fn: F) -> F:
     return compile_(cache=True, nogil=True, _nrt=False)(fn)  # type: ignore[no-any-return]
 
 
-def pack_driver(dt: float, wheelbase: float, max_steer: float, max_brake: float, lookahead: float,
-                lookahead_gain: float, passed_margin: float, conflict: np.ndarray,
-                s_commit: np.ndarray) -> np.ndarray:
-    """The float vector ``cfg`` of :data:`DRIVER_FIELDS` (conflict and commit points as
-    given by :class:`cdf_mj.model.driver.DriverModel`); kernels of other modules append
-    their own entries after these."""
-    return np.array([dt, wheelbase, max_steer, max_brake, lookahead, lookahead_gain, passed_margin,
-                     conflict[0], conflict[1], s_commit[0], s_commit[1]], dtype=float)
+def pack_driver(values: Mapping[str, float]) -> np.ndarray:
+    """The float vector ``cfg`` of :data:`DRIVER_FIELDS`, by name (:func:`pack`); kernels of
+    other modules append their own entries after these."""
+    return pack(DRIVER_FIELDS, values)
+
+
+def pack_ego(values: Mapping[str, float]) -> np.ndarray:
+    """The ego controller's float vector of :data:`EGO_FIELDS`, by name (:func:`pack`)."""
+    return pack(EGO_FIELDS, values)
 
 
 @helper
@@ -281,16 +330,16 @@ def obstacle_control_rows(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray,
                            pose: np.ndarray, mode: np.ndarray, belief: np.ndarray, has_belief: np.ndarray,
                            intent: np.ndarray, params: np.ndarray, may_go: np.ndarray,
                            seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`drive` for N cars (``params`` ``(N, 5)``: accel, turn speed, yield brake,
-    critical gap, clear distance); ``seg`` ``(N,)`` is each car's segment, updated."""
+    """:func:`drive` for N cars (``params`` ``(N, P)``, the per-car traits
+    :data:`cdf_mj.traits.PER_CAR`); ``seg`` ``(N,)`` is each car's segment, updated."""
     n = pose.shape[0]
     u = np.empty((n, 2))
     new = np.empty(n, dtype=np.int64)
     for i in range(n):
         u[i, 0], u[i, 1], new[i], seg[i] = control(
             table, nseg, ends, cfg, intent[i], pose[i, 0], pose[i, 1], pose[i, 2], pose[i, 3], seg[i], mode[i],
-            has_belief[i], belief[i, 0], belief[i, 1], belief[i, 2], belief[i, 3], may_go[i], params[i, 0],
-            params[i, 1], params[i, 2], params[i, 3], params[i, 4])
+            has_belief[i], belief[i, 0], belief[i, 1], belief[i, 2], belief[i, 3], may_go[i], params[i, P_ACCEL],
+            params[i, P_TURN], params[i, P_YIELD], params[i, P_GAP], params[i, P_CLEAR])
     return u, new
 
 
@@ -302,7 +351,7 @@ def clear_rows(cfg: np.ndarray, belief: np.ndarray, has_belief: np.ndarray, inte
     out = np.empty(n, dtype=np.bool_)
     for i in range(n):
         out[i] = clear(cfg, intent[i], has_belief[i], belief[i, 0], belief[i, 1], belief[i, 2],
-                       belief[i, 3], params[i, 3], params[i, 4])
+                       belief[i, 3], params[i, P_GAP], params[i, P_CLEAR])
     return out
 
 
@@ -379,13 +428,15 @@ def ego_control(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, r: int, x
                 v: float, brake: bool, car: np.ndarray) -> tuple[float, float]:
     """The ego's nominal controller for one pose on route ``r``: pure pursuit and
     ``speed_gain (v_nominal - v)`` within its limits, or its full braking if ``brake``;
-    ``car`` = [look-ahead m, look-ahead gain s, wheelbase m, max steer rad, nominal speed
-    m/s, speed gain 1/s, max brake m/s^2, max accel m/s^2]. Returns [acceleration m/s^2,
-    steering rad]."""
+    ``car`` the vector of :data:`EGO_FIELDS` (:func:`pack_ego`: look-ahead m, look-ahead
+    gain s, wheelbase m, max steer rad, nominal speed m/s, speed gain 1/s, max brake
+    m/s^2, max accel m/s^2). Returns [acceleration m/s^2, steering rad]."""
     s, k = project(table, nseg, r, x, y, NO_SEGMENT)
-    steer = steer_to(table, nseg, ends, r, x, y, math.cos(th), math.sin(th), s, k, car[0] + car[1] * v, car[2],
-                     car[3])
-    return (-car[6] if brake else min(max(car[5] * (car[4] - v), -car[6]), car[7])), steer
+    steer = steer_to(table, nseg, ends, r, x, y, math.cos(th), math.sin(th), s, k,
+                     car[E_LOOKAHEAD] + car[E_GAIN] * v, car[E_WHEELBASE], car[E_MAX_STEER])
+    brake_rate = car[E_MAX_BRAKE]
+    return (-brake_rate if brake else min(max(car[E_SPEED_GAIN] * (car[E_SPEED] - v), -brake_rate),
+                                          car[E_MAX_ACCEL])), steer
 
 
 @numba.njit(cache=True, nogil=True)

@@ -10,7 +10,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from cdf_mj.config import CDFConfig, ScenarioConfig
+from cdf_mj.config import CDFConfig
 from cdf_mj.inference.particle_filter import ParticleFilter, Posterior
 from cdf_mj.model.conflict import Futures
 from cdf_mj.planners.base import DecidingPlanner, PlannerContext, PlannerInput, as_config
@@ -59,7 +59,7 @@ class CDFPlanner(DecidingPlanner):
         """A new filter for this junction and tick, drawing from the episode's planner ``rng``."""
         super().reset(context, rng)
         # TODO(schema part): the filter's own model replaces the stand-in world config.
-        self.filter = ParticleFilter.from_layout(context.layout, ScenarioConfig(dt=context.dt), self.cdf, rng)
+        self.filter = ParticleFilter.from_layout(context.layout, self.cdf, rng, context.dt)
         self._started = False
         self._post: Posterior | None = None
 

@@ -12,12 +12,18 @@ preset is a model-mismatch evaluation (``scripts/mismatch.py``, docs/MISMATCH.md
     config = load_preset("my_driver.toml")       # a file of your own, same format
 
 A preset file holds ``description`` (a string) and a ``[scenario]`` table of
-ScenarioConfig fields, in the fields' units (pairs as two-element arrays)::
+ScenarioConfig fields, one table per group (``[scenario.obstacle]``, ``[scenario.ego]``,
+...: :data:`cdf_mj.config.SCENARIO_KEYS`), in the fields' units (pairs as two-element
+arrays)::
 
     description = "A driver who waits 1-3 s at the stop line before it goes."
 
-    [scenario]
+    [scenario.obstacle]
     stop_dwell = [1.0, 3.0]   # [s]
+
+A file of version 0.1, with the flat keys of :data:`cdf_mj.config.FLAT_KEYS` directly in
+``[scenario]`` (``stop_dwell = [1.0, 3.0]``), still reads, with a DeprecationWarning
+naming the table and key to write instead.
 
 On the command line: ``cdf-mj experiment --preset stop-and-wait`` (``--set`` is applied
 after the preset); ``cdf-mj presets`` lists them. Every mistake in a file (not TOML, an
@@ -27,14 +33,14 @@ of one line naming the file and the field.
 
 from __future__ import annotations
 
-import dataclasses
 import sys
+import warnings
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from cdf_mj.config import ScenarioConfig
+from cdf_mj.config import FLAT_KEYS, GROUPS, SCENARIO_KEYS, ScenarioConfig
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -45,9 +51,6 @@ __all__ = ["SUFFIX", "Preset", "PresetError", "load_preset", "preset_description
 
 #: The suffix of a preset file.
 SUFFIX = ".toml"
-#: ScenarioConfig fields a preset may set (``names``, the scene's element names, is a
-#: property of the scene, given with ``--names``, not of the driver).
-_SETTABLE = tuple(f.name for f in dataclasses.fields(ScenarioConfig) if f.name != "names")
 _KEYS = ("description", "scenario")
 
 
@@ -62,7 +65,7 @@ class Preset:
 
     name: str  # file stem: "stop-and-wait"
     description: str  # who this driver is and why it is a test
-    scenario: dict[str, Any]  # ScenarioConfig field -> value (pairs as tuples), as given
+    scenario: dict[str, Any]  # dotted ScenarioConfig key ("obstacle.accel") -> value (pairs as tuples)
     source: str  # where it was read from: the package's file or a user's path
 
     @property
@@ -76,15 +79,15 @@ class Preset:
         naming the file and the field if a value is out of range."""
         base = base or ScenarioConfig()
         try:
-            return base.replace(**self.scenario)
+            return base.with_values(self.scenario)
         except ValueError as exc:  # ScenarioConfig names the field and its range
             raise PresetError(f"preset {self.source}: [scenario] {exc}") from None
 
     def changes(self) -> dict[str, tuple[Any, Any]]:
-        """Field -> (default, preset value) for each field whose value differs from the
+        """Dotted key -> (default, preset value) for each field whose value differs from the
         default (a field set to its default is left out)."""
         default = ScenarioConfig()
-        return {k: (getattr(default, k), v) for k, v in self.scenario.items() if getattr(default, k) != v}
+        return {k: (default.get(k), v) for k, v in self.scenario.items() if default.get(k) != v}
 
 
 def _packaged() -> dict[str, Any]:
@@ -138,6 +141,24 @@ def _coerce(source: str, key: str, value: Any, default: Any) -> Any:
     raise PresetError(f"preset {source}: [scenario] {key} cannot be set in a preset")
 
 
+def _dotted(table: dict[str, Any], source: str) -> dict[str, Any]:
+    """The ``[scenario]`` table by dotted key: its group tables' fields, and the flat keys
+    of version 0.1 (:data:`~cdf_mj.config.FLAT_KEYS`, with a DeprecationWarning). A key
+    that is neither is kept as it is (and refused as unknown)."""
+    out: dict[str, Any] = {}
+    for key, value in table.items():
+        if key in GROUPS and isinstance(value, dict):
+            out.update({f"{key}.{field}": v for field, v in value.items()})
+        elif key in FLAT_KEYS:
+            group, _, field = FLAT_KEYS[key].partition(".")
+            warnings.warn(f"preset {source}: [scenario] {key} is a flat key of version 0.1; write {field} in "
+                          f"[scenario.{group}]", DeprecationWarning, stacklevel=4)
+            out[FLAT_KEYS[key]] = value
+        else:
+            out[key] = value
+    return out
+
+
 def _parse(text: str, name: str, source: str) -> Preset:
     """The preset in the TOML ``text`` read from ``source``."""
     try:
@@ -156,11 +177,11 @@ def _parse(text: str, name: str, source: str) -> Preset:
         raise PresetError(f"preset {source}: 'scenario' must be a table ([scenario]), got {table!r}")
     default = ScenarioConfig()
     scenario: dict[str, Any] = {}
-    for key, value in table.items():
-        if key not in _SETTABLE:
+    for key, value in _dotted(table, source).items():
+        if key not in SCENARIO_KEYS:
             raise PresetError(f"preset {source}: [scenario] unknown field {key!r}; "
-                              f"valid fields: {', '.join(_SETTABLE)}")
-        scenario[key] = _coerce(source, key, value, getattr(default, key))
+                              f"valid fields: {', '.join(SCENARIO_KEYS)}")
+        scenario[key] = _coerce(source, key, value, default.get(key))
     preset = Preset(name=name, description=" ".join(description.split()), scenario=scenario, source=source)
     preset.config()  # ranges: PresetError naming the file and the field
     return preset

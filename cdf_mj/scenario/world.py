@@ -1,4 +1,4 @@
-"""The scenario world: both cars ticked at ``config.dt``, the obstacle's side of the
+"""The scenario world: both cars ticked at ``config.timing.dt``, the obstacle's side of the
 scenario in one place (:class:`World`), used by :func:`cdf_mj.scenario.episode.run_episode`
 and by the Gymnasium environment (:mod:`cdf_mj.envs.t_intersection`). ::
 
@@ -75,16 +75,16 @@ def _streams(seed: int) -> dict[str, np.random.Generator]:
 
 
 def _substeps(scene: Scene, config: ScenarioConfig) -> int:
-    ratio = config.dt / scene.model.opt.timestep
+    ratio = config.timing.dt / scene.model.opt.timestep
     n = round(ratio)
     if n < 1 or abs(ratio - n) > 1e-6:
-        raise ValueError(f"dt={config.dt} s must be a whole multiple of the scene's timestep "
+        raise ValueError(f"timing.dt={config.timing.dt} s must be a whole multiple of the scene's timestep "
                          f"{scene.model.opt.timestep} s")
     return n
 
 
 class World:
-    """The scenario world, ticked at ``config.dt``: the obstacle looks, believes and drives;
+    """The scenario world, ticked at ``config.timing.dt``: the obstacle looks, believes and drives;
     the ego takes the controls it is given (see the module docstring for an example).
 
     One tick, in order: the obstacle looks (MuJoCo rays; with probability ``beta`` it
@@ -93,10 +93,10 @@ class World:
     MuJoCo steps ``dt / timestep`` physics steps, stopping at the ego's first contact.
 
     Stop line: the obstacle starts at rest at its stop line and waits ``dwell`` [s]
-    (drawn per episode from ``config.stop_dwell``) before it may go; on the tick it would
-    leave, it looks once more with probability ``config.departure_look`` (and sees the ego
-    if it is in its line of sight), on top of the beta draw. A hesitating driver
-    (probability ``config.hesitation``) stops again once it has moved
+    (drawn per episode from ``config.obstacle.stop_dwell``) before it may go; on the tick it
+    would leave, it looks once more with probability ``config.obstacle.departure_look`` (and
+    sees the ego if it is in its line of sight), on top of the beta draw. A hesitating driver
+    (probability ``config.obstacle.hesitation``) stops again once it has moved
     ``hesitation_creep`` [m] from the line, stands ``hesitation_pause`` [s], and goes on
     as its belief says (with another departure look).
 
@@ -108,8 +108,8 @@ class World:
 
     Args:
         scene: the loaded scene (its model is not changed; its data is).
-        config: scenario parameters; ``config.dt`` must be a whole multiple of the scene's
-            timestep.
+        config: scenario parameters; ``config.timing.dt`` must be a whole multiple of the
+            scene's timestep.
 
     Attributes: ``scene``, ``config``, ``layout`` (``scene.layout()``), ``driver`` (the
     obstacle's :class:`~cdf_mj.model.driver.DriverModel`). After :meth:`reset` (updated by
@@ -126,18 +126,18 @@ class World:
         self.scene = scene
         self.config = config = config or ScenarioConfig()
         self.layout = layout = scene.layout()
-        self.driver = DriverModel.from_layout(layout, config)
+        self.driver = DriverModel.of_world(layout, config)
         self.n_sub = _substeps(scene, config)
-        self._obs_std = np.array([config.obs_noise_pos, config.obs_noise_pos,
-                                  config.obs_noise_heading, config.obs_noise_speed])
-        self._nu_std = np.array([config.noise_accel, config.noise_steer])
+        seen = config.observation
+        self._obs_std = np.array([seen.pos, seen.pos, seen.heading, seen.speed])
+        self._nu_std = np.array([config.noise.accel, config.noise.steer])
         self._s0 = layout.route_ego.project(layout.ego_start[:2])[0]
         self._s_conflict = layout.route_ego.project(layout.conflict)[0]
-        lo, hi = config.ego_start_spread
+        lo, hi = config.ego.start_spread
         # A start before the route's first waypoint starts at it (heading along the route);
         # past its end there is no heading to take.
         if self._s0 + hi + 1.0 > layout.route_ego.length:
-            raise ValueError(f"ego_start_spread=({lo:g}, {hi:g}) m puts the ego's start off its route in "
+            raise ValueError(f"ego.start_spread=({lo:g}, {hi:g}) m puts the ego's start off its route in "
                              f"{scene.source}: its start site is {self._s0:.1f} m along a route of "
                              f"{layout.route_ego.length:.1f} m (and the start needs 1 m of route ahead)")
         s_right = right_turn_overlap(layout)
@@ -146,12 +146,13 @@ class World:
                           f"right route ({s_right:.1f} m along it): a right-turner can hit the ego, which the "
                           "drivers' model and every planner built on it take for impossible; give the right "
                           "route a wider turn or the obstacle a smaller box", SceneWarning, stacklevel=2)
-        if config.hesitation > 0.0:  # a stop past the commit point would never happen
+        behaviour = config.obstacle
+        if behaviour.hesitation > 0.0:  # a stop past the commit point would never happen
             start = layout.obstacle_start[:2]
             room = min(float(s - r.project(start)[0]) for r, s in zip(layout.obstacle_routes,
                                                                         self.driver.s_commit, strict=True))
-            if config.hesitation_creep >= room:
-                raise ValueError(f"hesitation_creep={config.hesitation_creep} m reaches the commit point, "
+            if behaviour.hesitation_creep >= room:
+                raise ValueError(f"obstacle.hesitation_creep={behaviour.hesitation_creep} m reaches the commit point, "
                                  f"{room + 1e-9:.2f} m from the obstacle's start in {scene.source}: a driver "
                                  "past it never stops again; give a shorter creep")
         self.done = True  # until reset
@@ -162,26 +163,27 @@ class World:
         ego's start offset, place both cars (the ego at its nominal speed, the obstacle at
         rest at its start site), and return the first measurement."""
         scene, config, layout = self.scene, self.config, self.layout
+        behaviour = config.obstacle
         self.seed = seed
         self.rng = rng = _streams(seed)
         # Scenario draw: intent, then the ego's start along its route.
-        self.intent = Intent.LEFT if rng["scenario"].random() < config.p_left else Intent.RIGHT
-        self.ego_start_offset = offset = float(rng["scenario"].uniform(*config.ego_start_spread))
+        self.intent = Intent.LEFT if rng["scenario"].random() < behaviour.p_left else Intent.RIGHT
+        self.ego_start_offset = offset = float(rng["scenario"].uniform(*config.ego.start_spread))
         route = layout.route_ego
         xy0 = route.point_at(self._s0 + offset)
         # Drawn after the draws above, so that intent and ego start stay the same per seed.
-        self.dwell = float(rng["scenario"].uniform(*config.stop_dwell))
-        # Drawn whatever config.hesitation is, after the dwell: the same per seed (CRN).
+        self.dwell = float(rng["scenario"].uniform(*behaviour.stop_dwell))
+        # Drawn whatever the hesitation is, after the dwell: the same per seed (CRN).
         u_hesitate = rng["scenario"].random()
-        pause = float(rng["scenario"].uniform(*config.hesitation_pause))
-        self.hesitates = bool(u_hesitate < config.hesitation)
+        pause = float(rng["scenario"].uniform(*behaviour.hesitation_pause))
+        self.hesitates = bool(u_hesitate < behaviour.hesitation)
         self.hesitation_pause = pause if self.hesitates else 0.0
         self.hesitated: float | None = None
         self._go_after = self.dwell  # [s] a WAITING driver may leave from then on
         self._line = layout.obstacle_start[:2].copy()  # where it stood
         ahead = route.point_at(self._s0 + offset + 1.0)
         heading0 = math.atan2(ahead[1] - xy0[1], ahead[0] - xy0[0])
-        scene.reset(ego=np.array([xy0[0], xy0[1], heading0, config.ego_speed]),
+        scene.reset(ego=np.array([xy0[0], xy0[1], heading0, config.ego.speed]),
                     obstacle=layout.obstacle_start)
         self._mode = np.array([Mode.WAITING])
         self._belief = np.zeros((1, 4))
@@ -203,7 +205,7 @@ class World:
     @property
     def t(self) -> float:
         """[s] episode time at the start of the current tick."""
-        return round(self._k * self.config.dt, 6)
+        return round(self._k * self.config.timing.dt, 6)
 
     @property
     def end_time(self) -> float:
@@ -213,10 +215,10 @@ class World:
     @property
     def time_lost(self) -> float:
         """[s] the ego's progress deficit along its route over its nominal speed, so far."""
-        cfg = self.config
+        speed = self.config.ego.speed
         s_end = self.layout.route_ego.project(self.scene.pose(self.scene.ego)[:2])[0]
         s_start = self._s0 + self.ego_start_offset
-        return float((s_start + cfg.ego_speed * self.end_time - s_end) / cfg.ego_speed)
+        return float((s_start + speed * self.end_time - s_end) / speed)
 
     def measure(self) -> Measurement:
         """The system pose ``S_t`` (2, 4) read from MuJoCo at the start of the current tick,
@@ -237,18 +239,19 @@ class World:
         return self._measured
 
     def step(self, ego_controls: np.ndarray) -> Tick:
-        """One tick of ``config.dt`` with the ego's controls ``[accel m/s^2, steer rad]``
+        """One tick of ``config.timing.dt`` with the ego's controls ``[accel m/s^2, steer rad]``
         (process noise is added; MuJoCo clips them to the actuator ranges).
 
         RuntimeError after the episode is over (call :meth:`reset`).
         """
         if self.done:
             raise RuntimeError("the episode is over: call reset(seed) before step()")
-        scene, config, rng, layout = self.scene, self.config, self.rng, self.layout
+        scene, rng, layout = self.scene, self.rng, self.layout
+        behaviour = self.config.obstacle
         m = self.measure()
         t, poses = m.t, m.poses
         ego, obs = poses[0], poses[1]
-        dt = config.dt
+        dt = self.config.timing.dt
 
         # The obstacle looks (draws are made every tick, whatever is visible: CRN).
         u_look = rng["obstacle"].random()
@@ -265,18 +268,18 @@ class World:
                 visible = ego_visible(scene, obs, ego)
             return visible
 
-        observed = bool(u_look < config.beta) and sees_ego()
+        observed = bool(u_look < behaviour.beta) and sees_ego()
         self._belief, self._has_belief = update_belief(
             self._belief, self._has_belief, np.array([observed]), (ego + noise)[None], dt,
             layout.obstacle.wheelbase)
         if (self.hesitates and self.hesitated is None and int(self._mode[0]) == Mode.GOING
-                and math.dist(obs[:2], self._line) >= config.hesitation_creep):
+                and math.dist(obs[:2], self._line) >= behaviour.hesitation_creep):
             # It has nosed out and stops again: it stands its pause, then may go on.
             self.hesitated = t
             self._mode[0] = Mode.WAITING
             self._go_after = t + self.hesitation_pause
         may_go = t >= self._go_after - 1e-9
-        if (not observed and may_go and u_depart < config.departure_look
+        if (not observed and may_go and u_depart < behaviour.departure_look
                 and int(self._mode[0]) == Mode.WAITING
                 and road_clear(self.driver, self._belief, self._has_belief, self._intents)[0]
                 and sees_ego()):
@@ -320,7 +323,7 @@ class World:
         # The ego's rear axle is 20 m past the conflict point: nothing more can happen to it.
         elif layout.route_ego.project_point(*scene.pose(scene.ego)[:2].tolist())[0] > self._s_conflict + 20.0:
             self.end_reason = "passed"
-        elif self._k >= config.n_ticks:
+        elif self._k >= self.config.n_ticks:
             self.end_reason = "duration"
         self.done = self.end_reason is not None
         return Tick(t=t, poses=poses, obstacle_in_lane=m.obstacle_in_lane, observed=observed,
