@@ -81,9 +81,9 @@ def test_registered_arguments_are_updated_by_the_callers_and_stored_as_json(monk
         make_planner("reactive", horizon=2.0)
     with pytest.raises(ValueError, match="n_particles"):
         make_planner("cdf", cdf={"n_particles": 0})
-    with pytest.raises(TypeError, match="cdf: .*unexpected keyword.*CDFConfig fields"):
+    with pytest.raises(TypeError, match=r"cdf: .*unexpected keyword.*CDFConfig fields"):
         make_planner("cdf", cdf={"particles": 10})
-    with pytest.raises(TypeError, match="arguments .* given with a planner object"):
+    with pytest.raises(TypeError, match=r"arguments .* given with a planner object"):
         make_planner(ReactivePlanner(), horizon=2.0)
 
 

@@ -50,7 +50,7 @@ from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames
 from cdf_mj.inference.particle_filter import ParticleFilter, Posterior
 from cdf_mj.model.layout import Layout
 from cdf_mj.model.vehicle import CarGeometry
-from cdf_mj.planners.base import PlannerInput
+from cdf_mj.planners.base import PlannerContext, PlannerInput
 from cdf_mj.planners.cdf import CDFPlanner
 from cdf_mj.scenario.trace_file import TRACE_FORMAT, MonitorTrace, TraceError, read_trace, write_trace
 
@@ -196,7 +196,8 @@ class CDFMonitor:
         The filter's random stream goes on from where it was, so a replayed episode gets
         other draws; build a new monitor with the same ``rng`` seed to repeat one exactly."""
         self._last_t: float | None = None
-        self.planner.reset(self.layout, self.scenario, self.rng)
+        # The filter is told what the ego knows: the map, the tick, its own nominal controller.
+        self.planner.reset(PlannerContext.of(self.layout, self.scenario), self.rng)
         self.decision: Decision | None = None
         self.trace: list[dict[str, Any]] = []
         forget = getattr(self.source, "forget", None)
