@@ -54,7 +54,8 @@ def test_planners_share_labels_and_tables_match_records(small_run):
 
 def test_other_settings_in_the_same_directory_are_refused(small_run):
     out, _ = small_run
-    with pytest.raises(ValueError, match=r"other settings \(differing: cdf.n_particles, planners\)") as info:
+    with pytest.raises(ValueError,
+                       match=r"other settings \(differing: cdf.n_particles, planner_args.cdf, planners\)") as info:
         run_experiment(out, SEEDS, ("reactive",), progress=False)
     assert not isinstance(info.value, ResultsExistError)
     # The same settings without resume: its own error, in neutral terms.

@@ -183,7 +183,8 @@ def test_a_worker_that_dies_is_reported_and_resumed(tmp_path, monkeypatch):
 def test_resume_with_other_settings_is_refused(serial, tmp_path):
     out = serial.out_dir
     before = (out / "episodes.jsonl").read_bytes()
-    with pytest.raises(ValueError, match=r"other settings \(differing: cdf.n_particles\)"):
+    with pytest.raises(ValueError,
+                       match=r"other settings \(differing: cdf.n_particles, planner_args.cdf.cdf.n_particles\)"):
         run_experiment(out, SEEDS, ("cdf", "reactive"), progress=False, resume=True)
     with pytest.raises(ValueError, match="planners"):
         run_experiment(out, SEEDS, ("reactive",), cdf=SMALL, progress=False, resume=True)
@@ -307,12 +308,12 @@ def test_a_pool_started_in_a_thread_that_ends_keeps_its_workers():
     import threading
 
     from cdf_mj.config import ScenarioConfig
-    from cdf_mj.experiments.experiment import _factory
     from cdf_mj.experiments.runner import SeedJob, run_seeds
+    from cdf_mj.planners.base import bind_planner
     from cdf_mj.sim.scene import DEFAULT_SCENE
 
     job = SeedJob(ScenarioConfig(), str(DEFAULT_SCENE), ("reactive",),
-                  {"reactive": _factory("reactive", CDFConfig())})
+                  {"reactive": bind_planner("reactive", CDFConfig())})
     gen = run_seeds(job, [(s, ("reactive",)) for s in range(6)], backend="process", workers=2)
     first = []
     thread = threading.Thread(target=lambda: first.append(next(gen)))

@@ -18,17 +18,17 @@ from typing import Any, get_args
 
 from cdf_mj.analysis.tables import TableFormat
 from cdf_mj.config import (
+    FLAT_KEYS,
     MAX_EPISODES,
     MAX_PARTICLES,
     MAX_SEED,
     MAX_WORKERS,
-    CDFConfig,
-    FLAT_KEYS,
     SCENARIO_KEYS,
+    CDFConfig,
     RiskConfig,
     ScenarioConfig,
 )
-from cdf_mj.planners.base import PLANNERS
+from cdf_mj.planners.base import PLANNERS, bind_planner, planner_spec
 from cdf_mj.presets import preset_names, read_preset
 from cdf_mj.sim.checks import read_names
 from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
@@ -212,8 +212,16 @@ def add_cdf_arguments(parser: argparse.ArgumentParser, swept: bool = False) -> N
 
 
 #: The planners that read ``--tau`` and the risk rule's flags.
-_THRESHOLD_PLANNERS = ("cdf-threshold",)
-_RISK_PLANNERS = ("cdf", "imm-risk", "cv-risk")
+def _rules_read(name: str) -> set[str]:
+    """Which of the CDF flags planner ``name`` reads, as its registry entry builds it with a
+    run's CDF settings: ``"tau"`` (the paper's threshold rule on the CDF's P(cutoff)) and
+    ``"risk"`` (the risk rule's settings)."""
+    from cdf_mj.planners.decision import RiskRule, ThresholdRule
+
+    shared = planner_spec(name).shared
+    rule = getattr(bind_planner(name)(), "rule", None)
+    return ({"tau"} if isinstance(rule, ThresholdRule) and "cdf" in shared else set()) | (
+        {"risk"} if isinstance(rule, RiskRule) and shared else set())
 
 
 def cdf_from_args(args: argparse.Namespace, planners: Sequence[str] | None = None) -> CDFConfig:
@@ -223,15 +231,16 @@ def cdf_from_args(args: argparse.Namespace, planners: Sequence[str] | None = Non
     would change nothing."""
     d = CDFConfig()
     if planners is not None:
-        given = [f for f, v in (("--tau", args.tau),) if v is not None]
-        if given and not set(planners) & set(_THRESHOLD_PLANNERS):
-            raise CLIError(f"--tau is the threshold of the paper's rule, which none of the planners "
-                           f"{','.join(planners)} uses: add cdf-threshold to them")
-        given = [f for f, v in (("--brake-risk", args.brake_risk), ("--release-risk", args.release_risk),
-                                ("--risk-latency", args.risk_latency)) if v is not None]
-        if given and not set(planners) & set(_RISK_PLANNERS):
-            raise CLIError(f"{given[0]} sets the risk rule, which none of the planners {','.join(planners)} "
-                           f"uses: add one of {', '.join(_RISK_PLANNERS)}")
+        flags = {"tau": [f for f, v in (("--tau", args.tau),) if v is not None],
+                 "risk": [f for f, v in (("--brake-risk", args.brake_risk), ("--release-risk", args.release_risk),
+                                         ("--risk-latency", args.risk_latency)) if v is not None]}
+        for kind, given in flags.items():
+            if given and not any(kind in _rules_read(p) for p in planners if p in PLANNERS):
+                readers = [p for p in sorted(PLANNERS) if kind in _rules_read(p)]
+                what = "the threshold of the paper's rule" if kind == "tau" else "sets the risk rule"
+                raise CLIError(f"{given[0]} {'is ' if kind == 'tau' else ''}{what}, which none of the planners "
+                               f"{','.join(planners)} uses: add {'one of ' if len(readers) > 1 else ''}"
+                               f"{', '.join(readers)}")
     brake = args.brake_risk if args.brake_risk is not None else d.risk.brake
     release = args.release_risk if args.release_risk is not None else brake / 2
     latency = args.risk_latency if args.risk_latency is not None else d.risk.latency

@@ -1,4 +1,6 @@
-"""Ego planners and their registry: ``make_planner("cdf")``, ``register(name, target)``.
+"""Ego planners and their registry: ``make_planner("cdf", **kwargs)``,
+``register(name, target, **defaults)``; a planner is told a :class:`PlannerContext` at
+reset (what the ego knows) and a :class:`PlannerInput` each tick.
 
 Planners decide from measurements and the junction's static layout; they never see the
 live simulation. The baselines (``CVPlanner``, ``IMMPlanner`` and their configs) are
@@ -14,7 +16,9 @@ from cdf_mj.planners.base import (
     DecidingPlanner,
     LazyPlanner,
     Planner,
+    PlannerContext,
     PlannerInput,
+    PlannerSpec,
     make_planner,
     predicted_label,
     register,
@@ -26,8 +30,8 @@ if TYPE_CHECKING:
     from cdf_mj.planners.baselines import CVConfig, CVPlanner, IMMConfig, IMMPlanner
 
 __all__ = ["PLANNERS", "CDFPlanner", "CVConfig", "CVPlanner", "ConstantPlanner", "DecidingPlanner",
-           "IMMConfig", "IMMPlanner", "LazyPlanner", "Planner", "PlannerInput", "ReactivePlanner",
-           "make_planner", "predicted_label", "register"]
+           "IMMConfig", "IMMPlanner", "LazyPlanner", "Planner", "PlannerContext", "PlannerInput", "PlannerSpec",
+           "ReactivePlanner", "make_planner", "predicted_label", "register"]
 
 _BASELINES = frozenset(("CVConfig", "CVPlanner", "IMMConfig", "IMMPlanner"))
 
