@@ -54,6 +54,7 @@ import numpy as np
 
 from cdf_mj.config import MAX_SPEED, CDFConfig, ScenarioConfig
 from cdf_mj.model.layout import Layout
+from cdf_mj.records.files import jsonable
 
 if TYPE_CHECKING:  # annotations only: registering a planner imports no compiled kernel
     from cdf_mj.model.conflict import Futures
@@ -92,7 +93,7 @@ class PlannerContext:
     def of(cls, layout: Layout, config: ScenarioConfig) -> PlannerContext:
         """The ego's knowledge in a world of ``config``: its tick and its own nominal
         controller (speed and gain); nothing of the obstacle driver is read."""
-        return cls(layout=layout, dt=config.dt, nominal_speed=config.ego_speed, speed_gain=config.ego_speed_gain)
+        return cls(layout=layout, dt=config.timing.dt, nominal_speed=config.ego.speed, speed_gain=config.ego.speed_gain)
 
 
 @dataclass(frozen=True)
@@ -318,20 +319,6 @@ def as_config(value: Any, cls: type[_Config], name: str) -> _Config:
     raise TypeError(f"{name} must be a {cls.__name__} (or a mapping of its fields), got {type(value).__name__}")
 
 
-def _jsonable(value: Any) -> Any:
-    """A planner argument as JSON: configuration dataclasses as objects of their fields,
-    tuples as lists."""
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return {f.name: _jsonable(getattr(value, f.name)) for f in dataclasses.fields(value)}
-    if isinstance(value, Mapping):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
-
-
 @functools.cache
 def _check_reset(cls: type) -> None:
     """TypeError, in one line, for a planner class whose ``reset`` still takes the
@@ -419,7 +406,7 @@ class PlannerSpec:
     def arguments(self) -> dict[str, Any]:
         """The spec's arguments as JSON (configuration dataclasses as objects), what a stored
         run keeps; ``make(**arguments())`` builds the same planner."""
-        return {k: _jsonable(v) for k, v in self.kwargs.items()}
+        return {k: jsonable(v) for k, v in self.kwargs.items()}
 
 
 #: The registered planners by name (:func:`register`, :func:`make_planner`). A plain

@@ -51,6 +51,7 @@ from cdf_mj.records.files import (
     RecordsFile,
     check_settings,
     fsync_directory,
+    jsonable,
     load_records,
     read_records,
     read_settings,
@@ -60,5 +61,5 @@ from cdf_mj.records.schema import FAILED, LABELS, OK, EpisodeRecord, Label, Labe
 
 __all__ = ["FAILED", "LABELS", "OK", "RECORDS_FILE", "SETTINGS_FILE", "EpisodeRecord", "Label", "Labels",
            "RecordLike", "RecordsFile", "avoided", "braked", "check_record", "check_settings", "completed",
-           "fsync_directory", "hit_obstacle", "is_false_alarm", "is_imminent", "lead_time", "load_records",
+           "fsync_directory", "hit_obstacle", "is_false_alarm", "is_imminent", "jsonable", "lead_time", "load_records",
            "paper_avoided", "prediction", "read_records", "read_settings", "record_field", "write_atomic"]

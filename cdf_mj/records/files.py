@@ -5,6 +5,8 @@ record a line, read and checked by :func:`read_records`), the settings file
 
 from __future__ import annotations
 
+import dataclasses
+import enum
 import json
 import os
 import stat
@@ -15,10 +17,30 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from cdf_mj.records.schema import check_record
 
-__all__ = ["RECORDS_FILE", "SETTINGS_FILE", "RecordsFile", "check_settings", "fsync_directory", "load_records",
-           "read_records", "read_settings", "write_atomic"]
+__all__ = ["RECORDS_FILE", "SETTINGS_FILE", "RecordsFile", "check_settings", "fsync_directory", "jsonable",
+           "load_records", "read_records", "read_settings", "write_atomic"]
+
+def jsonable(value: Any) -> Any:
+    """Configurations (dataclasses, tuples, NumPy values, enums) as plain JSON values: what
+    settings files, traces and a stored run's planner arguments hold."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: jsonable(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, enum.Enum):
+        return jsonable(value.value)
+    return value
+
 
 #: The name of the records file in an experiment directory.
 RECORDS_FILE = "episodes.jsonl"

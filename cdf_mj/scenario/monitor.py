@@ -37,7 +37,6 @@ re-exported here.
 from __future__ import annotations
 
 import dataclasses
-import enum
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -52,6 +51,7 @@ from cdf_mj.model.layout import Layout
 from cdf_mj.model.vehicle import CarGeometry
 from cdf_mj.planners.base import PlannerContext, PlannerInput
 from cdf_mj.planners.cdf import CDFPlanner
+from cdf_mj.records import jsonable
 from cdf_mj.scenario.trace_file import TRACE_FORMAT, MonitorTrace, TraceError, read_trace, write_trace
 
 if TYPE_CHECKING:
@@ -108,23 +108,6 @@ def _show(value: object) -> str:
     """A short repr of a bad input for a message."""
     text = repr(value.tolist() if isinstance(value, np.ndarray) else value)
     return text if len(text) <= 80 else text[:77] + "..."
-
-
-def _jsonable(value: Any) -> Any:
-    """Configs (dataclasses, tuples, NumPy values) as plain JSON values."""
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return {f.name: _jsonable(getattr(value, f.name)) for f in dataclasses.fields(value)}
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, enum.Enum):
-        return _jsonable(value.value)
-    return value
 
 
 class CDFMonitor:
@@ -271,8 +254,8 @@ class CDFMonitor:
         """The first line of a trace file: format, scene names, configs, the decision rule and
         the threshold of what it brakes on (``risk`` for the risk rule, P(cutoff) for the
         threshold rule), car geometries."""
-        return {"format": TRACE_FORMAT, "names": _jsonable(self.scenario.names),
-                "scenario": _jsonable(self.scenario), "cdf": _jsonable(self.cdf),
+        return {"format": TRACE_FORMAT, "names": jsonable(self.scenario.names),
+                "scenario": jsonable(self.scenario), "cdf": jsonable(self.cdf),
                 "tau": float(self.cdf.tau), "rule": self.planner.rule.name,
                 "threshold": float(self.cdf.risk.brake if self.cdf.decision == "risk" else self.cdf.tau),
                 "ego": self.layout.ego.to_dict(),
