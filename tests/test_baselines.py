@@ -32,8 +32,8 @@ from cdf_mj.scenario.episode import run_episode
 
 
 def _situation(intent: str, offset: float) -> ScenarioConfig:
-    return ScenarioConfig(p_left=1.0 if intent == "left" else 0.0, beta=0.0,
-                          ego_start_spread=(offset, offset))
+    return ScenarioConfig(obstacle={"p_left": 1.0 if intent == "left" else 0.0, "beta": 0.0},
+                          ego={"start_spread": (offset, offset)})
 
 
 @pytest.mark.parametrize("planner", [CVPlanner, IMMPlanner])

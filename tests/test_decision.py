@@ -136,10 +136,10 @@ def test_compiled_rollouts_agree_with_the_boxes(layouts: dict[str, Layout]) -> N
                                     rng.uniform(5.0, 10.0, 20), rng.choice([0.0, 0.0, 0.5, 1.5], 20)])
             for hyp in hyps:
                 one = [np.array([x]) for x in hyp]
-                m = collision_masses(np.ones(1), *one, plans, config.dt, rule.map.ds, rule.map.q_lo,
+                m = collision_masses(np.ones(1), *one, plans, config.timing.dt, rule.map.ds, rule.map.q_lo,
                                      rule.map.q_hi, rule.map.q_lo_ahead)
                 mask = int(np.flatnonzero(m)[0])
-                same += mask == _brute_force_mask(layout, 0.3, tuple(hyp), plans, config.dt)
+                same += mask == _brute_force_mask(layout, 0.3, tuple(hyp), plans, config.timing.dt)
                 total += 1
         assert same >= 0.95 * total, (name, same, total)
 
@@ -219,7 +219,7 @@ class _Pulses(DecidingPlanner):
 
 
 def test_the_episode_follows_a_rule_that_releases_and_holds_one_that_does_not(scene: Scene) -> None:
-    config = ScenarioConfig(duration=2.0)
+    config = ScenarioConfig(timing={"duration": 2.0})
     released = run_episode(config, 4, _Pulses(_StubRule()), scene, label=False, trace=True)
     flags = released.trace["brake"]
     times = [round(t, 1) for t, b in zip(released.trace["t"], flags, strict=True) if b]
@@ -336,7 +336,8 @@ def test_the_filter_futures_follow_the_drivers_clear_rule(scene: Scene) -> None:
     from cdf_mj.model.driver import ego_control
 
     compared = 0
-    for config in (ScenarioConfig(), ScenarioConfig(stop_dwell=(1.0, 2.0), ego_start_spread=(-30.0, -20.0))):
+    waiting = ScenarioConfig(obstacle={"stop_dwell": (1.0, 2.0)}, ego={"start_spread": (-30.0, -20.0)})
+    for config in (ScenarioConfig(), waiting):
         for seed in range(4):
             world = World(scene, config)
             world.reset(seed)
@@ -461,6 +462,6 @@ def test_a_right_turner_long_enough_to_reach_the_ego_is_found(scene):
 def test_the_world_refuses_an_ego_start_off_its_route(scene):
     """An ego_start_spread that would place the ego past the end of its route (where the
     start heading is taken between two clamped, equal points) is one clear error."""
-    with pytest.raises(ValueError, match=r"ego_start_spread=.*off its route"):
-        World(scene, ScenarioConfig(ego_start_spread=(195.0, 195.0)))
+    with pytest.raises(ValueError, match=r"ego\.start_spread=.*off its route"):
+        World(scene, ScenarioConfig(ego={"start_spread": (195.0, 195.0)}))
     World(scene, ScenarioConfig())  # the default spread is on it

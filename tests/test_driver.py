@@ -14,9 +14,9 @@ from cdf_mj.scenario.episode import run_episode
 def test_routes_are_followed_into_their_lanes(scene):
     """Obstacle that never sees the ego (beta = 0): the left-turner ends in the ego's lane
     heading east, the right-turner in the far lane heading west; the ego keeps its lane."""
-    far_ego = ScenarioConfig(beta=0.0, ego_start_spread=(-200.0, -200.0), duration=8.0)
+    far_ego = ScenarioConfig(obstacle={"beta": 0.0}, ego={"start_spread": (-200.0, -200.0)}, timing={"duration": 8.0})
     for p_left, lane_y, heading in ((1.0, -1.85, 0.0), (0.0, 1.85, np.pi)):
-        rec = run_episode(far_ego.replace(p_left=p_left), seed=1, planner="constant",
+        rec = run_episode(far_ego.replace(obstacle={"p_left": p_left}), seed=1, planner="constant",
                           scene=scene, label=False, trace=True)
         assert not rec.collision
         poses = np.array(rec.trace["poses"])
@@ -31,7 +31,7 @@ def test_routes_are_followed_into_their_lanes(scene):
 def test_obstacle_yields_when_it_sees_the_ego_in_time(scene):
     """beta = 1: the ego is visible from the start, so a left-turner sees it at once,
     never enters the ego lane before the ego has passed, and the episode is a Yield."""
-    cfg = ScenarioConfig(beta=1.0, p_left=1.0)
+    cfg = ScenarioConfig(obstacle={"beta": 1.0, "p_left": 1.0})
     rec = run_episode(cfg, seed=3, planner="constant", scene=scene, trace=True)
     assert rec.first_seen_time == 0.0
     assert rec.yielded
@@ -41,7 +41,7 @@ def test_obstacle_yields_when_it_sees_the_ego_in_time(scene):
 
 
 def test_obstacle_cuts_off_when_it_never_sees_the_ego(scene):
-    cfg = ScenarioConfig(beta=0.0, p_left=1.0)
+    cfg = ScenarioConfig(obstacle={"beta": 0.0, "p_left": 1.0})
     for seed in range(5):
         rec = run_episode(cfg, seed=seed, planner="constant", scene=scene)
         assert rec.first_seen_time is None and not rec.yielded

@@ -138,7 +138,7 @@ def test_a_collision_penalty_that_is_not_a_bounded_number_is_refused(scene, pena
 def test_a_scene_object_keeps_its_names_and_frames_follow_dt(scene):
     with pytest.raises(ValueError, match="names apply to a scene file"):
         gym.make(cdf_mj.ENV_ID, scene=scene, names=cdf_mj.SceneNames())
-    env = gym.make(cdf_mj.ENV_ID, scene=scene, config=cdf_mj.ScenarioConfig(dt=0.05), run_filter=False)
+    env = gym.make(cdf_mj.ENV_ID, scene=scene, config=cdf_mj.ScenarioConfig(timing={"dt": 0.05}), run_filter=False)
     assert env.unwrapped.metadata["render_fps"] == 20
 
 

@@ -45,7 +45,8 @@ OTHER_NAMES = SceneNames(ego_prefix="me/", obstacle_prefix="them/", ego_start="m
                          route_left="their_cross", route_right="their_away", building_prefix="block")
 # Episodes whose measurements drive the filters: a left-turner that never sees the ego (it
 # goes through the whole turn), a right-turner, and one of the default scenario.
-EPISODES = ((ScenarioConfig(p_left=1.0, beta=0.0), 0), (ScenarioConfig(p_left=0.0), 1), (ScenarioConfig(), 3))
+EPISODES = ((ScenarioConfig(obstacle={"p_left": 1.0, "beta": 0.0}), 0), (ScenarioConfig(obstacle={"p_left": 0.0}), 1),
+            (ScenarioConfig(), 3))
 
 
 @pytest.fixture(scope="module")
@@ -342,7 +343,7 @@ def test_kept_segment_drives_as_the_full_search(scenes, which):
             np.testing.assert_array_equal(new, new_ref)
             assert np.all(segment >= 0)
             segments_seen.update(segment.tolist())
-            pose, mode = bicycle_step(pose, u, cfg.dt, model.wheelbase), new
+            pose, mode = bicycle_step(pose, u, cfg.timing.dt, model.wheelbase), new
             s, lateral = route.project(pose[:, :2])
             assert np.abs(lateral).max() < 1.0  # it follows its route
             if s.min() > route.length - 5.0:

@@ -31,7 +31,7 @@ from cdf_mj.viz.render import (
 
 iio = pytest.importorskip("imageio.v3", reason="the viz extra (imageio) is not installed")
 
-SHORT = ScenarioConfig(duration=1.0)  # 10 ticks: frames 0.0, 0.1, ..., 1.0 s at 10 fps
+SHORT = ScenarioConfig(timing={"duration": 1.0})  # 10 ticks: frames 0.0, 0.1, ..., 1.0 s at 10 fps
 SMALL = {"width": 160, "height": 120}
 
 
@@ -129,7 +129,7 @@ def test_short_video_has_every_frame_and_they_move(backend, scene, tmp_path) -> 
 
 def test_gif_has_every_frame(backend, scene, tmp_path) -> None:
     out = tmp_path / "short.gif"
-    res = render_episode(out, seed=1, planner="reactive", config=SHORT.replace(duration=0.5),
+    res = render_episode(out, seed=1, planner="reactive", config=SHORT.replace(timing={"duration": 0.5}),
                          scene=scene, fps=10, **SMALL)
     frames = iio.imread(out, index=None)
     assert len(frames) == res.n_frames == 6
@@ -253,7 +253,7 @@ def test_compare_tiles_same_times_and_the_shorter_holds_its_last_frame(backend, 
 
     monkeypatch.setattr(render._Painter, "frame", spy)
     out = tmp_path / "compare.mp4"
-    res = render_compare(out, seed=1, planners="cdf,imm,constant", config=ScenarioConfig(duration=4.0),
+    res = render_compare(out, seed=1, planners="cdf,imm,constant", config=ScenarioConfig(timing={"duration": 4.0}),
                          scene=scene, fps=5, **SMALL)
     ends = {r.planner: r.end_time for r in res.records}
     assert ends["constant"] < 3.8 and ends["cdf"] == ends["imm"] == pytest.approx(4.0)

@@ -203,7 +203,7 @@ def test_monitor_example_steps_with_the_models_own_timestep():
     model = spec.compile()
     data = mujoco.MjData(model)
     monitor = CDFMonitor(Scene.from_model(model, data, MY_NAMES), rng=1)
-    nstep = round(monitor.scenario.dt / model.opt.timestep)  # as the module docstring does
+    nstep = round(monitor.scenario.timing.dt / model.opt.timestep)  # as the module docstring does
     for _ in range(3):
         decision = monitor.step()
         mujoco.mj_step(model, data, nstep=nstep)

@@ -13,7 +13,7 @@ pytest.importorskip("PIL", reason="the viz extra (pillow) is not installed")
 from cdf_mj.viz.overlays import OVERLAY_COLORS
 from cdf_mj.viz.panel import Panel, SidePanel, particle_legend, side_width
 
-CONFIG = ScenarioConfig(duration=2.0)
+CONFIG = ScenarioConfig(timing={"duration": 2.0})
 W, H = 320, 240
 
 

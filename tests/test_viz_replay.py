@@ -13,7 +13,7 @@ from cdf_mj.scenario.episode import run_episode
 from cdf_mj.sim.gl import RenderError
 from cdf_mj.viz.replay import check_frame_time, record_episode
 
-TWO_SECONDS = ScenarioConfig(duration=2.0)
+TWO_SECONDS = ScenarioConfig(timing={"duration": 2.0})
 
 
 def test_recorded_episode_is_the_plain_episode(scene) -> None:
@@ -64,12 +64,12 @@ def test_a_baseline_keeps_its_own_probabilities_and_threshold(scene) -> None:
     rep = record_episode(1, "imm", TWO_SECONDS, scene, label=False)
     assert set(rep.posterior) == {"t", "p_left", "p_conflict"} and rep.tau == 0.95
     assert len(rep.posterior["t"]) == len(rep.posterior["p_conflict"]) > 0 and rep.particles is None
-    plain = record_episode(1, "reactive", ScenarioConfig(duration=1.0), scene, label=False)
+    plain = record_episode(1, "reactive", ScenarioConfig(timing={"duration": 1.0}), scene, label=False)
     assert plain.posterior is None and plain.tau is None and plain.particles is None
 
 
 def test_label_is_the_scenario_label(scene) -> None:
-    config = ScenarioConfig(duration=1.0)
+    config = ScenarioConfig(timing={"duration": 1.0})
     assert record_episode(1, "reactive", config, scene).label == run_episode(config, 1, "reactive", scene).label
 
 

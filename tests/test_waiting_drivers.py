@@ -43,8 +43,8 @@ def _waiting(dwell: float, p_left: float) -> ScenarioConfig:
     """A driver who never sees the ego (beta = 0) and waits ``dwell`` [s] at the line; the
     ego starts ``13.4 * dwell`` m further back, so a left turn still cuts it off."""
     back = -13.4 * dwell
-    return ScenarioConfig(beta=0.0, p_left=p_left, stop_dwell=(dwell, dwell),
-                          ego_start_spread=(back - 4.0, back + 4.0))
+    return ScenarioConfig(obstacle={"beta": 0.0, "p_left": p_left, "stop_dwell": (dwell, dwell)},
+                          ego={"start_spread": (back - 4.0, back + 4.0)})
 
 
 def _departure(rec) -> float:
@@ -84,7 +84,8 @@ def test_a_standing_car_keeps_the_going_and_right_turn_hypotheses(scene):
     stays above 0.05 (0.24 at first; it drifts down as hypotheses that saw the ego and
     wait gain on those that leak away at the departure hazard, 0.10 at 3 s), P(cutoff) stays below tau, and once
     it turns right the filter finds it (P(right) > 0.9 at the end) without a warning."""
-    cfg = ScenarioConfig(beta=0.0, p_left=0.0, stop_dwell=(3.0, 3.0), ego_start_spread=(-45.0, -45.0))
+    cfg = ScenarioConfig(obstacle={"beta": 0.0, "p_left": 0.0, "stop_dwell": (3.0, 3.0)},
+                         ego={"start_spread": (-45.0, -45.0)})
     rec = run_episode(cfg, 3, CDFPlanner(CDFConfig(n_particles=N)), scene, label=False, trace=True)
     h = rec.planner_info["history"]
     standing = np.array(h["t"]) < _departure(rec)
@@ -102,7 +103,8 @@ def test_the_old_filter_loses_the_standing_car(scene):
     for that filter: it shows what the departure hazard is for."""
     old = CDFConfig(n_particles=N, prior=DriverPrior(departure_hazard=(1000.0, 1000.0)), mode_jump=0.0,
                     intent_floor=0.0)
-    cfg = ScenarioConfig(beta=0.0, p_left=0.0, stop_dwell=(3.0, 3.0), ego_start_spread=(-45.0, -45.0))
+    cfg = ScenarioConfig(obstacle={"beta": 0.0, "p_left": 0.0, "stop_dwell": (3.0, 3.0)},
+                         ego={"start_spread": (-45.0, -45.0)})
     rec = run_episode(cfg, 3, CDFPlanner(old), scene, label=False, trace=True)
     h = rec.planner_info["history"]
     standing = np.array(h["t"]) < _departure(rec)
@@ -114,10 +116,10 @@ def test_world_waits_its_dwell_with_the_same_intent_and_start(scene):
     """stop_dwell = (1.2, 1.2): the obstacle stands until t = 1.2 s and then goes; the intent
     and the ego's start are those of the same seed without a dwell (common random numbers);
     waiting out the dwell is not yielding."""
-    world = World(scene, ScenarioConfig(beta=0.0, p_left=1.0))
+    world = World(scene, ScenarioConfig(obstacle={"beta": 0.0, "p_left": 1.0}))
     world.reset(5)
     intent, offset = world.intent, world.ego_start_offset
-    world = World(scene, ScenarioConfig(beta=0.0, p_left=1.0, stop_dwell=(1.2, 1.2)))
+    world = World(scene, ScenarioConfig(obstacle={"beta": 0.0, "p_left": 1.0, "stop_dwell": (1.2, 1.2)}))
     world.reset(5)
     assert (world.intent, world.ego_start_offset, world.dwell) == (intent, offset, 1.2)
     while world.t < 1.15:
@@ -132,11 +134,11 @@ def test_a_hesitating_driver_noses_out_stops_and_goes_on(scene):
     """hesitation = 1: the driver leaves after its dwell, stops again once 0.7 m out (before
     the commit point), stands its pause without counting as yielding, then goes on; the
     intent, ego start and dwell are those of the same seed without hesitation (CRN)."""
-    base = ScenarioConfig(beta=0.0, p_left=1.0, stop_dwell=(0.5, 0.5))
+    base = ScenarioConfig(obstacle={"beta": 0.0, "p_left": 1.0, "stop_dwell": (0.5, 0.5)})
     world = World(scene, base)
     world.reset(3)
     draws = (world.intent, world.ego_start_offset, world.dwell)
-    world = World(scene, base.replace(hesitation=1.0, hesitation_pause=(1.0, 1.0)))
+    world = World(scene, base.replace(obstacle={"hesitation": 1.0, "hesitation_pause": (1.0, 1.0)}))
     world.reset(3)
     assert (world.intent, world.ego_start_offset, world.dwell) == draws
     speeds, modes, where = [], [], []
@@ -162,20 +164,20 @@ def test_a_creep_past_the_commit_point_is_refused(scene):
     end in a stop (the driver is committed by then), so it is one clear error, not a
     driver who silently never hesitates."""
     with pytest.raises(ValueError, match=r"hesitation_creep=1.5 m reaches the commit point, 1\.4\d m"):
-        World(scene, ScenarioConfig(hesitation=0.5, hesitation_creep=1.5))
-    World(scene, ScenarioConfig(hesitation=0.0, hesitation_creep=1.5))  # no hesitation: no matter
+        World(scene, ScenarioConfig(obstacle={"hesitation": 0.5, "hesitation_creep": 1.5}))
+    World(scene, ScenarioConfig(obstacle={"hesitation": 0.0, "hesitation_creep": 1.5}))  # no hesitation: no matter
 
 
 def test_departure_look_sees_the_ego_when_it_would_leave(scene):
     """beta = 0 but departure_look = 1: the driver's only look is on the tick its dwell ends
     with the ego in sight; it sees the ego (first_seen = the dwell) and does not go."""
-    cfg = ScenarioConfig(beta=0.0, p_left=1.0, stop_dwell=(1.5, 1.5), departure_look=1.0,
-                         ego_start_spread=(-20.0, -20.0))
+    cfg = ScenarioConfig(obstacle={"beta": 0.0, "p_left": 1.0, "stop_dwell": (1.5, 1.5), "departure_look": 1.0},
+                         ego={"start_spread": (-20.0, -20.0)})
     rec = run_episode(cfg, 2, "constant", scene, trace=True)
     assert rec.first_seen_time == pytest.approx(1.5)
     assert rec.trace["mode"][15] == Mode.WAITING and rec.yielded
     assert rec.label == "Yield" and not rec.collision
-    no_look = run_episode(cfg.replace(departure_look=0.0), 2, "constant", scene, trace=True)
+    no_look = run_episode(cfg.replace(obstacle={"departure_look": 0.0}), 2, "constant", scene, trace=True)
     assert no_look.first_seen_time is None and no_look.label == "Cutoff"
 
 
@@ -245,9 +247,9 @@ def test_cdf_config_reads_its_prior_back_from_json():
         with pytest.raises(ValueError, match=field):
             CDFConfig(**bad)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="stop_dwell"):
-        ScenarioConfig(stop_dwell=(2.0, 1.0))
+        ScenarioConfig(obstacle={"stop_dwell": (2.0, 1.0)})
     with pytest.raises(ValueError, match="departure_look"):
-        ScenarioConfig(departure_look=1.5)
+        ScenarioConfig(obstacle={"departure_look": 1.5})
 
 
 def test_ego_braking_and_latency_set_the_last_tick_to_stop(scene):

@@ -55,7 +55,7 @@ _MAX_PENALTY = 1e6
 class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
     """The ego car at the T-intersection, with the obstacle driver of the CDF scenario.
 
-    Each :meth:`step` is one planner tick of ``config.dt`` = 0.1 s (20 MuJoCo steps of
+    Each :meth:`step` is one planner tick of ``config.timing.dt`` = 0.1 s (20 MuJoCo steps of
     the default scene). Frames: world x east, y north [m]; headings from the x axis
     towards y [rad]; poses are of the rear axle.
 
@@ -110,7 +110,7 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
     ==========  =========================================================================
     terminated  the ego touched the obstacle or a building (``info["collision"]``)
     terminated  the ego's rear axle is 20 m past the conflict point (the junction is behind)
-    truncated   ``config.duration`` elapsed (8 s = 80 steps by default)
+    truncated   ``config.timing.duration`` elapsed (8 s = 80 steps by default)
     ==========  =========================================================================
 
     **info** (after reset and every step): ``posterior`` (dict ``p_left``, ``p_right``,
@@ -182,7 +182,7 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         self.world = World(self.scene, self.config)
         self.render_mode = render_mode
         # One frame per planner tick of the scenario (the class default assumes dt = 0.1 s).
-        fps = 1.0 / self.config.dt
+        fps = 1.0 / self.config.timing.dt
         self.metadata = {**self.metadata, "render_fps": round(fps) if abs(fps - round(fps)) < 1e-9 else fps}
         self.posterior_in_observation = posterior_in_observation
         self.run_filter = run_filter
@@ -261,7 +261,7 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         if self._monitor is not None and tick.collision is None:
             self._monitor.step()
         s = self._progress(poses[0])
-        reward = (s - self._s) / (self.config.ego_speed * self.config.dt)
+        reward = (s - self._s) / (self.config.ego.speed * self.config.timing.dt)
         self._s = s
         if tick.collision is not None:
             reward -= self.collision_penalty
@@ -325,7 +325,7 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
                          layout.ego_start[None, :2], layout.obstacle_start[None, :2]])
         vmax = max(float(m.actuator_actrange[car.accel][1]) if m.actuator_actlimited[car.accel]
                    else 50.0 for car in (sc.ego, sc.obstacle))
-        reach = vmax * self.config.duration + 10.0
+        reach = vmax * self.config.timing.duration + 10.0
         lo_xy, hi_xy = pts.min(axis=0) - reach, pts.max(axis=0) + reach
         car_lo = np.array([lo_xy[0], lo_xy[1], -np.pi, -1.0])
         car_hi = np.array([hi_xy[0], hi_xy[1], np.pi, vmax + 1.0])

@@ -98,7 +98,7 @@ def _at_start(world: Scene, cfg: ScenarioConfig) -> None:
     """Both cars at their start sites, the ego at its nominal speed, the obstacle at rest."""
     layout = world.layout()
     ego = layout.ego_start.copy()
-    ego[3] = cfg.ego_speed
+    ego[3] = cfg.ego.speed
     world.reset(ego, layout.obstacle_start)
 
 
@@ -119,11 +119,11 @@ class PhysicsFloor:
 def physics_floor(scene: str | Path = DEFAULT_SCENE, config: ScenarioConfig | None = None,
                   repeats: int = 2000) -> PhysicsFloor:
     """The median of ``repeats`` timed ``mj_step`` on ``scene`` with the ego at its start at
-    speed and the obstacle at its start, and the steps per tick of ``config.dt``."""
+    speed and the obstacle at its start, and the steps per tick of ``config.timing.dt``."""
     world, cfg = _setup(scene, config)
     _at_start(world, cfg)
     step = median_time(lambda i: mujoco.mj_step(world.model, world.data), repeats)
-    return PhysicsFloor(step, substeps(world.model.opt.timestep, cfg.dt, world.source))
+    return PhysicsFloor(step, substeps(world.model.opt.timestep, cfg.timing.dt, world.source))
 
 
 def bench_core(episodes: int = 60, scene: str | Path = DEFAULT_SCENE,
@@ -137,7 +137,7 @@ def bench_core(episodes: int = 60, scene: str | Path = DEFAULT_SCENE,
     _at_start(world, cfg)
     n_sub = floor.substeps
     rows: list[Row] = [("mj_step (two cars)", floor.step, ""),
-                       (f"physics floor: {n_sub} mj_step per planner tick of {cfg.dt:g} s", floor.tick,
+                       (f"physics floor: {n_sub} mj_step per planner tick of {cfg.timing.dt:g} s", floor.tick,
                         "what the x floor column divides by")]
     rows.append((f"planner tick of physics ({n_sub} steps + contact check)",
                  median_time(lambda i: world.step(n_sub), 300), ""))
@@ -148,9 +148,11 @@ def bench_core(episodes: int = 60, scene: str | Path = DEFAULT_SCENE,
     rows.append(("isovist 360 rays + shapely polygon",
                  median_time(lambda i: isovist(world, eye).polygon, 300), ""))
     seed = lambda i: 1000 + max(i, 0)  # noqa: E731
-    constant, per_tick = _median_episode(lambda i: run_episode(cfg, seed(i), "constant", world), episodes, cfg.dt)
+    constant, per_tick = _median_episode(lambda i: run_episode(cfg, seed(i), "constant", world), episodes,
+                                         cfg.timing.dt)
     rows.append(("episode, constant (labels itself)", constant, "", per_tick))
-    reactive, per_tick = _median_episode(lambda i: run_episode(cfg, seed(i), "reactive", world), episodes, cfg.dt)
+    reactive, per_tick = _median_episode(lambda i: run_episode(cfg, seed(i), "reactive", world), episodes,
+                                         cfg.timing.dt)
     rows.append(("episode, reactive + counterfactual", reactive,
                  f"target < 50 ms: {'met' if reactive < 0.05 else 'MISSED'}", per_tick))
     return rows
@@ -284,7 +286,7 @@ def bench_planners(episodes: int = 20, scene: str | Path = DEFAULT_SCENE,
             ep = run_episode(cfg, 2000 + i, make_planner(name), world, label=False)
             walls.append(time.perf_counter() - t0)
             factors.append(ep.end_time / walls[-1])
-            per_tick.append(walls[-1] / _ticks(ep.end_time, cfg.dt))
+            per_tick.append(walls[-1] / _ticks(ep.end_time, cfg.timing.dt))
         speed = statistics.median(factors)
         note = f"{speed:.0f}x faster than real time (median of {episodes} seeds)"
         if name == "cdf":
@@ -345,7 +347,7 @@ def bench_reproduction(episodes: int = 1000, workers: tuple[int, ...] = (1, 2),
     """
     from cdf_mj.experiments.experiment import run_experiment
 
-    dt = (config or ScenarioConfig()).dt
+    dt = (config or ScenarioConfig()).timing.dt
     rows: list[Row] = []
     base: tuple[int, float] | None = None
     for k in workers:

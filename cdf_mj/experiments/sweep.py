@@ -99,13 +99,14 @@ def _reads_cdf(name: str) -> bool:
 
 
 def _scale_process(config: ScenarioConfig, cdf: CDFConfig, k: float) -> tuple[ScenarioConfig, CDFConfig]:
-    return config.replace(noise_accel=config.noise_accel * k, noise_steer=config.noise_steer * k), cdf
+    noise = config.noise
+    return config.replace(noise=noise.replace(accel=noise.accel * k, steer=noise.steer * k)), cdf
 
 
 def _scale_obs(config: ScenarioConfig, cdf: CDFConfig, k: float) -> tuple[ScenarioConfig, CDFConfig]:
-    return config.replace(obs_noise_pos=config.obs_noise_pos * k,
-                          obs_noise_heading=config.obs_noise_heading * k,
-                          obs_noise_speed=config.obs_noise_speed * k), cdf
+    seen = config.observation
+    return config.replace(observation=seen.replace(pos=seen.pos * k, heading=seen.heading * k,
+                                                   speed=seen.speed * k)), cdf
 
 
 @dataclass(frozen=True)
@@ -131,7 +132,7 @@ class SweepSpec:
 
 SWEEPS: dict[str, SweepSpec] = {s.name: s for s in (
     SweepSpec("beta", "beta, P(observe a visible ego) per 0.1 s tick", (0.01, 0.02, 0.05, 0.1, 0.2),
-              lambda c, d, v: (c.replace(beta=float(v)), d), cdf_only=False, log_x=True),
+              lambda c, d, v: (c.with_values({"obstacle.beta": float(v)}), d), cdf_only=False, log_x=True),
     SweepSpec("particles", "particle count N", (100, 250, 500, 1000, 2000, 4000),
               lambda c, d, v: (c, d.replace(n_particles=int(v))), cdf_only=True, integer=True, log_x=True),
     SweepSpec("tau", "braking threshold tau on P(cutoff) (the paper's rule)",

@@ -2,7 +2,7 @@
 
 The world itself is :class:`cdf_mj.scenario.world.World` (``reset(seed)``, ``measure()``,
 ``step(ego_controls)``), shared with the Gymnasium environment. Each 0.1 s tick
-(``config.dt``) of an episode, in this order:
+(``config.timing.dt``) of an episode, in this order:
 
 1. read the system pose ``S_t`` from MuJoCo (error on a non-finite pose);
 2. the ego's planner is asked whether to brake (the first yes is held to the end, unless

@@ -22,7 +22,7 @@ after which :meth:`CDFMonitor.step` reads the poses and observes them::
 
     monitor = attach(model, data, names, rng=0,
                      obstacle=TrackedCar(body="their_car", rear_axle=(-1.35, 0.0), geometry=their_car))
-    nstep = round(monitor.scenario.dt / model.opt.timestep)  # physics steps per 0.1 s tick
+    nstep = round(monitor.scenario.timing.dt / model.opt.timestep)  # physics steps per 0.1 s tick
     while ...:
         decision = monitor.step()
         mujoco.mj_step(model, data, nstep=nstep)
@@ -129,11 +129,11 @@ class CDFMonitor:
 
     The decision rule assumes that its decisions are carried out: the ego brakes at its
     car's maximum rate when ``Decision.brake`` is true and otherwise holds or regains its
-    nominal speed (``scenario.ego_speed``); its release and its plans reason about that
+    nominal speed (``scenario.ego.speed``); its release and its plans reason about that
     ego. An ego that does not follow them makes the risk estimates of later ticks those of
     an ego it is not.
 
-    :meth:`observe` must be called every ``scenario.dt`` of simulated time (to
+    :meth:`observe` must be called every ``scenario.timing.dt`` of simulated time (to
     :data:`TIME_TOLERANCE`): the filter's dynamics assume that tick, so a simulation whose
     timestep does not divide ``dt`` is refused, not followed. After resetting your
     simulation, call :meth:`reset`. Every observation is kept in :attr:`trace`
@@ -236,7 +236,7 @@ class CDFMonitor:
     def _check_time(self, t: float) -> None:
         if self._last_t is None:
             return
-        dt, elapsed = self.scenario.dt, t - self._last_t
+        dt, elapsed = self.scenario.timing.dt, t - self._last_t
         if elapsed <= 0.0:
             raise ValueError(f"CDFMonitor: time went back or stood still ({self._last_t:.6g} s, "
                              f"then {t:.6g} s); call reset() after resetting your simulation")

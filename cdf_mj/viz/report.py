@@ -154,7 +154,7 @@ def _scenario(settings: dict[str, Any]) -> ScenarioConfig:
     try:
         if names:
             fields["names"] = SceneNames(**names)
-        return ScenarioConfig(**fields)
+        return ScenarioConfig.from_dict(fields)  # nested, or the flat settings of version 0.1
     except (TypeError, ValueError) as exc:
         raise ReportError(" ".join(f"settings.json: scenario settings this version cannot read ({exc})"
                                    .split())) from None
