@@ -31,6 +31,11 @@ _EXPORTS = {
     "ScenarioConfig": "cdf_mj.config",
     "CDFConfig": "cdf_mj.config",
     "SceneNames": "cdf_mj.config",
+    "DriverPrior": "cdf_mj.config",
+    "RiskConfig": "cdf_mj.config",
+    "scaled": "cdf_mj.config",
+    "CarGeometry": "cdf_mj.model.vehicle",
+    "TrackedCar": "cdf_mj.sim.tracking",
     "EpisodeRecord": "cdf_mj.records",
     "Label": "cdf_mj.records",
     "Scene": "cdf_mj.sim.scene",
@@ -57,15 +62,19 @@ __all__ = [  # literal, for linters; tests/test_layers.py checks it against _EXP
     "CDFMonitor",
     "CDFPlanner",
     "CVPlanner",
+    "CarGeometry",
+    "DriverPrior",
     "EpisodeRecord",
     "IMMPlanner",
     "Label",
     "ParticleFilter",
+    "RiskConfig",
     "ScenarioConfig",
     "Scene",
     "SceneError",
     "SceneNames",
     "TIntersectionEnv",
+    "TrackedCar",
     "World",
     "__version__",
     "add_car",
@@ -74,15 +83,17 @@ __all__ = [  # literal, for linters; tests/test_layers.py checks it against _EXP
     "run_episode",
     "run_experiment",
     "run_sweep",
+    "scaled",
     "write_report",
 ]
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time see __getattr__
-    from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames
+    from cdf_mj.config import CDFConfig, DriverPrior, RiskConfig, ScenarioConfig, SceneNames, scaled
     from cdf_mj.envs.t_intersection import TIntersectionEnv
     from cdf_mj.experiments.experiment import run_experiment
     from cdf_mj.experiments.sweep import run_sweep
     from cdf_mj.inference.particle_filter import ParticleFilter
+    from cdf_mj.model.vehicle import CarGeometry
     from cdf_mj.planners.baselines import CVPlanner, IMMPlanner
     from cdf_mj.planners.cdf import CDFPlanner
     from cdf_mj.records import EpisodeRecord, Label
@@ -92,6 +103,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time see __getattr__
     from cdf_mj.sim.checks import SceneError
     from cdf_mj.sim.scene import Scene
     from cdf_mj.sim.spec import add_car
+    from cdf_mj.sim.tracking import TrackedCar
     from cdf_mj.viz.render import render_episode
     from cdf_mj.viz.report import write_report
 

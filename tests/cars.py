@@ -108,13 +108,14 @@ def rear_axle_point(model: mujoco.MjModel, data: mujoco.MjData, name: str) -> np
 
 
 def add_mocap_car(spec: mujoco.MjSpec, name: str, pos: tuple[float, float] = (0.0, 0.0),
-                  yaw: float = 0.0) -> mujoco.MjsBody:
+                  yaw: float = 0.0, scale: float = 1.0) -> mujoco.MjsBody:
     """A mocap body ``name`` whose origin is the rear axle (no joint: move it with
-    ``data.mocap_pos`` / ``data.mocap_quat``); a visual box 4.6 m x 1.8 m that collides
-    with nothing."""
+    ``data.mocap_pos`` / ``data.mocap_quat``); a visual box 4.6 m x 1.8 m (times ``scale``:
+    0.46 m x 0.18 m at 1:10) that collides with nothing."""
     body = spec.worldbody.add_body(name=name, mocap=True, pos=[pos[0], pos[1], 0.0], quat=_quat(yaw))
-    body.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[2.3, 0.9, 0.7], pos=[1.35, 0, 0.7],
-                  rgba=[0.7, 0.5, 0.1, 1], contype=0, conaffinity=0, group=2)
+    body.add_geom(type=mujoco.mjtGeom.mjGEOM_BOX, size=[2.3 * scale, 0.9 * scale, 0.7 * scale],
+                  pos=[1.35 * scale, 0, 0.7 * scale], rgba=[0.7, 0.5, 0.1, 1], contype=0, conaffinity=0,
+                  group=2)
     return body
 
 

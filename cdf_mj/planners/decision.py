@@ -53,6 +53,7 @@ from cdf_mj.model.conflict import (
     widened,
 )
 from cdf_mj.model.geometry import boxes_overlap
+from cdf_mj.model.vehicle import CarGeometry
 from cdf_mj.planners.base import DecisionRule, PlannerContext, Predictor, ThresholdRule
 
 #: Bit masks of :func:`collision_masses`' index: the masses that collide going on and when
@@ -129,6 +130,12 @@ class RiskRule:
         """The junction's conflict map, the ego's limits and its nominal controller."""
         cfg = self.config
         layout, dt = context.layout, context.dt
+        half = min(float(layout.ego.hull_half[1]), float(layout.obstacle.hull_half[1]))  # [m]
+        if cfg.margin > half:  # 0.3 m is a full-size car's (a third of our car's half width)
+            raise ValueError(f"RiskConfig.margin={cfg.margin:g} m is more than half the narrower car's width "
+                             f"({half:.3g} m): boxes widened by it collide where the cars pass well apart; for "
+                             "a testbed at another scale, scale the configs with the cars (cdf_mj.scaled("
+                             f"config, {2 * half / CarGeometry.ours().width:.2g}): its width / our car's)")
         self.map: ConflictMap = conflict_map(layout, cfg.margin)
         self._layout = layout
         self._dt = dt
@@ -140,8 +147,9 @@ class RiskRule:
         need = self._defer * dt + speed / brake  # [s] to defer, then stop from v_nominal
         if cfg.horizon < need:
             raise ValueError(f"RiskConfig.horizon={cfg.horizon:g} s is shorter than the {need:.2f} s the ego "
-                             f"needs to defer and then stop from {speed:g} m/s: collisions after "
-                             "the horizon would go unseen; give a longer horizon")
+                             f"needs to defer and then stop from {speed:g} m/s at {brake:g} m/s^2: collisions "
+                             "after the horizon would go unseen; give a longer horizon, or, for a testbed at "
+                             "another scale, its own nominal speed (cdf_mj.scaled scales the configs)")
         self.last = None
 
     def plans(self, ego_pose: np.ndarray, q: float | None = None) -> np.ndarray:

@@ -126,6 +126,10 @@ class CDFMonitor:
         ego, obstacle: the cars' dimensions, replacing the layout's (default: the
             layout's, which is our car's for a layout built by hand).
         source: where :meth:`step` reads time and poses (set by :func:`attach`).
+        nominal_speed: [m/s] the speed the ego's own controller holds when the rule does
+            not brake (:class:`~cdf_mj.planners.base.PlannerContext`); default the
+            scenario's ego speed, 13.4 m/s (:func:`cdf_mj.config.scaled` scales it for a
+            testbed at another scale). Give your ego's cruise speed if it is another.
 
     The decision rule assumes that its decisions are carried out: the ego brakes at its
     car's maximum rate when ``Decision.brake`` is true and otherwise holds or regains its
@@ -143,7 +147,8 @@ class CDFMonitor:
     def __init__(self, layout: Layout | Scene, scenario: ScenarioConfig | None = None,
                  cdf: CDFConfig | None = None, rng: np.random.Generator | int | None = None, *,
                  ego: CarGeometry | None = None, obstacle: CarGeometry | None = None,
-                 source: PoseSource | None = None, record_trace: bool = True) -> None:
+                 source: PoseSource | None = None, record_trace: bool = True,
+                 nominal_speed: float | None = None) -> None:
         self.scene: Scene | None = None
         if not isinstance(layout, Layout):
             if not callable(getattr(layout, "layout", None)):
@@ -161,6 +166,10 @@ class CDFMonitor:
         self.layout = layout.with_cars(ego, obstacle)
         self.scenario = scenario or ScenarioConfig()
         self.cdf = cdf or CDFConfig()
+        # What the ego knows: the map, the tick, its own nominal controller (ValueError here).
+        self.context = PlannerContext.of(self.layout, self.scenario)
+        if nominal_speed is not None:
+            self.context = dataclasses.replace(self.context, nominal_speed=nominal_speed)
         self.source = source
         self.record_trace = record_trace
         self.rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
@@ -179,8 +188,7 @@ class CDFMonitor:
         The filter's random stream goes on from where it was, so a replayed episode gets
         other draws; build a new monitor with the same ``rng`` seed to repeat one exactly."""
         self._last_t: float | None = None
-        # The filter is told what the ego knows: the map, the tick, its own nominal controller.
-        self.planner.reset(PlannerContext.of(self.layout, self.scenario), self.rng)
+        self.planner.reset(self.context, self.rng)
         self.decision: Decision | None = None
         self.trace: list[dict[str, Any]] = []
         forget = getattr(self.source, "forget", None)
@@ -274,7 +282,7 @@ def attach(model: mujoco.MjModel, data: mujoco.MjData, names: SceneNames | None 
            rng: np.random.Generator | int | None = None, *,
            ego: TrackedCar | CarGeometry | None = None,
            obstacle: TrackedCar | CarGeometry | None = None,
-           record_trace: bool = True) -> CDFMonitor:
+           record_trace: bool = True, nominal_speed: float | None = None) -> CDFMonitor:
     """A :class:`CDFMonitor` on your model and data; :meth:`CDFMonitor.step` then reads
     the poses from ``data`` and observes them.
 
@@ -283,7 +291,8 @@ def attach(model: mujoco.MjModel, data: mujoco.MjData, names: SceneNames | None 
     its pose from a body, its dimensions as given, or else from our car's elements. With a
     geometry given nothing else of that car is read, so a wrong ``front_axle`` cannot give
     a wrong wheelbase, and a car without an eye site or a named hull is fine. ``names``
-    defaults to ``scenario.names``. SceneError lists every problem of the junction; a
+    defaults to ``scenario.names``; ``nominal_speed`` is the monitor's (the ego's cruise
+    speed [m/s], default the scenario's). SceneError lists every problem of the junction; a
     missing body or car element is one SceneError naming it and the fix.
     """
     from cdf_mj.sim.scene import read_layout
@@ -304,7 +313,8 @@ def attach(model: mujoco.MjModel, data: mujoco.MjData, names: SceneNames | None 
     bodies = find_bodies(model, names, *tracked)
     layout = read_layout(model, names, ego=tracked[0].geometry, obstacle=tracked[1].geometry)
     source = BodyPoseSource(model, data, bodies, tracked)  # SceneError: data of another model
-    return CDFMonitor(layout, scenario, cdf, rng, source=source, record_trace=record_trace)
+    return CDFMonitor(layout, scenario, cdf, rng, source=source, record_trace=record_trace,
+                      nominal_speed=nominal_speed)
 
 
 #: Names that moved to :mod:`cdf_mj.sim.tracking`, read from there on first access (it
