@@ -41,7 +41,7 @@ from cdf_mj.analysis.metrics import PlannerMetrics, mcnemar_exact, paired_counts
 from cdf_mj.analysis.tables import format_number, format_rate
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
-from cdf_mj.planners.base import PLANNERS
+from cdf_mj.planners.registry import PLANNERS
 from cdf_mj.presets import load_preset, preset_names
 from cdf_mj.records import completed, is_false_alarm, record_field
 

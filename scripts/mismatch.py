@@ -37,7 +37,7 @@ from cdf_mj.analysis.metrics import PlannerMetrics, mcnemar_exact, paired_counts
 from cdf_mj.analysis.tables import format_number, format_rate
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
-from cdf_mj.planners.base import PLANNERS
+from cdf_mj.planners.registry import PLANNERS
 from cdf_mj.presets import Preset, preset_names, read_preset
 from cdf_mj.records import braked, completed, hit_obstacle, is_false_alarm, is_imminent, lead_time, record_field
 

@@ -9,7 +9,7 @@ import pytest
 
 from cdf_mj.cli import main
 from cdf_mj.experiments.bench import PhysicsFloor, _run_python, format_rows, physics_floor
-from cdf_mj.planners.base import PLANNERS
+from cdf_mj.planners.registry import PLANNERS
 
 
 def test_bench_prints_filter_planner_and_scaling_rows(capsys):

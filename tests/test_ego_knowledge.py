@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 
 from cdf_mj.config import ScenarioConfig
-from cdf_mj.planners.base import PLANNERS, PlannerContext, PlannerInput, make_planner
+from cdf_mj.planners.base import PlannerContext, PlannerInput
+from cdf_mj.planners.registry import PLANNERS, make_planner
 from cdf_mj.scenario.episode import run_episode
 from cdf_mj.scenario.monitor import CDFMonitor
 from cdf_mj.sim.scene import Scene

@@ -10,7 +10,7 @@ from cli_helpers import assert_one_line_error, run_cli
 
 from cdf_mj.config import CDFConfig, RiskConfig
 from cdf_mj.experiments.experiment import run_experiment
-from cdf_mj.planners.base import make_planner, stored_planner_arguments
+from cdf_mj.planners.registry import make_planner, stored_planner_arguments
 from cdf_mj.scenario.episode import run_episode
 from cdf_mj.sim.scene import Scene
 

@@ -309,7 +309,7 @@ def test_a_pool_started_in_a_thread_that_ends_keeps_its_workers():
 
     from cdf_mj.config import ScenarioConfig
     from cdf_mj.experiments.runner import SeedJob, run_seeds
-    from cdf_mj.planners.base import bind_planner
+    from cdf_mj.planners.registry import bind_planner
     from cdf_mj.sim.scene import DEFAULT_SCENE
 
     job = SeedJob(ScenarioConfig(), str(DEFAULT_SCENE), ("reactive",),

@@ -19,7 +19,7 @@ from cdf_mj.experiments.runner import (
     run_seeds,
     worker_count,
 )
-from cdf_mj.planners.base import PLANNERS
+from cdf_mj.planners.registry import PLANNERS
 from cdf_mj.planners.simple import ReactivePlanner
 from cdf_mj.records import FAILED, OK
 from cdf_mj.sim.scene import DEFAULT_SCENE

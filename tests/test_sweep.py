@@ -12,7 +12,8 @@ from cdf_mj.cli import main
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.experiments.sweep import SWEEPS, comparison_figures, run_sweep
 from cdf_mj.extras import install_hint
-from cdf_mj.planners.base import PLANNERS, PlannerSpec, as_config
+from cdf_mj.planners.base import as_config
+from cdf_mj.planners.registry import PLANNERS, PlannerSpec
 from cdf_mj.planners.simple import ReactivePlanner
 from cdf_mj.records import load_records
 

@@ -28,7 +28,7 @@ from cdf_mj.config import (
     RiskConfig,
     ScenarioConfig,
 )
-from cdf_mj.planners.base import PLANNERS, bind_planner, planner_spec
+from cdf_mj.planners.registry import PLANNERS, bind_planner, planner_spec
 from cdf_mj.presets import preset_names, read_preset
 from cdf_mj.sim.checks import read_names
 from cdf_mj.sim.scene import DEFAULT_SCENE, Scene

@@ -9,7 +9,7 @@ from typing import Any
 
 from cdf_mj.cli.args import _command, _non_negative_int, add_scenario_arguments, config_from_args, scene_from_args
 from cdf_mj.experiments.store import json_default
-from cdf_mj.planners.base import PLANNERS
+from cdf_mj.planners.registry import PLANNERS
 from cdf_mj.scenario.episode import run_episode
 
 

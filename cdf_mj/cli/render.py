@@ -21,7 +21,7 @@ from cdf_mj.cli.args import (
 )
 from cdf_mj.config import MAX_PARTICLES, CDFConfig, ScenarioConfig
 from cdf_mj.extras import install_hint
-from cdf_mj.planners.base import PLANNERS
+from cdf_mj.planners.registry import PLANNERS
 from cdf_mj.sim.checks import read_names
 from cdf_mj.sim.scene import Scene
 

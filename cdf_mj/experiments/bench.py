@@ -274,7 +274,7 @@ def bench_planners(episodes: int = 20, scene: str | Path = DEFAULT_SCENE,
                    config: ScenarioConfig | None = None) -> list[Row]:
     """Median wall time of one episode (no counterfactual) for every registered planner,
     and how many times faster than real time it runs (median over seeds)."""
-    from cdf_mj.planners.base import PLANNERS, make_planner
+    from cdf_mj.planners.registry import PLANNERS, make_planner
 
     world, cfg = _setup(scene, config)
     rows: list[Row] = []

@@ -52,7 +52,8 @@ from cdf_mj.experiments.runner import (
     worker_count,
 )
 from cdf_mj.experiments.store import RecordStore, locked, write_atomic
-from cdf_mj.planners.base import Planner, PlannerSpec, bind_planner, stored_planner_arguments
+from cdf_mj.planners.base import Planner
+from cdf_mj.planners.registry import PlannerSpec, bind_planner, stored_planner_arguments
 from cdf_mj.records import FAILED, RECORDS_FILE, EpisodeRecord, read_settings
 from cdf_mj.scenario.episode import run_episode
 from cdf_mj.sim.scene import DEFAULT_SCENE, Scene

@@ -73,7 +73,7 @@ from cdf_mj.analysis.tables import format_number, format_rate
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.experiments.store import write_atomic
 from cdf_mj.extras import require
-from cdf_mj.planners.base import PLANNERS, planner_spec
+from cdf_mj.planners.registry import PLANNERS, planner_spec
 from cdf_mj.records import (
     FAILED,
     RecordLike,

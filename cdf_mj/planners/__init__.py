@@ -11,19 +11,9 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any
 
-from cdf_mj.planners.base import (
-    PLANNERS,
-    DecidingPlanner,
-    LazyPlanner,
-    Planner,
-    PlannerContext,
-    PlannerInput,
-    PlannerSpec,
-    make_planner,
-    predicted_label,
-    register,
-)
+from cdf_mj.planners.base import DecidingPlanner, Planner, PlannerContext, PlannerInput, predicted_label
 from cdf_mj.planners.cdf import CDFPlanner
+from cdf_mj.planners.registry import PLANNERS, LazyPlanner, PlannerSpec, make_planner, register
 from cdf_mj.planners.simple import ConstantPlanner, ReactivePlanner
 
 if TYPE_CHECKING:

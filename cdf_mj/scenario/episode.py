@@ -44,7 +44,8 @@ import numpy as np
 
 from cdf_mj.config import ScenarioConfig
 from cdf_mj.model.driver import Intent, ego_control
-from cdf_mj.planners.base import Planner, PlannerContext, PlannerInput, make_planner
+from cdf_mj.planners.base import Planner, PlannerContext, PlannerInput
+from cdf_mj.planners.registry import make_planner
 from cdf_mj.records import EpisodeRecord, Label
 from cdf_mj.scenario.world import Measurement, Tick, World
 from cdf_mj.sim.scene import Scene

@@ -25,9 +25,10 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from cdf_mj.config import CDFConfig, ScenarioConfig
-from cdf_mj.planners.base import Planner, bind_planner
+from cdf_mj.planners.base import Planner
 from cdf_mj.planners.cdf import CDFPlanner
 from cdf_mj.planners.decision import RiskRule
+from cdf_mj.planners.registry import bind_planner
 from cdf_mj.records import EpisodeRecord
 from cdf_mj.scenario.episode import EpisodeTick, run_episode, seed_label
 from cdf_mj.sim.gl import RenderError

@@ -51,7 +51,7 @@ from cdf_mj.config import ScenarioConfig, SceneNames
 from cdf_mj.extras import require
 from cdf_mj.model.geometry import box_corners
 from cdf_mj.model.layout import Layout
-from cdf_mj.planners.base import PLANNERS, PlannerSpec, bind_planner, stored_planner_arguments
+from cdf_mj.planners.registry import PLANNERS, PlannerSpec, bind_planner, stored_planner_arguments
 from cdf_mj.records import (
     FAILED,
     LABELS,
