@@ -222,6 +222,8 @@ def _check_schema() -> None:
             raise ValueError(f"cdf_mj.traits: {t.name}: kernel must be '', 'per_car' or 'shared'")
         if t.kernel == "per_car" and not isinstance(t.prior, tuple):
             raise ValueError(f"cdf_mj.traits: {t.name}: a per-car trait needs a (low, high) prior")
+        if t.kernel == "shared" and not isinstance(t.prior, float):
+            raise ValueError(f"cdf_mj.traits: {t.name}: a shared trait needs one value as its prior (the filter's)")
 
 
 _check_schema()

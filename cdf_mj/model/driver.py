@@ -32,6 +32,7 @@ draws its own from the filter's prior (:class:`cdf_mj.config.DriverPrior`).
 from __future__ import annotations
 
 import operator
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import TYPE_CHECKING
@@ -44,7 +45,7 @@ from cdf_mj.model.geometry import Polyline
 from cdf_mj.model.kernels import RouteTable, pack_driver, pack_ego
 from cdf_mj.model.layout import Layout
 from cdf_mj.model.vehicle import CarGeometry
-from cdf_mj.traits import PER_CAR, with_traits
+from cdf_mj.traits import PER_CAR, SHARED, with_traits
 
 __all__ = [
     "DriverModel",
@@ -96,7 +97,7 @@ class DriverModel:
     max_accel: float  # [m/s^2]
     dt: float  # [s] the tick
     pursuit: Pursuit  # the obstacle's route following (and the ego's, in ego_control)
-    passed_margin: float  # [m] a believed ego past the conflict point by this is gone
+    shared: Mapping[str, float]  # the traits every car shares (cdf_mj.traits.SHARED): passed_margin [m], ...
     params: DriverParams | None = None  # the world's driver behaviour (floats)
     ego: Ego | None = None
     table: RouteTable = field(init=False, repr=False, compare=False)
@@ -106,12 +107,17 @@ class DriverModel:
         conflict, s_commit = np.asarray(self.conflict, dtype=float), np.asarray(self.s_commit, dtype=float)
         cfg = pack_driver({"dt": self.dt, "wheelbase": self.wheelbase, "max_steer": self.max_steer,
                            "max_brake": self.max_brake, "lookahead": self.pursuit.lookahead,
-                           "lookahead_gain": self.pursuit.lookahead_gain, "passed_margin": self.passed_margin,
+                           "lookahead_gain": self.pursuit.lookahead_gain, **self.shared,
                            "conflict_x": conflict[0], "conflict_y": conflict[1], "s_commit_left": s_commit[0],
                            "s_commit_right": s_commit[1]})
         cfg.flags.writeable = False
         object.__setattr__(self, "table", RouteTable.of((*self.routes, self.route_ego)))
         object.__setattr__(self, "cfg", cfg)
+
+    @property
+    def passed_margin(self) -> float:
+        """[m] a believed ego past the conflict point by this is gone (a shared trait)."""
+        return self.shared["passed_margin"]
 
     def param_rows(self, n: int) -> np.ndarray:
         """:attr:`params` as ``(n, P)`` rows for the kernels (one row kept: the world's car).
@@ -131,9 +137,9 @@ class DriverModel:
     def from_layout(cls, layout: Layout, driver: ObstacleDriver | DriverPrior, pursuit: Pursuit, dt: float, *,
                     ego: Ego | None = None) -> DriverModel:
         """The drivers of a junction: routes, conflict and commit points of ``layout``,
-        the obstacle's limits from ``layout.obstacle``, ``passed_margin`` (and, for the
-        world's :class:`~cdf_mj.config.ObstacleDriver`, its behaviour ``params``) from
-        ``driver``: the world's driver, or the filter's model of it
+        the obstacle's limits from ``layout.obstacle``, the shared traits (``passed_margin``,
+        ...; and, for the world's :class:`~cdf_mj.config.ObstacleDriver`, its behaviour
+        ``params``) from ``driver``: the world's driver, or the filter's model of it
         (:class:`~cdf_mj.config.DriverPrior`); ``pursuit`` the route following, ``dt`` [s]
         the tick, ``ego`` the ego's nominal controller (for :func:`ego_control`)."""
         routes = layout.obstacle_routes
@@ -143,7 +149,7 @@ class DriverModel:
         return cls(routes=routes, route_ego=layout.route_ego, s_commit=s_commit,
                    conflict=layout.conflict, wheelbase=car.wheelbase, max_steer=car.max_steer,
                    max_brake=car.max_brake, max_accel=car.max_accel, dt=float(dt), pursuit=pursuit,
-                   passed_margin=float(driver.passed_margin), params=params, ego=ego)
+                   shared={name: float(getattr(driver, name)) for name in SHARED}, params=params, ego=ego)
 
     @classmethod
     def of_world(cls, layout: Layout, config: ScenarioConfig) -> DriverModel:
