@@ -15,6 +15,7 @@ from junctions import build_junction
 
 from cdf_mj import CarGeometry, CDFMonitor, DriverPrior, RiskConfig, TrackedCar, attach, scaled
 from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames
+from cdf_mj.model.conflict import FULL_SIZE_LENGTH
 from cdf_mj.sim.checks import SceneError
 from cdf_mj.sim.scene import car_geometry
 from cdf_mj.sim.spec import add_car
@@ -164,15 +165,15 @@ def test_a_1_to_10_monitor_stays_quiet_for_a_right_turn_and_a_yielding_driver(ca
 
 def test_the_1_to_10_testbed_is_the_full_size_scenario_shrunk():
     """Our car and junction at 1:10 with the configs scaled: the filter's posterior is the
-    full-size one, tick for tick (measured: within 0.014), and the first brake comes within
-    a tick of it. Not to the tick: the risk rule's overlap table (cdf_mj.model.conflict)
-    is spaced 0.1 m along the routes whatever the cars' size, which at 1:10 is 1 m of
-    the full-size scenario (at 0.01 m the decisions are the same, tick for tick)."""
-    for wait, seed in ((0.0, 1), (1.0, 5)):
+    full-size one, tick for tick (measured: within 0.014), and the first brake comes on the
+    same tick: the risk rule's overlap table shrinks with the cars
+    (cdf_mj.model.conflict.resolution), so it is the full-size table, shrunk."""
+    assert CarGeometry.ours().length == FULL_SIZE_LENGTH
+    for wait, seed in ((0.0, 1), (1.0, 5), (0.5, 3)):
         small, _ = _drive(OURS_AT_A_TENTH, 1.34, "left", wait, seed=seed)
         full, _ = _drive(CarGeometry.ours(), 13.4, "left", wait, seed=seed, scale=1.0)
         assert small.brake_time is not None and full.brake_time is not None
-        assert small.brake_time == pytest.approx(full.brake_time, abs=0.1 + 1e-9)
+        assert small.brake_time == pytest.approx(full.brake_time, abs=1e-9)
         for a, b in zip(small.trace, full.trace, strict=True):
             for key in ("p_left", "p_seen", "p_cutoff"):
                 assert a["posterior"][key] == pytest.approx(b["posterior"][key], abs=0.03), (a["t"], key)

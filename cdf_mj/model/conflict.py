@@ -47,12 +47,14 @@ from cdf_mj.model.vehicle import CarGeometry
 __all__ = [
     "BRAKE",
     "DEFER",
+    "FULL_SIZE_LENGTH",
     "GO",
     "ConflictMap",
     "Futures",
     "collision_masses",
     "conflict_map",
     "ego_plans",
+    "resolution",
     "right_turn_overlap",
     "route_poses",
     "widened",
@@ -62,11 +64,25 @@ __all__ = [
 #: at its nominal speed; goes on for ``n_defer`` ticks, then brakes; brakes now.
 GO, DEFER, BRAKE = 0, 1, 2
 
+# Resolution of the tables for full-size cars; for smaller cars (a 1:10 testbed) every one
+# of these lengths shrinks with the cars (:func:`resolution`), so that a table's spacing
+# stays the same fraction of a car wherever the junction's scale puts it.
 _DS = 0.1  # [m] table spacing along both routes
 _EXTEND = 60.0  # [m] the routes go on straight past their last waypoint by this much
+_WINDOW = 0.5  # [m] half chord of a route's heading (route_poses)
+#: [m] Cars this long or longer use the lengths above (the package's car, whose scenario
+#: they were set for); a shorter pair scales them by its shorter car's length over this
+#: one, so that a junction and cars shrunk together give the same tables, shrunk.
+FULL_SIZE_LENGTH = 4.6
 
 
-def route_poses(route: Polyline, s: np.ndarray, window: float = 0.5) -> np.ndarray:
+def resolution(layout: Layout) -> float:
+    """The factor in (0, 1] on the tables' spacings for ``layout``'s cars: 1 for full-size
+    cars (both at least :data:`FULL_SIZE_LENGTH` long), else the shorter car's length over it."""
+    return min(1.0, min(layout.ego.length, layout.obstacle.length) / FULL_SIZE_LENGTH)
+
+
+def route_poses(route: Polyline, s: np.ndarray, window: float = _WINDOW) -> np.ndarray:
     """Poses ``(len(s), 4)`` (speed 0) on ``route`` at arc lengths ``s`` [m]: the point and the
     direction of the chord of ``2 window`` [m] about it; past the last waypoint the route
     goes on straight along its last segment."""
@@ -109,6 +125,8 @@ class ConflictMap:
         q_lo_ahead: ``(J,)`` the least ``q_lo`` from ``j`` on [m].
         zone: ``(q_lo, q_hi)`` [m] the conflict zone on the ego's route.
         margin: [m] added to each half size of both boxes.
+        window: [m] half chord of the routes' headings (:func:`route_poses`) at this
+            junction's resolution.
     """
 
     route_ego: Polyline
@@ -118,14 +136,17 @@ class ConflictMap:
     q_lo_ahead: np.ndarray
     zone: tuple[float, float]
     margin: float
+    window: float = _WINDOW
 
     @classmethod
     def build(cls, layout: Layout, margin: float = 0.0) -> ConflictMap:
         """The table of ``layout``'s left route, ego route and cars, boxes widened by ``margin`` [m]."""
         left, ego_route = layout.route_left, layout.route_ego
-        s = np.arange(0.0, left.length + _EXTEND, _DS)
-        q = np.arange(0.0, ego_route.length + _EXTEND, _DS)
-        obs, ego = route_poses(left, s), route_poses(ego_route, q)
+        k = resolution(layout)
+        ds, window = _DS * k, _WINDOW * k
+        s = np.arange(0.0, left.length + _EXTEND * k, ds)
+        q = np.arange(0.0, ego_route.length + _EXTEND * k, ds)
+        obs, ego = route_poses(left, s, window), route_poses(ego_route, q, window)
         wide_obs = widened(layout.obstacle, margin)
         wide_ego = widened(layout.ego, margin)
         q_lo, q_hi = _overlaps(wide_obs, obs, wide_ego, ego, q)
@@ -134,13 +155,13 @@ class ConflictMap:
             raise ValueError("the obstacle's left route never meets the ego's route: no conflict to "
                              "assess (check the routes of the scene)")
         s_conflict = float(left.project(layout.conflict)[0])
-        sweep = slice(first[0], max(first[0] + 1, int(s_conflict / _DS) + 1))
+        sweep = slice(first[0], max(first[0] + 1, int(s_conflict / ds) + 1))
         zone = (float(np.min(q_lo[sweep])), float(np.max(q_hi[sweep])))
         q_lo_ahead = np.minimum.accumulate(q_lo[::-1])[::-1].copy()
         for a in (q_lo, q_hi, q_lo_ahead):
             a.flags.writeable = False
-        return cls(route_ego=ego_route, ds=_DS, q_lo=q_lo, q_hi=q_hi, q_lo_ahead=q_lo_ahead, zone=zone,
-                   margin=margin)
+        return cls(route_ego=ego_route, ds=ds, q_lo=q_lo, q_hi=q_hi, q_lo_ahead=q_lo_ahead, zone=zone,
+                   margin=margin, window=window)
 
     def ego_arc(self, ego_pose: np.ndarray) -> float:
         """[m] the ego's arc length on its route for its pose ``(4,)``."""
@@ -173,15 +194,18 @@ def _overlaps(car_a: CarGeometry, poses_a: np.ndarray, car_b: CarGeometry, poses
 
 @functools.lru_cache(maxsize=16)
 def right_turn_overlap(layout: Layout) -> float | None:
-    """[m] the first arc length on the obstacle's right route (0.1 m apart) at which its
+    """[m] the first arc length on the obstacle's right route (0.1 m apart for full-size
+    cars, :func:`resolution`) at which its
     collision box overlaps the ego's, the ego anywhere on its route; None if it never does.
     The drivers' model, and every predictor built on it, takes a right-turner for one that
     never meets the ego: where this is not None (a long car, a tight right turn), a
     right-turner can hit the ego unforeseen. Cached per layout."""
     right, ego_route = layout.route_right, layout.route_ego
-    s = np.arange(0.0, right.length, _DS)
-    q = np.arange(0.0, ego_route.length + _EXTEND, _DS)
-    q_lo, _ = _overlaps(layout.obstacle, route_poses(right, s), layout.ego, route_poses(ego_route, q), q)
+    k = resolution(layout)
+    s = np.arange(0.0, right.length, _DS * k)
+    q = np.arange(0.0, ego_route.length + _EXTEND * k, _DS * k)
+    q_lo, _ = _overlaps(layout.obstacle, route_poses(right, s, _WINDOW * k), layout.ego,
+                        route_poses(ego_route, q, _WINDOW * k), q)
     hit = np.flatnonzero(np.isfinite(q_lo))
     return float(s[hit[0]]) if hit.size else None
 

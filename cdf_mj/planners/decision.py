@@ -187,7 +187,7 @@ class RiskRule:
         ego_car = widened(lay.ego, margin)
         mask = 0
         for p, q in enumerate(plans[:, :k]):
-            if boxes_overlap(ego_car.footprint(route_poses(lay.route_ego, q)), obstacle).any():
+            if boxes_overlap(ego_car.footprint(route_poses(lay.route_ego, q, self.map.window)), obstacle).any():
                 mask |= 1 << p
         out[mask] = 1.0
         return out
@@ -237,7 +237,7 @@ def rollout_assessment(pf: ParticleFilter, rule: RiskRule, ego_pose: np.ndarray,
         sim.rng = np.random.Generator(type(rng.bit_generator)())
         sim.rng.bit_generator.state = state
         obstacle_car = widened(sim.obstacle, rule.config.margin)
-        ego = route_poses(layout.route_ego, plans[p])
+        ego = route_poses(layout.route_ego, plans[p], rule.map.window)
         speed = np.diff(np.concatenate([[rule.map.ego_arc(ego_pose)], plans[p]])) / rule._dt
         ego[:, 3] = speed
         hit = np.zeros(sim.n, dtype=bool)
