@@ -6,7 +6,8 @@ Each field says its unit and why it has its value; ``docs/PARAMETERS.md`` tells 
 calibration story. Objects are frozen and validated when built::
 
     from cdf_mj.config import ScenarioConfig
-    cfg = ScenarioConfig(beta=0.1)          # ValueError if out of range
+    cfg = ScenarioConfig(obstacle={"beta": 0.1})        # ValueError if out of range
+    cfg = ScenarioConfig().with_values({"obstacle.beta": 0.1, "ego.speed": 12.0})   # by dotted key
 """
 
 from __future__ import annotations
@@ -309,7 +310,8 @@ class ScenarioConfig:
         _check(isinstance(self.names, SceneNames), "names", self.names,
                "a SceneNames (e.g. SceneNames(route_ego='av_path'))")
         for name, cls in GROUPS.items():
-            _check(isinstance(getattr(self, name), cls), name, getattr(self, name), f"a {cls.__name__}")
+            value = getattr(self, name)
+            _check(isinstance(value, cls), name, value, f"a {cls.__name__} object (or a mapping of its fields)")
 
     if not TYPE_CHECKING:  # the flat reads of version 0.1: not for the package's own code
         def __getattr__(self, name: str) -> Any:
@@ -381,9 +383,8 @@ def _apply(base: Mapping[str, Any], values: Mapping[str, Any], error: type[Excep
             raise error(f"ScenarioConfig: {exc}") from None
         changes.setdefault(group, {})[name] = value
     for group, fields in changes.items():
-        current = out[group]
-        if not dataclasses.is_dataclass(current) or isinstance(current, type):
-            current = _DEFAULT_GROUPS[group]  # not a group: the error is ScenarioConfig's
+        current, cls = out[group], GROUPS.get(group, SceneNames)
+        _check(isinstance(current, cls), group, current, f"a {cls.__name__} object (or a mapping of its fields)")
         try:
             out[group] = dataclasses.replace(current, **fields)
         except TypeError:
@@ -453,7 +454,7 @@ def _groups_of_mappings(obj: Any, kinds: Mapping[str, type]) -> None:
             except TypeError as exc:
                 raise ValueError(f"{name}: {exc}") from None
             object.__setattr__(obj, name, value)
-        _check(isinstance(value, cls), name, value, f"a {cls.__name__}")
+        _check(isinstance(value, cls), name, value, f"a {cls.__name__} object (or a mapping of its fields)")
 
 
 @dataclass(frozen=True)

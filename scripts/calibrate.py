@@ -2,7 +2,7 @@
 """Scenario calibration check: label shares and reactive avoidance for a seed range.
 
     python scripts/calibrate.py --seeds 0:1000
-    python scripts/calibrate.py --seeds 100000:100500 --planner reactive --set beta=0.1
+    python scripts/calibrate.py --seeds 100000:100500 --planner reactive --set obstacle.beta=0.1
 
 Prints a Markdown table with 95 % Wilson intervals beside the paper's figures.
 """

@@ -112,8 +112,12 @@ def test_a_flat_file_of_version_0_1_still_reads_with_a_note(tmp_path):
                            'obstacle_accel = 1.5\nego_start_spread = [-2, 2]\n', "flat.toml")
     nested = write(tmp_path, 'description = "A bold driver of version 0.1."\n[scenario.obstacle]\n'
                              'critical_gap = 2\naccel = 1.5\n[scenario.ego]\nstart_spread = [-2, 2]\n', "nested.toml")
-    with pytest.warns(DeprecationWarning, match=r"obstacle_accel is a flat key.*accel in \[scenario\.obstacle\]"):
+    with pytest.warns(DeprecationWarning, match="is a flat key of version 0.1") as got:
         old = read_preset(flat)
+    assert [str(w.message).split("[scenario] ")[1] for w in got] == [
+        "critical_gap is a flat key of version 0.1; write critical_gap in [scenario.obstacle]",
+        "obstacle_accel is a flat key of version 0.1; write accel in [scenario.obstacle]",
+        "ego_start_spread is a flat key of version 0.1; write start_spread in [scenario.ego]"]
     assert old.scenario == read_preset(nested).scenario
     assert old.config() == load_preset(nested) == ScenarioConfig().with_values(
         {"obstacle.critical_gap": 2.0, "obstacle.accel": 1.5, "ego.start_spread": (-2.0, 2.0)})
