@@ -336,6 +336,23 @@ def update_belief(belief: np.ndarray, has_belief: np.ndarray, observed: np.ndarr
     return new, has
 
 
+def _ego_vector(model: DriverModel, car: CarGeometry) -> np.ndarray:
+    """The ego controller's float vector (:func:`cdf_mj.model.kernels.pack_ego`) of
+    ``model``'s ego settings and pursuit and ``car``, packed once per model and car (the
+    per-tick call reuses it)."""
+    kept: tuple[CarGeometry, np.ndarray] | None = model.__dict__.get("_ego_vector")
+    if kept is not None and kept[0] is car:
+        return kept[1]
+    ego = model.ego
+    if ego is None:
+        raise ValueError("ego_control: this driver model has no ego settings (DriverModel.from_layout(..., ego=...))")
+    vector = pack_ego({"lookahead": model.pursuit.lookahead, "lookahead_gain": model.pursuit.lookahead_gain,
+                       "wheelbase": car.wheelbase, "max_steer": car.max_steer, "speed": ego.speed,
+                       "speed_gain": ego.speed_gain, "max_brake": car.max_brake, "max_accel": car.max_accel})
+    object.__setattr__(model, "_ego_vector", (car, vector))
+    return vector
+
+
 def ego_control(model: DriverModel, car: CarGeometry, pose: np.ndarray,
                 brake: np.ndarray | bool) -> np.ndarray:
     """The ego's nominal controller ``h(x2, x1, I2)``: follow its route at the nominal
@@ -346,14 +363,9 @@ def ego_control(model: DriverModel, car: CarGeometry, pose: np.ndarray,
     ``(..., 4)`` ``[x m, y m, theta rad, v m/s]``, world frame; returns ``(..., 2)`` =
     [acceleration m/s^2, steering rad]. ValueError for a model built without ``ego``.
     """
-    ego = model.ego
-    if ego is None:
-        raise ValueError("ego_control: this driver model has no ego settings (DriverModel.from_layout(..., ego=...))")
     pose = np.asarray(pose, dtype=float)
     tab = model.table
-    limits = pack_ego({"lookahead": model.pursuit.lookahead, "lookahead_gain": model.pursuit.lookahead_gain,
-                       "wheelbase": car.wheelbase, "max_steer": car.max_steer, "speed": ego.speed,
-                       "speed_gain": ego.speed_gain, "max_brake": car.max_brake, "max_accel": car.max_accel})
+    limits = _ego_vector(model, car)
     if pose.shape == (4,) and isinstance(brake, (bool, np.bool_)):  # one car, the per-tick call
         x, y, th, v = pose.tolist()
         accel, steer = kernels.ego_control(tab.table, tab.nseg, tab.ends, EGO_ROUTE, x, y, th, v, bool(brake), limits)
