@@ -90,6 +90,8 @@ def test_the_shared_cdf_settings_go_where_the_registry_says():
     assert shared_arguments("imm", cdf) == {} and shared_arguments("reactive", cdf) == {}
     assert bind_planner("cv-risk", cdf)().rule.config == cdf.risk
     assert bind_planner("cv", cdf)().rule.name == "threshold"
+    own = {"n_particles": 20}  # a planner's own arguments win over the run's shared ones
+    assert bind_planner("cdf", cdf, {"cdf": own})().cdf.n_particles == 20
 
 
 class _OldStylePlanner(ReactivePlanner):

@@ -206,8 +206,8 @@ def bind_planner(name: str, cdf: CDFConfig | None = None, arguments: Mapping[str
     ``CDFConfig()``), updated by its own ``arguments``. Every component that runs planners
     (experiments, sweeps, videos, reports) builds them through it. A picklable
     zero-argument factory; ValueError for an unknown name."""
-    return planner_spec(name).bind(**shared_arguments(name, cdf if cdf is not None else CDFConfig()),
-                                   **(arguments or {}))
+    shared = shared_arguments(name, cdf if cdf is not None else CDFConfig())
+    return planner_spec(name).bind(**{**shared, **(arguments or {})})
 
 
 def stored_planner_arguments(settings: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
