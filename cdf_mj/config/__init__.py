@@ -1,0 +1,87 @@
+"""Configuration of the scenario: every free parameter the paper leaves open, in one place.
+
+Geometry (roads, routes, stop line, commit point, buildings, wheelbase, actuator limits)
+lives in the MJCF scene; this module holds the behavioural and statistical parameters.
+Each field says its unit and why it has its value; ``docs/PARAMETERS.md`` tells the
+calibration story. Objects are frozen and validated when built::
+
+    from cdf_mj.config import ScenarioConfig
+    cfg = ScenarioConfig(obstacle={"beta": 0.1})        # ValueError if out of range
+    cfg = ScenarioConfig().with_values({"obstacle.beta": 0.1, "ego.speed": 12.0})   # by dotted key
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+from collections.abc import Mapping
+from typing import Any
+
+from cdf_mj.config.cdf import CDFConfig, DriverPrior, RiskConfig
+from cdf_mj.config.scale import scaled, unit_of
+from cdf_mj.config.scenario import (
+    FLAT_KEYS,
+    GROUPS,
+    MAX_ACCEL,
+    MAX_BRAKE,
+    MAX_DURATION,
+    MAX_EPISODES,
+    MAX_LENGTH,
+    MAX_PARTICLES,
+    MAX_SEED,
+    MAX_SPEED,
+    MAX_START_SPREAD,
+    MAX_WORKERS,
+    SCENARIO_KEYS,
+    Ego,
+    Observation,
+    ObstacleDriver,
+    ProcessNoise,
+    Pursuit,
+    ScenarioConfig,
+    SceneNames,
+    Timing,
+    scenario_key,
+)
+
+__all__ = [
+    "FLAT_KEYS",
+    "GROUPS",
+    "MAX_ACCEL",
+    "MAX_BRAKE",
+    "MAX_DURATION",
+    "MAX_EPISODES",
+    "MAX_LENGTH",
+    "MAX_PARTICLES",
+    "MAX_SEED",
+    "MAX_SPEED",
+    "MAX_START_SPREAD",
+    "MAX_WORKERS",
+    "SCENARIO_KEYS",
+    "CDFConfig",
+    "DriverPrior",
+    "Ego",
+    "Observation",
+    "ObstacleDriver",
+    "ProcessNoise",
+    "Pursuit",
+    "RiskConfig",
+    "ScenarioConfig",
+    "SceneNames",
+    "Timing",
+    "normalise_settings",
+    "scaled",
+    "scenario_key",
+    "unit_of",
+]
+
+def normalise_settings(settings: Mapping[str, Any]) -> dict[str, Any]:
+    """A settings dict (settings.json) as this version writes it: its ``scenario`` (flat or
+    nested) and ``cdf`` rebuilt with today's fields (defaults for those it lacks), as JSON
+    would read them back; a part that cannot be rebuilt is left as it is."""
+    out = dict(settings)
+    for key, cls in (("scenario", ScenarioConfig), ("cdf", CDFConfig)):
+        if isinstance(out.get(key), Mapping):
+            with contextlib.suppress(TypeError, ValueError):
+                out[key] = json.loads(json.dumps(cls.from_dict(out[key]).to_dict()))
+    return out
