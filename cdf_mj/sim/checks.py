@@ -15,11 +15,13 @@ the names to what the elements mean:
 - an explicit integrator (Euler, RK4) gives a :class:`SceneWarning`: our car's tyre
   dampers and speed servo diverge with it.
 
-A names file (``cdf-mj ... --names FILE``) is read by :func:`read_names`.
-
 Two more checks need more than the model: :func:`substeps` (the scenario tick must be a
 whole multiple of the timestep) and :func:`check_drive` (a test drive on a scratch
-``MjData``: each car must move when commanded). ::
+``MjData``: each car must move when commanded), in :mod:`cdf_mj.sim.drive_check`. A names
+file (``cdf-mj ... --names FILE``) is read by :func:`read_names`, and the files a scene
+names are checked by :func:`check_regular_files`, in :mod:`cdf_mj.sim.files`;
+:class:`SceneError` and :class:`SceneWarning` are defined in :mod:`cdf_mj.sim.errors`.
+All of them can be imported from here. ::
 
     from cdf_mj.sim.checks import SceneError, validate
     validate(model, data, SceneNames(), source="my_scene.xml")   # SceneError or nothing
@@ -27,30 +29,19 @@ whole multiple of the timestep) and :func:`check_drive` (a test drive on a scrat
 
 from __future__ import annotations
 
-import dataclasses
-import json
-import logging
 import math
-import os
-import stat
-import sys
 import warnings
-import xml.etree.ElementTree as ET
 from collections.abc import Callable
-from dataclasses import dataclass
-from pathlib import Path
-from typing import Any
 
 import mujoco
 import numpy as np
 
 from cdf_mj.config import SceneNames
 from cdf_mj.model.geometry import OrientedBox, Polyline
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # Python 3.10: the same parser from PyPI (a dependency there)
-    import tomli as tomllib
+from cdf_mj.sim.drive_check import check_drive, substeps
+from cdf_mj.sim.errors import MUJOCO_LOGGER as MUJOCO_LOGGER
+from cdf_mj.sim.errors import SceneError, SceneWarning, route_mujoco_warnings
+from cdf_mj.sim.files import check_regular_files, read_names
 
 __all__ = ["SceneError", "SceneWarning", "check_drive", "check_regular_files", "read_names",
            "route_mujoco_warnings", "substeps", "validate"]
@@ -79,112 +70,9 @@ FULL_LANE = 3.0
 #: [m] the width of the ego's lane (site ``ego_lane``, its shorter side): a lane of a 1:40
 #: testbed to a wide road; a width outside it is a unit mistake.
 LANE_WIDTH = (0.05, 20.0)
-_DRIVE_TIME = 0.3  # [s] length of each phase of the test drive
-_FAR = (2000.0, -3000.0)  # [m] chassis-frame y of ego, obstacle in the test drive: apart, alone
 #: Largest coordinate or size of any body, geom or site in a scene, and largest control
 #: range: 100 km, far beyond a junction; larger values are a unit mistake or garbage [m].
 MAX_EXTENT = 1e5
-
-
-class SceneError(ValueError):
-    """A scene file that cannot be loaded or lacks an element the code needs, or whose
-    elements do not mean what the code reads them as."""
-
-
-class SceneWarning(UserWarning):
-    """A scene that loads but may not simulate well (e.g. an explicit integrator)."""
-
-
-# ---------------------------------------------------------------------- MuJoCo's warnings
-#: MuJoCo's own warnings ("XML contains a 'NaN'", "Nan, Inf or huge value in QACC ...") go to
-#: this logger at level WARNING instead of stdout and a MUJOCO_LOG.TXT in the working
-#: directory. The package's logger "cdf_mj" has a NullHandler, so they show only where the
-#: application configures logging (e.g. ``logging.basicConfig()``).
-MUJOCO_LOGGER = logging.getLogger("cdf_mj.mujoco")
-logging.getLogger("cdf_mj").addHandler(logging.NullHandler())
-
-
-def _log_mujoco_warning(message: str) -> None:
-    MUJOCO_LOGGER.warning("MuJoCo: %s", " ".join(str(message).split()))
-
-
-def route_mujoco_warnings() -> None:
-    """Send MuJoCo's warnings to the logger ``cdf_mj.mujoco`` (:data:`MUJOCO_LOGGER`) rather
-    than MuJoCo's default (print ``WARNING: ...`` to stdout and append to ``MUJOCO_LOG.TXT``
-    in the working directory). Done when this module is imported; a handler the application
-    set with ``mujoco.set_mju_user_warning`` before is kept."""
-    if mujoco.get_mju_user_warning() is None:
-        mujoco.set_mju_user_warning(_log_mujoco_warning)
-
-
-route_mujoco_warnings()
-
-
-# ---------------------------------------------------------------------- files
-def _kind_of(mode: int) -> str:
-    """What a non-regular file is, in words."""
-    for test, word in ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
-                       (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a character device"),
-                       (stat.S_ISBLK, "a block device")):
-        if test(mode):
-            return word
-    return "not a regular file"
-
-
-def _regular(path: Path, what: str) -> None:
-    """SceneError unless ``path`` (followed if a link) is a regular file; nothing is opened,
-    so a FIFO or device cannot block."""
-    try:
-        mode = os.stat(path).st_mode
-    except FileNotFoundError:
-        raise SceneError(f"{what} not found: {path}") from None
-    except OSError as exc:
-        raise SceneError(f"{what} {path} cannot be read: {exc.strerror or exc}") from None
-    if not stat.S_ISREG(mode):
-        raise SceneError(f"{what} {path} is {_kind_of(mode)}, not a regular file")
-
-
-def check_regular_files(path: str | Path) -> None:
-    """SceneError, one line naming the file, unless the MJCF file ``path`` and every file it
-    names (``<include file=...>`` recursively, meshes, textures, height fields, models of
-    ``<attach>``) that exists is a regular file. Runs before MuJoCo opens any of them, so a
-    FIFO or a device in a scene cannot hang or flood the load. Files that do not exist or
-    that are not valid XML are left to MuJoCo, whose error names them."""
-    path = Path(path)
-    _regular(path, "scene file")
-    root_dir = path.parent
-    seen: set[Path] = set()
-    todo = [path]
-    while todo:
-        current = todo.pop()
-        if current in seen:
-            continue
-        seen.add(current)
-        try:
-            tree = ET.parse(current)
-        except (ET.ParseError, OSError, ValueError):
-            continue  # MuJoCo reports a malformed file with its line
-        dirs = {root_dir, current.parent}
-        for compiler in tree.iter("compiler"):
-            for attr in ("meshdir", "texturedir", "assetdir"):
-                if compiler.get(attr):
-                    dirs.add(root_dir / compiler.get(attr, ""))
-        for element in tree.iter():
-            name = element.get("file")
-            if not name:
-                continue
-            for base in sorted(dirs):
-                candidate = base / name
-                try:
-                    mode = os.stat(candidate).st_mode
-                except (OSError, ValueError):
-                    continue
-                if not stat.S_ISREG(mode):
-                    raise SceneError(f"scene {path}: <{element.tag} file=\"{name}\"> is "
-                                     f"{candidate}, {_kind_of(mode)}, not a regular file; MuJoCo "
-                                     "would block or fail reading it")
-                if element.tag == "include":
-                    todo.append(candidate)
 
 
 def _required_junction(n: SceneNames) -> list[tuple[str, str]]:
@@ -476,146 +364,3 @@ def _building_problems(m: mujoco.MjModel, d: mujoco.MjData, n: SceneNames) -> li
     if tilted:
         wrong.append(f"building boxes must be upright (rotated about z only): {', '.join(tilted)}")
     return wrong
-
-
-# ---------------------------------------------------------------------- beyond the model
-def substeps(timestep: float, dt: float, source: str = "<model>") -> int:
-    """Physics steps per scenario tick, ``dt / timestep`` [s / s], which must be a whole
-    number: SceneError naming both otherwise (a 0.03 s timestep would make ticks of 0.09 s,
-    not 0.1 s)."""
-    ratio = dt / timestep
-    n = round(ratio)
-    if n < 1 or abs(ratio - n) > 1e-6 * max(1.0, ratio):
-        raise SceneError(f"scene {source}: the scenario tick dt={dt:g} s is not a whole multiple of "
-                         f"the timestep {timestep:g} s ({ratio:.4g} steps per tick); use a timestep "
-                         f"that divides it, e.g. {dt / max(n, 1):.4g} s or 0.005 s, or another dt")
-    return n
-
-
-def check_drive(model: mujoco.MjModel, names: SceneNames, source: str = "<model>") -> None:
-    """Test-drive both cars on a scratch ``MjData`` (the model is not changed): from rest,
-    full acceleration for 0.3 s, then half the left steering limit for 0.3 s, each car alone
-    and far from everything. SceneError listing every car that does not move forward, does
-    not speed up, does not steer, or turns the wrong way; or if the simulation diverges.
-
-    Run it once for a scene whose cars the code will drive (``Scene``, ``World``,
-    ``run_episode``), not for cars that are only observed. Expects a model that passed
-    :func:`validate` with its cars. About 0.6 s of simulated time.
-    """
-    m, n = model, names
-    d = mujoco.MjData(m)
-    cars = []
-    for p, far in zip((n.ego_prefix, n.obstacle_prefix), _FAR, strict=True):
-        x, y, yaw = (m.joint(p + j) for j in n.planar_joints)
-        d.qpos[y.qposadr[0]] = far  # alone: no building, ground marking or other car near it
-        cars.append(_TestCar(p, int(x.qposadr[0]), int(x.dofadr[0]), int(yaw.qposadr[0]),
-                             m.actuator(p + n.accel), m.actuator(p + n.steer),
-                             int(m.joint(p + n.steer_joint).qposadr[0])))
-    mujoco.mj_forward(m, d)
-    nstep = max(1, round(_DRIVE_TIME / m.opt.timestep))
-    t = nstep * m.opt.timestep
-
-    def run(phase: str) -> None:
-        mujoco.mj_step(m, d, nstep=nstep)
-        w = d.warning
-        if (w[mujoco.mjtWarning.mjWARN_BADQACC].number or w[mujoco.mjtWarning.mjWARN_BADQVEL].number
-                or w[mujoco.mjtWarning.mjWARN_BADQPOS].number or not np.all(np.isfinite(d.qpos))):
-            integrator = mujoco.mjtIntegrator(int(m.opt.integrator)).name.removeprefix("mjINT_")
-            raise SceneError(f"scene {source}: the simulation diverged in a test drive of the cars "
-                             f"({phase}; integrator {integrator}, timestep {m.opt.timestep:g} s): "
-                             "use <option integrator=\"implicitfast\"/>")
-
-    bad: list[str] = []
-    for c in cars:
-        d.ctrl[c.accel.id] = c.accel.ctrlrange[1]
-        d.ctrl[c.steer.id] = 0.0
-    run("full acceleration")
-    drives = {}
-    for c in cars:
-        a = float(c.accel.ctrlrange[1])
-        want_x, want_v = 0.5 * a * t * t, a * t
-        dx, v, yaw = float(d.qpos[c.qx]), float(d.qvel[c.vx]), float(d.qpos[c.qyaw])
-        drives[c.prefix] = dx > 0.5 * want_x and v > 0.5 * want_v and abs(yaw) < 0.05
-        if not drives[c.prefix]:
-            bad.append(f"car '{c.prefix}' does not drive forward when commanded: actuator "
-                       f"'{c.prefix}{n.accel}' at {a:g} m/s^2 for {t:g} s moved body "
-                       f"'{c.prefix}{n.chassis}' {dx:.3f} m at {v:.2f} m/s and turned it {yaw:.3f} rad "
-                       f"(expected about {want_x:.3f} m, {want_v:.2f} m/s, 0 rad); check the "
-                       "actuator's transmission (gear, site or joint) and gain")
-    yaw0 = {c.prefix: float(d.qpos[c.qyaw]) for c in cars}
-    for c in cars:
-        d.ctrl[c.steer.id] = 0.5 * c.steer.ctrlrange[1]
-    run("steering left")
-    for c in cars:
-        cmd = 0.5 * float(c.steer.ctrlrange[1])
-        angle, turned = float(d.qpos[c.steer_q]), float(d.qpos[c.qyaw]) - yaw0[c.prefix]
-        if angle < 0.5 * cmd:
-            bad.append(f"car '{c.prefix}' does not steer when commanded: actuator "
-                       f"'{c.prefix}{n.steer}' at {cmd:.3g} rad for {t:g} s turned joint "
-                       f"'{c.prefix}{n.steer_joint}' to {angle:.3g} rad; it must be a position servo "
-                       "on that joint")
-        elif drives[c.prefix] and turned <= 0.0:
-            bad.append(f"car '{c.prefix}' turns right ({turned:.3f} rad) when steered left: a "
-                       f"positive angle of joint '{c.prefix}{n.steer_joint}' must turn the car left")
-    if bad:
-        raise SceneError(f"scene {source}: {'; '.join(bad)}")
-
-
-@dataclass(frozen=True)
-class _TestCar:
-    """Addresses of one car in the test drive."""
-
-    prefix: str
-    qx: int  # qpos address of the chassis x slide
-    vx: int  # dof address of the chassis x slide
-    qyaw: int  # qpos address of the yaw hinge
-    accel: Any  # the accel actuator's view (model.actuator)
-    steer: Any  # the steering actuator's view
-    steer_q: int  # qpos address of the steering hinge
-
-
-# ---------------------------------------------------------------------- a names file
-def read_names(path: str | Path) -> SceneNames:
-    """The :class:`SceneNames` of a JSON (``.json``) or TOML (``.toml``) file holding one
-    object (table) whose keys are SceneNames fields and whose values are strings; fields
-    not given keep their defaults. SceneError, one line naming the file, for a file that
-    cannot be read, malformed JSON or TOML (with its line and column), an unknown key (with
-    the valid ones), a value that is not a string, or names SceneNames refuses.
-    """
-    path = Path(path)
-    fields = [f.name for f in dataclasses.fields(SceneNames)]
-    kind = path.suffix.lower()
-    if kind not in (".json", ".toml"):
-        raise SceneError(f"names file {path}: expected a .json or .toml file, got {path.suffix or 'no suffix'!r}")
-    if path.exists():  # a FIFO or a device would block or flood read_text
-        _regular(path, "names file")
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise SceneError(f"names file {path} does not exist") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise SceneError(f"names file {path} cannot be read: {exc}") from None
-    data: Any
-    if kind == ".json":
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise SceneError(f"names file {path}: not valid JSON at line {exc.lineno}, column "
-                             f"{exc.colno}: {exc.msg}") from None
-    else:
-        try:
-            data = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            raise SceneError(f"names file {path}: not valid TOML: {' '.join(str(exc).split())}") from None
-    if not isinstance(data, dict):
-        raise SceneError(f"names file {path}: expected an object of SceneNames fields, e.g. "
-                         f'{{"route_ego": "my_path"}}, got a {type(data).__name__}')
-    for key, value in data.items():
-        if key not in fields:
-            raise SceneError(f"names file {path}: unknown key {key!r}; valid keys: {', '.join(fields)}")
-        if not isinstance(value, str):
-            raise SceneError(f"names file {path}: {key} must be a string (an element name), got {value!r}")
-    try:
-        return SceneNames(**data)
-    except ValueError as exc:
-        raise SceneError(f"names file {path}: {exc}") from None
