@@ -192,3 +192,14 @@ def test_a_full_disk_leaves_the_earlier_figure_whole(tmp_path):
     assert run.returncode == 3, run.stderr
     assert (tmp_path / "beta.png").read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []
+
+
+@pytest.mark.parametrize("name", ["noise", "obs-noise"])
+def test_the_noise_sweeps_scale_the_filters_own_model_with_the_world(name):
+    """Since the filter keeps its own noise model (it reads nothing of the world's), the
+    noise sweeps scale both: they ask how the noise level matters, as before."""
+    config, cdf = SWEEPS[name].settings(2.0, ScenarioConfig(), CDFConfig())
+    world = config.noise if name == "noise" else config.observation
+    own = cdf.process_noise if name == "noise" else cdf.prior.observation
+    base = ScenarioConfig().noise if name == "noise" else ScenarioConfig().observation
+    assert world == own == base.replace(**{k: 2 * v for k, v in base.to_dict().items()})

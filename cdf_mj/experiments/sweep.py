@@ -10,11 +10,12 @@ tau         ``CDFConfig.tau``, the threshold of the paper's rule  0.5 0.6 0.7 0.
             (the CDF runs with ``decision = "threshold"``)        0.95 0.99
 risk        ``CDFConfig.risk.brake``, the risk rule's braking     0.05 0.1 0.2 0.3 0.5
             threshold (``release`` at half of it)
-noise       process noise: ``noise_accel`` and ``noise_steer``    0.5 1 2 4
-            times the factor (both cars; the CDF's filter noise
-            follows, as ``process_noise_scale`` x the scenario's)
-obs-noise   observation noise: ``obs_noise_pos``, ``_heading``,   0.5 1 2 4
-            ``_speed`` times the factor
+noise       process noise: ``noise.accel`` and ``noise.steer``    0.5 1 2 4
+            times the factor (both cars; the CDF filter's own
+            ``CDFConfig.process_noise`` follows)
+obs-noise   observation noise: ``observation.pos``, ``.heading``, 0.5 1 2 4
+            ``.speed`` times the factor (the filter's own
+            ``DriverPrior.observation`` follows)
 ==========  ====================================================  =========================
 
 Every point is one :func:`cdf_mj.experiments.experiment.run_experiment` call in its own directory

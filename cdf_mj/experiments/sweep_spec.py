@@ -9,6 +9,7 @@ to a run's scenario and CDF settings (:class:`SweepSpec`, one per key of :data:`
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -25,14 +26,21 @@ def _reads_cdf(name: str) -> bool:
 
 
 def _scale_process(config: ScenarioConfig, cdf: CDFConfig, k: float) -> tuple[ScenarioConfig, CDFConfig]:
-    noise = config.noise
-    return config.replace(noise=noise.replace(accel=noise.accel * k, steer=noise.steer * k)), cdf
+    """Both cars' process noise times ``k``, and the CDF filter's own model of it with them
+    (the sweep asks how the noise level matters, not how a wrong model of it does)."""
+    noise, own = config.noise, cdf.process_noise
+    return (config.replace(noise=noise.replace(accel=noise.accel * k, steer=noise.steer * k)),
+            cdf.replace(process_noise=own.replace(accel=own.accel * k, steer=own.steer * k)))
 
 
 def _scale_obs(config: ScenarioConfig, cdf: CDFConfig, k: float) -> tuple[ScenarioConfig, CDFConfig]:
-    seen = config.observation
-    return config.replace(observation=seen.replace(pos=seen.pos * k, heading=seen.heading * k,
-                                                   speed=seen.speed * k)), cdf
+    """The obstacle driver's observation noise of the ego times ``k``, and the CDF filter's
+    model of it with it."""
+    seen, own = config.observation, cdf.prior.observation
+    return (config.replace(observation=seen.replace(pos=seen.pos * k, heading=seen.heading * k,
+                                                    speed=seen.speed * k)),
+            cdf.replace(prior=dataclasses.replace(cdf.prior, observation=own.replace(
+                pos=own.pos * k, heading=own.heading * k, speed=own.speed * k))))
 
 
 @dataclass(frozen=True)
@@ -68,9 +76,9 @@ SWEEPS: dict[str, SweepSpec] = {s.name: s for s in (
               lambda c, d, v: (c, d.replace(decision="risk", risk=d.risk.replace(brake=float(v),
                                                                                   release=float(v) / 2))),
               cdf_only=True, log_x=True),
-    SweepSpec("noise", "process noise, factor on noise_accel and noise_steer", (0.5, 1.0, 2.0, 4.0),
+    SweepSpec("noise", "process noise, factor on noise.accel and noise.steer (the world's and the filter's)", (0.5, 1.0, 2.0, 4.0),
               lambda c, d, v: _scale_process(c, d, float(v)), cdf_only=False, log_x=True),
-    SweepSpec("obs-noise", "observation noise, factor on obs_noise_*", (0.5, 1.0, 2.0, 4.0),
+    SweepSpec("obs-noise", "observation noise, factor on observation.* (the world's and the filter's)", (0.5, 1.0, 2.0, 4.0),
               lambda c, d, v: _scale_obs(c, d, float(v)), cdf_only=False, log_x=True),
 )}
 
