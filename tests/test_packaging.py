@@ -124,7 +124,7 @@ def test_the_installed_command_runs_an_episode_like_the_checkout(venv, elsewhere
 
 def test_the_installed_command_reads_its_own_presets(venv, elsewhere):
     shown = _run([venv / "bin" / "cdf-mj", "presets", "fast-ego"], cwd=elsewhere)
-    assert "source: fast-ego" in shown.stdout and "ego_speed = 17.9" in shown.stdout
+    assert "source: fast-ego" in shown.stdout and "ego.speed = 17.9" in shown.stdout
     listing = _run([venv / "bin" / "cdf-mj", "presets"], cwd=elsewhere)
     shipped = sorted(p.stem for p in (REPO / "cdf_mj" / "presets").glob("*.toml"))
     assert [line.split()[0] for line in listing.stdout.splitlines()[:len(shipped)]] == shipped

@@ -52,11 +52,11 @@ def _ground(xy: np.ndarray, z: float = 0.0) -> np.ndarray:
     return np.column_stack([xy, np.full(len(xy), z)])
 
 
-@pytest.mark.parametrize(("which", "preset"), [("default", {}), ("default", {"ego_start_spread": (-25.2, -24.0)}),
+@pytest.mark.parametrize(("which", "preset"), [("default", {}), ("default", {"ego.start_spread": (-25.2, -24.0)}),
                                                ("rotated", {})])
 def test_both_cars_at_least_40_px_and_in_view_in_every_frame(scene, rotated, which, preset) -> None:
     sc = scene if which == "default" else rotated
-    config = ScenarioConfig(**preset)
+    config = ScenarioConfig().with_values(preset)
     replay = record_episode(3, "reactive", config, sc, label=False)
     layout = sc.layout()
     follow = FollowCamera(layout, replay.times, replay.poses, W, H, fovy=float(sc.model.vis.global_.fovy))
