@@ -14,9 +14,11 @@ from it, so that adding one is one line here plus its use in the model:
   (:data:`SHARED`, :data:`cdf_mj.model.kernels.DRIVER_FIELDS`), whose index constants the
   kernel modules compute from these names at import.
 
-Numba's cache keys a compiled kernel on its own file's text, not on these names: a change
-that moves a kernel's columns or offsets must change the kernel files' ``LAYOUT`` stamp,
-which ``tests/test_traits.py`` checks (and prints). Importing this module compiles nothing::
+Numba's cache keys a compiled kernel on its own file's text, not on these names: each
+kernel file carries a ``LAYOUT`` stamp, the digest of the names its offsets come from. A
+change that moves a column or an offset makes the kernels compile without Numba's cache
+(with a warning) until the stamp is updated to the digest that ``tests/test_traits.py``
+prints; a stale kernel is never loaded. Importing this module compiles nothing::
 
     from cdf_mj.traits import TRAITS, THETA
     [t.name for t in TRAITS if t.prior is not None]     # the filter models these

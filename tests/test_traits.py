@@ -13,6 +13,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import re
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -182,3 +184,24 @@ def test_the_kernel_layout_stamps_are_current():
         digest = model_kernels.layout_digest(*module.LAYOUTS)
         assert digest == module.LAYOUT, (f"the layout of {module.__name__} changed: set LAYOUT = {digest!r} in "
                                          f"{module.__file__} so that Numba recompiles its kernels")
+        assert module.CACHE, f"{module.__name__} compiles without Numba's cache"
+
+
+_CHANGED_LAYOUT = """
+import warnings
+import cdf_mj.traits as traits
+traits.THETA = (*traits.THETA, "a_new_column")  # a schema change the stamp does not know
+with warnings.catch_warnings(record=True) as caught:
+    warnings.simplefilter("always")
+    from cdf_mj.inference import kernels
+print(kernels.CACHE, any("compiling without Numba's cache" in str(w.message) for w in caught))
+"""
+
+
+def test_a_layout_the_stamp_does_not_know_never_reads_a_stale_kernel():
+    """A schema change whose stamp was not updated compiles without the cache (and warns),
+    so no kernel compiled for the old offsets is loaded."""
+    out = subprocess.run([sys.executable, "-c", _CHANGED_LAYOUT], capture_output=True, text=True, timeout=120,
+                         check=False)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split() == ["False", "True"]

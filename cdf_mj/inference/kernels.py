@@ -30,14 +30,16 @@ test is the same separating-axis test as :meth:`Occluders.visible` (touching blo
 
 from __future__ import annotations
 
+import functools
 import math
+import warnings
 from collections.abc import Mapping
 
 import numba
 import numpy as np
 
 from cdf_mj.model import kernels as drv
-from cdf_mj.model.kernels import COMMITTED, GOING, LEFT, RIGHT, WAITING, YIELDING, helper
+from cdf_mj.model.kernels import COMMITTED, GOING, LEFT, RIGHT, WAITING, YIELDING
 from cdf_mj.model.occlusion import Occluders
 from cdf_mj.traits import THETA
 
@@ -69,6 +71,17 @@ LAYOUTS = (*drv.LAYOUTS, FILTER_FIELDS, THETA)
 #: (:func:`cdf_mj.model.kernels.layout_digest`) written here puts them in the text, so that
 #: a new layout recompiles. tests/test_traits.py checks it and gives the new value.
 LAYOUT = "49c203255b40"
+#: Whether Numba's cache may be used: only while :data:`LAYOUT` is the digest of the layouts
+#: now. After a change of the traits' schema that moves a column or an offset, until the
+#: stamp is updated, the kernels compile afresh on every run (a warning says so): slower
+#: to start, never a stale kernel reading the old offsets.
+CACHE = drv.layout_digest(*LAYOUTS) == LAYOUT
+if not CACHE:
+    warnings.warn(f"{__name__}: the packed layouts changed (digest {drv.layout_digest(*LAYOUTS)}, stamp {LAYOUT}): "
+                  "compiling without Numba's cache; set LAYOUT to the new digest (tests/test_traits.py)",
+                  RuntimeWarning, stacklevel=1)
+#: This module's per-car helpers, cached as :data:`CACHE` says.
+helper = functools.partial(drv.helper, cache=CACHE)
 
 _TWO_PI = 2.0 * math.pi
 _BELOW_ONE = np.nextafter(1.0, 0.0)
@@ -92,21 +105,21 @@ def pack_boxes(occluders: Occluders, eye_height: float) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------- draws
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CACHE, nogil=True)
 def _uniform(rng: np.random.Generator) -> float:
     """One ``rng.random()`` draw. A function of its own: the kernels draw at many places,
     and each inlined draw would make Numba compile the generator's code again."""
     return rng.random()
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CACHE, nogil=True)
 def _normal(rng: np.random.Generator) -> float:
     """One ``rng.standard_normal()`` draw (see :func:`_uniform`)."""
     return rng.standard_normal()
 
 
 # ---------------------------------------------------------------------------------- sight
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CACHE, nogil=True)
 def sight_prep(boxes: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The ego's sight targets ``(K, 2)`` in every box frame ``(B, K, 2)``, and per box
     whether all of them lie beyond its +x, -x, +y, -y side ``(B, 4)``."""
@@ -170,7 +183,7 @@ def _sees(i: int, pose: np.ndarray, cfg: np.ndarray, boxes: np.ndarray, loc: np.
     return seen
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CACHE, nogil=True)
 def sight_rows(pose: np.ndarray, cfg: np.ndarray, boxes: np.ndarray, targets: np.ndarray,
                sight: np.ndarray) -> np.ndarray:
     """Every particle's line of sight ``(N,)`` bool, filling the cache ``sight``."""
@@ -193,7 +206,7 @@ def _arc(i: int, table: np.ndarray, nseg: np.ndarray, pose: np.ndarray, intent: 
     return float(s[i])
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CACHE, nogil=True)
 def arcs(table: np.ndarray, nseg: np.ndarray, pose: np.ndarray, intent: np.ndarray, s: np.ndarray,
          seg: np.ndarray, s_route: np.ndarray) -> None:
     """Every particle's arc length on its own route, into ``s`` (see :func:`_arc`)."""
@@ -230,7 +243,7 @@ def arrival(s_enter: float, s: float, v: float, a: float, v_turn: float) -> floa
     return t_acc + (rem - d_acc) / max(v_turn, 0.1)
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=CACHE, nogil=True, inline="always")
 def ticks_to_commit(s_commit: float, dt: float, arc: float, v: float, a: float) -> int:
     """Ticks of ``dt`` [s] a left-turner at arc length ``arc`` [m] and speed ``v`` [m/s],
     accelerating at ``a`` [m/s^2], needs to reach its commit point ``s_commit`` [m]: the
@@ -241,7 +254,7 @@ def ticks_to_commit(s_commit: float, dt: float, arc: float, v: float, a: float) 
 
 
 # ---------------------------------------------------------------------------- predict
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CACHE, nogil=True)
 def predict(rng: np.random.Generator, cfg: np.ndarray, table: np.ndarray, nseg: np.ndarray, ends: np.ndarray,
             boxes: np.ndarray, targets: np.ndarray, ego: np.ndarray, pose: np.ndarray, mode: np.ndarray,
             belief: np.ndarray, has_belief: np.ndarray, intent: np.ndarray, theta: np.ndarray, s: np.ndarray,
@@ -296,7 +309,7 @@ def predict(rng: np.random.Generator, cfg: np.ndarray, table: np.ndarray, nseg: 
 
 
 # ------------------------------------------------------------------------------ update
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CACHE, nogil=True)
 def weigh(pose: np.ndarray, meas: np.ndarray, cov_inv: np.ndarray, logw: np.ndarray,
           reinit_maha2: float) -> tuple[np.ndarray, np.ndarray, float, bool]:
     """Log-weights times the likelihood of the measured pose ``N(meas | pose, Sigma)``,
@@ -338,7 +351,7 @@ def weigh(pose: np.ndarray, meas: np.ndarray, cov_inv: np.ndarray, logw: np.ndar
     return out, w, min(max(1.0 / sq, 1.0), float(n)), True
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CACHE, nogil=True)
 def normalise(logw: np.ndarray) -> tuple[np.ndarray, float]:
     """Weights ``exp(logw - max)`` normalised, and the ESS."""
     n = logw.shape[0]
@@ -380,7 +393,7 @@ def _cutoff(i: int, cfg: np.ndarray, pose: np.ndarray, mode: np.ndarray, intent:
     return p
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CACHE, nogil=True)
 def cutoff_rows(cfg: np.ndarray, table: np.ndarray, nseg: np.ndarray, boxes: np.ndarray, targets: np.ndarray,
                 ego: np.ndarray, pose: np.ndarray, mode: np.ndarray, intent: np.ndarray, theta: np.ndarray,
                 s: np.ndarray, seg: np.ndarray, s_route: np.ndarray, sight: np.ndarray) -> np.ndarray:
@@ -398,7 +411,7 @@ def cutoff_rows(cfg: np.ndarray, table: np.ndarray, nseg: np.ndarray, boxes: np.
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CACHE, nogil=True)
 def posterior(w: np.ndarray, cfg: np.ndarray, table: np.ndarray, nseg: np.ndarray, boxes: np.ndarray,
               targets: np.ndarray, ego: np.ndarray, pose: np.ndarray, mode: np.ndarray, has_belief: np.ndarray,
               intent: np.ndarray, theta: np.ndarray, s: np.ndarray, seg: np.ndarray, s_route: np.ndarray,
@@ -425,7 +438,7 @@ def posterior(w: np.ndarray, cfg: np.ndarray, table: np.ndarray, nseg: np.ndarra
 
 
 # ---------------------------------------------------------------------------- resample
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CACHE, nogil=True)
 def resample_indexes(w: np.ndarray, u: np.ndarray) -> np.ndarray:
     """Resampling of weights ``w`` (finite, >= 0) with the uniforms ``u`` in [0, 1): one
     per particle (stratified) or one for all (systematic, ``u`` of length 1). Index ``i``
@@ -455,7 +468,7 @@ def resample_indexes(w: np.ndarray, u: np.ndarray) -> np.ndarray:
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CACHE, nogil=True)
 def resample(rng: np.random.Generator, w: np.ndarray, theta: np.ndarray, mode: np.ndarray, intent: np.ndarray,
              jitter_std: np.ndarray, lo: np.ndarray, hi: np.ndarray, intent_floor: float,
              p_left: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -491,7 +504,7 @@ def resample(rng: np.random.Generator, w: np.ndarray, theta: np.ndarray, mode: n
     return keep, theta2, intent2
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CACHE, nogil=True)
 def gather(keep: np.ndarray, pose: np.ndarray, belief: np.ndarray, mode: np.ndarray, has_belief: np.ndarray,
            s: np.ndarray, seg: np.ndarray, s_route: np.ndarray, sight: np.ndarray, pose2: np.ndarray,
            belief2: np.ndarray, mode2: np.ndarray, has2: np.ndarray, s2: np.ndarray, seg2: np.ndarray,
@@ -508,7 +521,7 @@ def gather(keep: np.ndarray, pose: np.ndarray, belief: np.ndarray, mode: np.ndar
 
 
 # ----------------------------------------------------------------------------- futures
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CACHE, nogil=True)
 def left_futures(w: np.ndarray, cfg: np.ndarray, table: np.ndarray, nseg: np.ndarray, boxes: np.ndarray,
                  targets: np.ndarray, ego: np.ndarray, pose: np.ndarray, mode: np.ndarray, belief: np.ndarray,
                  has_belief: np.ndarray, intent: np.ndarray, theta: np.ndarray, s: np.ndarray, seg: np.ndarray,

@@ -35,6 +35,7 @@ from __future__ import annotations
 import hashlib
 import math
 import os
+import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, TypeVar
@@ -109,6 +110,15 @@ LAYOUTS = (DRIVER_FIELDS, EGO_FIELDS, PER_CAR)
 #: (:func:`layout_digest`) written here puts them in the text, so that a new layout
 #: recompiles. tests/test_traits.py checks it and gives the new value.
 LAYOUT = "8cc0a86ccbca"
+#: Whether Numba's cache may be used: only while :data:`LAYOUT` is the digest of the layouts
+#: now. After a change of the traits' schema that moves a column or an offset, until the
+#: stamp is updated, the kernels compile afresh on every run (a warning says so): slower
+#: to start, never a stale kernel reading the old offsets.
+CACHE = layout_digest(*LAYOUTS) == LAYOUT
+if not CACHE:
+    warnings.warn(f"{__name__}: the packed layouts changed (digest {layout_digest(*LAYOUTS)}, stamp {LAYOUT}): "
+                  "compiling without Numba's cache; set LAYOUT to the new digest (tests/test_traits.py)",
+                  RuntimeWarning, stacklevel=1)
 
 
 @dataclass(frozen=True, eq=False)
@@ -151,14 +161,17 @@ def tracking_radius(route: Polyline) -> float:
     return float(min(TRACK_RADIUS, radius.min(initial=np.inf)))
 
 
-def helper(fn: F) -> F:
-    """Compile a per-car helper: ``numba.njit(cache=True, nogil=True)`` without Numba's
+def helper(fn: F, cache: bool | None = None) -> F:
+    """Compile a per-car helper: ``numba.njit(cache=CACHE, nogil=True)`` without Numba's
     reference counting (``_nrt=False``). A helper allocates nothing, and a kernel calls it
     once per particle with array arguments, whose reference counts Numba would otherwise
     raise and drop on every call: two atomic operations per array, 39 ns a call against
-    1.5 ns without (``scripts/kernel_costs.py``, docs/PERFORMANCE.md)."""
+    1.5 ns without (``scripts/kernel_costs.py``, docs/PERFORMANCE.md). ``cache``: whether
+    Numba's cache may be used (default: this module's :data:`CACHE`; a kernel module that
+    reads layouts of its own passes its own)."""
     compile_: Any = numba.njit  # _nrt is a compiler flag that numba's stubs do not list
-    return compile_(cache=True, nogil=True, _nrt=False)(fn)  # type: ignore[no-any-return]
+    return compile_(cache=CACHE if cache is None else cache, nogil=True,  # type: ignore[no-any-return]
+                    _nrt=False)(fn)
 
 
 def pack_driver(values: Mapping[str, float]) -> np.ndarray:
@@ -239,7 +252,7 @@ def point_at(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, r: int, s: f
     return table[r, k, 0] + table[r, k, 2] * d, table[r, k, 1] + table[r, k, 3] * d
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=CACHE, nogil=True, inline="always")
 def ahead_of_conflict(cx: float, cy: float, x: float, y: float, th: float) -> float:
     """[m] how far the conflict point (cx, cy) lies ahead of a car at (x, y) heading ``th``,
     along its heading (negative once past it). Scalars only, inlined where it is called
@@ -247,7 +260,7 @@ def ahead_of_conflict(cx: float, cy: float, x: float, y: float, th: float) -> fl
     return float((cx - x) * math.cos(th) + (cy - y) * math.sin(th))
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=CACHE, nogil=True, inline="always")
 def passed_or_far(passed_margin: float, ahead: float, v: float, critical_gap: float, clear_distance: float) -> bool:
     """The clear rule's test of an ego ``ahead`` [m] of the conflict point at speed ``v``
     [m/s]: past it by ``passed_margin``, or further than ``clear_distance`` and more than
@@ -325,7 +338,7 @@ def control(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, cfg: np.ndarr
     return a, steer, new, k
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CACHE, nogil=True)
 def obstacle_control_rows(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, cfg: np.ndarray,
                            pose: np.ndarray, mode: np.ndarray, belief: np.ndarray, has_belief: np.ndarray,
                            intent: np.ndarray, params: np.ndarray, may_go: np.ndarray,
@@ -343,7 +356,7 @@ def obstacle_control_rows(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray,
     return u, new
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CACHE, nogil=True)
 def clear_rows(cfg: np.ndarray, belief: np.ndarray, has_belief: np.ndarray, intent: np.ndarray,
                params: np.ndarray) -> np.ndarray:
     """:func:`clear` for N drivers (``params`` as in :func:`obstacle_control_rows`)."""
@@ -364,7 +377,7 @@ def bicycle(x: float, y: float, th: float, v: float, c: float, s: float, accel: 
     return x + step * c, y + step * s, th + step / wheelbase * math.tan(steer), max(v + accel * dt, 0.0)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CACHE, nogil=True)
 def bicycle_rows(x: np.ndarray, u: np.ndarray, dt: float, wheelbase: float) -> np.ndarray:
     """:func:`bicycle` for rows ``x`` ``(M, 4)`` and ``u`` ``(M, 2)``."""
     out = np.empty_like(x)
@@ -385,7 +398,7 @@ def dead_reckon(belief: np.ndarray, i: int, dt: float) -> None:
     belief[i, 3] = max(belief[i, 3], 0.0)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CACHE, nogil=True)
 def believe_rows(belief: np.ndarray, has_belief: np.ndarray, observed: np.ndarray, observation: np.ndarray,
                  dt: float) -> None:
     """The belief update ``g`` in place for N drivers: take the observation where there is
@@ -399,7 +412,7 @@ def believe_rows(belief: np.ndarray, has_belief: np.ndarray, observed: np.ndarra
             dead_reckon(belief, i, dt)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CACHE, nogil=True)
 def project_rows(table: np.ndarray, nseg: np.ndarray, r: np.ndarray, xy: np.ndarray,
                  seg: np.ndarray) -> np.ndarray:
     """:func:`project` for N points ``xy`` ``(N, 2)`` on their routes ``r``; ``seg`` updated."""
@@ -409,7 +422,7 @@ def project_rows(table: np.ndarray, nseg: np.ndarray, r: np.ndarray, xy: np.ndar
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CACHE, nogil=True)
 def steer_rows(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, r: int, pose: np.ndarray,
                s: np.ndarray, lookahead: np.ndarray, wheelbase: float, max_steer: float,
                seg: np.ndarray) -> np.ndarray:
@@ -439,7 +452,7 @@ def ego_control(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, r: int, x
                                           car[E_MAX_ACCEL])), steer
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=CACHE, nogil=True)
 def ego_control_rows(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, r: int, pose: np.ndarray,
                      brake: np.ndarray, car: np.ndarray) -> np.ndarray:
     """:func:`ego_control` for N poses ``(N, 4)``: ``(N, 2)``."""
