@@ -20,6 +20,7 @@ from typing import Any
 from cdf_mj.config.cdf import CDFConfig, DriverPrior, RiskConfig
 from cdf_mj.config.scale import scaled, unit_of
 from cdf_mj.config.scenario import (
+    AFTER_MERGE,
     FLAT_KEYS,
     GROUPS,
     MAX_ACCEL,
@@ -33,6 +34,7 @@ from cdf_mj.config.scenario import (
     MAX_START_SPREAD,
     MAX_WORKERS,
     SCENARIO_KEYS,
+    AfterMerge,
     Ego,
     Observation,
     ObstacleDriver,
@@ -40,11 +42,13 @@ from cdf_mj.config.scenario import (
     Pursuit,
     ScenarioConfig,
     SceneNames,
+    Sensing,
     Timing,
     scenario_key,
 )
 
 __all__ = [
+    "AFTER_MERGE",
     "FLAT_KEYS",
     "GROUPS",
     "MAX_ACCEL",
@@ -58,6 +62,7 @@ __all__ = [
     "MAX_START_SPREAD",
     "MAX_WORKERS",
     "SCENARIO_KEYS",
+    "AfterMerge",
     "CDFConfig",
     "DriverPrior",
     "Ego",
@@ -68,6 +73,7 @@ __all__ = [
     "RiskConfig",
     "ScenarioConfig",
     "SceneNames",
+    "Sensing",
     "Timing",
     "normalise_settings",
     "scaled",

@@ -19,7 +19,7 @@ __all__ = ["scaled", "unit_of"]
 C = TypeVar("C")
 #: Exponent of the length scale by unit under :func:`scaled`'s law (kinematic similarity).
 KINEMATIC_SCALING: Mapping[str, int] = MappingProxyType(
-    {"m": 1, "m/s": 1, "m/s^2": 1, "s": 0, "1/s": 0, "1/tick": 0, "rad": 0, "1": 0})
+    {"m": 1, "m/s": 1, "m/s^2": 1, "s": 0, "1/s": 0, "1/tick": 0, "tick": 0, "rad": 0, "1": 0})
 _POSE_UNITS = ("m", "m", "rad", "m/s")  # [x, y, theta, v]
 #: Units of the numbers of configurations whose fields declare none (:func:`cdf_mj.traits.bounded`
 #: does): ``Class.field`` -> unit, per component for a pose (or its covariance's rows and columns).
@@ -84,7 +84,7 @@ def scaled(config: C, length_scale: float) -> C:
         elif (unit := unit_of(config, f.name)) is None:
             raise ValueError(f"scaled: {type(config).__name__}.{f.name} declares no unit; give it one "
                              "(cdf_mj.traits.bounded, or cdf_mj.config.scale.UNITS)")
-        elif unit != "1":
+        elif unit != "1" and KINEMATIC_SCALING.get(unit) != 0:  # what scales (a count stays an int)
             k = _factor(unit, length_scale)
             if isinstance(value, numbers.Real):
                 changes[f.name] = value * k

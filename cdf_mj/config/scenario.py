@@ -17,10 +17,10 @@ from cdf_mj.traits import MAX_ACCEL, MAX_DURATION, MAX_LENGTH, MAX_SPEED, bounde
 from cdf_mj.traits import check as _check
 from cdf_mj.traits import within as _within
 
-__all__ = ["FLAT_KEYS", "GROUPS", "MAX_ACCEL", "MAX_BRAKE", "MAX_DURATION", "MAX_EPISODES", "MAX_LENGTH",
+__all__ = ["AFTER_MERGE", "FLAT_KEYS", "GROUPS", "MAX_ACCEL", "MAX_BRAKE", "MAX_DURATION", "MAX_EPISODES", "MAX_LENGTH",
            "MAX_PARTICLES", "MAX_SEED", "MAX_SPEED", "MAX_START_SPREAD", "MAX_WORKERS", "SCENARIO_KEYS",
-           "Ego", "Observation", "ObstacleDriver", "ProcessNoise", "Pursuit", "ScenarioConfig",
-           "SceneNames", "Timing", "scenario_key"]
+           "AfterMerge", "Ego", "Observation", "ObstacleDriver", "ProcessNoise", "Pursuit", "ScenarioConfig",
+           "SceneNames", "Sensing", "Timing", "scenario_key"]
 
 #: Maximum braking of a passenger car on a moderate-friction road, 16 ft/s^2 [m/s^2].
 MAX_BRAKE = 16 * 0.3048
@@ -193,10 +193,71 @@ class ProcessNoise(_Group):
     steer: float = bounded(0.01, 0.0, math.pi, "rad")  # nu_2, on the commanded steering
 
 
+#: What the obstacle may do once it is in the ego's lane (:class:`AfterMerge`).
+AFTER_MERGE = ("keep", "slow", "brake", "stop")
+
+
+@dataclass(frozen=True)
+class AfterMerge(_Group):
+    """What the obstacle does once it has entered the ego's lane: a world option, drawn per
+    episode from the ranges (uniform), which the filter's model knows nothing of.
+
+    ``keep`` (default): its driver goes on as it would. ``slow``: from entering the lane it
+    decelerates at ``decel`` [m/s^2] to ``slow_to`` times its speed there, then holds that.
+    ``brake``: after ``at`` [m] in the lane it brakes at ``brake`` [m/s^2] to a stop and
+    stands. ``stop``: an aborted turn: it brakes at ``brake`` to a stop on entering the lane
+    and stands. ValueError for another behaviour or a range out of its bounds.
+    """
+
+    _prefix: ClassVar[str] = "after_merge."
+    behaviour: str = "keep"
+    decel: tuple[float, float] = bounded((1.5, 2.5), 0.0, MAX_ACCEL, "m/s^2", open_low=True)  # slowing
+    slow_to: tuple[float, float] = bounded((0.3, 0.6), 0.0, 1.0, "1")  # of its speed on entering the lane
+    brake: tuple[float, float] = bounded((3.5, 5.0), 0.0, MAX_ACCEL, "m/s^2", open_low=True)  # to a stop
+    at: tuple[float, float] = bounded((5.0, 25.0), 0.0, MAX_LENGTH, "m")  # in the lane before braking
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check(self.behaviour in AFTER_MERGE, "after_merge.behaviour", self.behaviour, " or ".join(AFTER_MERGE))
+
+
+@dataclass(frozen=True)
+class Sensing(_Group):
+    """The ego's sensing of the obstacle and its brake's actuation: what the world gives its
+    planner. Records keep the truth. All zero (default): perfect, as in the paper.
+
+    Each tick the planner's measurement of the obstacle's pose is the true one ``latency``
+    ticks old, plus Gaussian noise of std ``pos`` (each axis), ``heading``, ``speed``; with
+    probability ``dropout`` there is none (its row is NaN and it is not in the lane). The
+    ego's own pose is exact. A brake the ego decides acts ``brake_latency`` ticks later (a
+    release too). Integers for the latencies [ticks of ``timing.dt``].
+    """
+
+    _prefix: ClassVar[str] = "sensing."
+    pos: float = bounded(0.0, 0.0, MAX_LENGTH, "m")  # std of the measured obstacle position, each axis
+    heading: float = bounded(0.0, 0.0, math.pi, "rad")  # std of its measured heading
+    speed: float = bounded(0.0, 0.0, MAX_SPEED, "m/s")  # std of its measured speed
+    dropout: float = bounded(0.0, 0.0, 1.0, "1")  # P(no measurement of the obstacle) per tick
+    latency: int = bounded(0, 0, 100, "tick")  # ticks by which the obstacle's measurement is late
+    brake_latency: int = bounded(0, 0, 100, "tick")  # ticks between a brake decision and the actuator
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("latency", "brake_latency"):
+            v = getattr(self, name)
+            _check(isinstance(v, int) and not isinstance(v, bool), f"sensing.{name}", v,
+                   "a whole number of ticks in [0, 100]")
+
+    @property
+    def perfect(self) -> bool:
+        """Whether the planner gets the truth, at once, and its brake acts at once."""
+        return not (self.pos or self.heading or self.speed or self.dropout or self.latency or self.brake_latency)
+
+
 #: The groups of :class:`ScenarioConfig` (all but ``names``) and their classes.
 GROUPS: Mapping[str, type[Any]] = MappingProxyType({
     "timing": Timing, "ego": Ego, "obstacle": ObstacleDriver, "observation": Observation, "pursuit": Pursuit,
-    "noise": ProcessNoise})
+    "noise": ProcessNoise, "after_merge": AfterMerge, "sensing": Sensing})
 #: Every settable key of a :class:`ScenarioConfig`, dotted: ``"timing.dt"``, ``"obstacle.beta"``, ...
 SCENARIO_KEYS: tuple[str, ...] = tuple(f"{g}.{f.name}" for g, cls in GROUPS.items() for f in dataclasses.fields(cls))
 #: The flat keys of version 0.1 (``ScenarioConfig(beta=...)``, old ``--set`` keys, preset
@@ -235,6 +296,8 @@ class ScenarioConfig:
     ``observation`` :class:`Observation`: the obstacle driver's noise on the ego it observes
     ``pursuit``     :class:`Pursuit`: both cars' route following
     ``noise``       :class:`ProcessNoise`: process noise on both cars' controls
+    ``after_merge`` :class:`AfterMerge`: what the obstacle does once in the ego's lane
+    ``sensing``     :class:`Sensing`: the ego's noisy, late or missing measurements
     ``names``       :class:`SceneNames`: the scene elements the code reads
     ==============  ===========================================================================
 
@@ -255,6 +318,8 @@ class ScenarioConfig:
     observation: Observation = field(default_factory=Observation)
     pursuit: Pursuit = field(default_factory=Pursuit)
     noise: ProcessNoise = field(default_factory=ProcessNoise)
+    after_merge: AfterMerge = field(default_factory=AfterMerge)
+    sensing: Sensing = field(default_factory=Sensing)
     # Names of the scene elements the code reads (defaults match models/xml/scene.xml).
     names: SceneNames = field(default_factory=SceneNames)
 
@@ -263,9 +328,12 @@ class ScenarioConfig:
                  observation: Observation | Mapping[str, Any] | None = None,
                  pursuit: Pursuit | Mapping[str, Any] | None = None,
                  noise: ProcessNoise | Mapping[str, Any] | None = None,
-                 names: SceneNames | Mapping[str, Any] | None = None, **keys: Any) -> None:
+                 names: SceneNames | Mapping[str, Any] | None = None,
+                 after_merge: AfterMerge | Mapping[str, Any] | None = None,
+                 sensing: Sensing | Mapping[str, Any] | None = None, **keys: Any) -> None:
         given = {"timing": timing, "ego": ego, "obstacle": obstacle, "observation": observation,
-                 "pursuit": pursuit, "noise": noise, "names": names}
+                 "pursuit": pursuit, "noise": noise, "names": names, "after_merge": after_merge,
+                 "sensing": sensing}
         values = {**{k: v for k, v in given.items() if v is not None}, **keys}
         for name, value in _apply(_DEFAULT_GROUPS, values, TypeError, warn=True).items():
             object.__setattr__(self, name, value)
