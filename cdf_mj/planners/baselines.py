@@ -239,6 +239,8 @@ class CVPlanner(DecidingPlanner):
         """Predict the conflict (until the decision, for the threshold rule); keep the
         obstacle's pose for its straight-line future."""
         self.record(obs.t)
+        if not np.isfinite(obs.poses[1]).all():  # no measurement of the obstacle: its last one stands
+            return
         self._obstacle_pose = obs.poses[1]
         if self.decision_time is None and not self.rule.releases:
             self.conflict_in = self.time_to_conflict(obs.poses)
@@ -419,11 +421,16 @@ class IMMPlanner(DecidingPlanner):
         """One IMM step on the measured obstacle pose (the start at the first tick), then
         P(conflict)."""
         z = obs.poses[1]
+        measured = bool(np.isfinite(z).all())
         if self.imm is None:
+            if not measured:  # it starts at the first measurement of the obstacle
+                self.record(obs.t, p_left=self._p_left, p_conflict=0.0)
+                return
             self.imm = self._start(z)
         else:
             self.imm.predict()
-            self.imm.update(z)
+            if measured:  # a missing measurement (a dropout): prediction only
+                self.imm.update(z)
         self._p_conflict = self.conflict_probability(obs.poses[0])
         self.record(obs.t, p_left=self.imm.mu[Intent.LEFT], p_conflict=self._p_conflict)
 
@@ -432,7 +439,10 @@ class IMMPlanner(DecidingPlanner):
         return self._p_conflict
 
     def futures(self, react_ticks: int) -> Futures:
-        """The left intent's filter state as one hypothesis, weighted by P(left)."""
+        """The left intent's filter state as one hypothesis, weighted by P(left); none before
+        the first measurement of the obstacle."""
+        if self.imm is None:
+            return Futures.empty()
         kf = self._imm().filters[int(Intent.LEFT)]
         s, v, a = (float(q) for q in np.ravel(kf.x))
         one = np.ones(1)

@@ -67,13 +67,22 @@ class CDFPlanner(DecidingPlanner):
         """One filter tick on the measured system pose: the posterior now (the prior at the
         first tick), kept for the rule; then the particles propagated to the next tick."""
         pf = self.filter
+        if not self._started and not np.isfinite(obs.poses).all():
+            # No measurement of the obstacle yet (a dropout): the filter starts at the first one.
+            self._post = Posterior(p_left=self.cdf.prior.p_left, p_right=1.0 - self.cdf.prior.p_left, p_seen=0.0,
+                                   p_cutoff=0.0, ess=float(pf.n))
+            self._futures: Futures | None = Futures.empty() if self.rule.releases else None
+            self._particles = WeightedParticles(np.zeros((0, 4)), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool),
+                                                np.zeros(0))
+            self.record(obs.t, p_left=self._post.p_left, p_seen=0.0, p_cutoff=0.0, ess=float(pf.n))
+            return
         if not self._started:
             post = pf.reset(obs.poses)
             self._started = True
         else:
-            post = pf.update(obs.poses)
+            post = pf.update(obs.poses)  # a missing measurement (NaN) is skipped: prediction only
         self._post = post
-        self._futures: Futures | None = None
+        self._futures = None
         if self.rule.releases:  # the risk rule reads the particles of now, before they move
             self._futures = pf.futures(self.rule.react_ticks)  # type: ignore[attr-defined]
         # References, not copies: predicting gives the filter new arrays.

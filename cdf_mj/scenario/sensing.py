@@ -1,0 +1,81 @@
+"""The ego's sensing of the obstacle and its brake's actuation, as the world gives them
+to the planner (:class:`cdf_mj.config.Sensing`); records keep the truth.
+
+:class:`Sensor` turns each tick's true :class:`~cdf_mj.scenario.world.Measurement` into the
+planner's: the obstacle's pose ``latency`` ticks old, plus Gaussian noise, or none at all
+(a dropout: the obstacle's row is NaN and it is not in the lane); the ego's own pose is
+exact. :class:`BrakeActuator` delays the ego's brake decisions by ``brake_latency`` ticks.
+With perfect sensing (the default) both pass everything through and draw nothing.
+
+Randomness: the sensor draws from its own stream (the world's ``sensing`` stream), so the
+obstacle, the ego's start and every other draw of a seed are the same whatever the
+sensing (common random numbers). ::
+
+    sensor = Sensor(config.sensing, layout, world.rng["sensing"])
+    poses, in_lane = sensor.sense(world.measure())
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+
+from cdf_mj.config import Sensing
+from cdf_mj.model.layout import Layout
+
+__all__ = ["BrakeActuator", "Sensor"]
+
+
+class Sensor:
+    """The ego's measurement of the obstacle (see the module docstring).
+
+    Args:
+        sensing: noise std [m, rad, m/s], dropout probability, latency [ticks].
+        layout: the junction (the obstacle's box and the ego's lane, for the lane test of a
+            measured pose).
+        rng: the Generator of the sensing draws (one normal per pose component and one
+            uniform per tick, drawn only where the sensing is imperfect).
+    """
+
+    def __init__(self, sensing: Sensing, layout: Layout, rng: np.random.Generator) -> None:
+        self.sensing, self.layout, self.rng = sensing, layout, rng
+        self._std = np.array([sensing.pos, sensing.pos, sensing.heading, sensing.speed])
+        self._noisy = bool(self._std.any())
+        self._past: deque[tuple[np.ndarray, bool]] = deque(maxlen=sensing.latency + 1)
+        self.dropped = 0  # ticks without a measurement of the obstacle
+
+    def sense(self, poses: np.ndarray, in_lane: bool) -> tuple[np.ndarray, bool]:
+        """The planner's system pose ``(2, 4)`` and whether the measured obstacle is in the
+        ego's lane, from the true ones of this tick. Returns the inputs themselves with
+        perfect sensing."""
+        s = self.sensing
+        if s.perfect:
+            return poses, in_lane
+        self._past.append((np.array(poses[1], dtype=float), in_lane))
+        obstacle, seen_in_lane = self._past[0]  # latency ticks old (the oldest kept)
+        u = self.rng.random()
+        noise = self.rng.standard_normal(4) * self._std
+        out = np.array(poses, dtype=float)
+        if u < s.dropout:
+            self.dropped += 1
+            out[1] = np.nan
+            return out, False
+        if not self._noisy:
+            out[1] = obstacle
+            return out, seen_in_lane
+        out[1] = obstacle + noise
+        x, y, th = out[1, :3].tolist()
+        return out, bool(self.layout.ego_lane.contains_any(self.layout.obstacle.footprint_one(x, y, th)))
+
+
+class BrakeActuator:
+    """The ego's brake ``latency`` ticks behind its decisions (released as late)."""
+
+    def __init__(self, latency: int) -> None:
+        self._queue: deque[bool] = deque([False] * latency, maxlen=latency + 1)
+
+    def __call__(self, decided: bool) -> bool:
+        """The brake state that acts on this tick, given this tick's decision."""
+        self._queue.append(decided)
+        return self._queue[0]
