@@ -123,12 +123,20 @@ class Timing(_Group):
     _prefix: ClassVar[str] = "timing."
     dt: float = bounded(0.1, 0.0, 1.0, "s", open_low=True, note="(the paper's tick is 0.1 s)")  # planner, driver
     # and observation tick [s] (paper: 0.1 s)
-    duration: float = 8.0  # [s] episode length; the ego passes the junction in ~4 s
+    duration: float = 8.0  # [s] episode length at most; the ego passes the junction in ~4 s
+    # The episode ends once the ego's rear axle is this far past the conflict point [m]
+    # (and, with `until_clear`, no car is ahead of it in its lane), or at `duration`.
+    end_distance: float = bounded(20.0, 0.0, MAX_LENGTH, "m")
+    until_clear: bool = False  # also wait until no car is ahead of the ego in its lane
+    # The label's horizon [m past the conflict point]: a constant-speed ego that gets this far
+    # without touching the obstacle was not cut off (the counterfactual run ends here).
+    label_distance: float = bounded(20.0, 0.0, MAX_LENGTH, "m")
 
     def __post_init__(self) -> None:
         super().__post_init__()
         _check(_within(self.duration, self.dt, MAX_DURATION), "timing.duration", self.duration,
                f"in [dt = {self.dt}, {MAX_DURATION:g}] [s]")
+        _check(isinstance(self.until_clear, bool), "timing.until_clear", self.until_clear, "true or false")
 
     @property
     def n_ticks(self) -> int:
@@ -148,6 +156,19 @@ class Ego(_Group):
     start_spread: tuple[float, float] = bounded((-8.0, 8.0), -MAX_START_SPREAD, MAX_START_SPREAD, "m",
                                                 note="(a shift of the start site along the ego's route)")
     speed_gain: float = bounded(1.0, 0.0, 1000.0, "1/s", open_low=True)  # proportional speed hold
+    # Behind a car in its lane the nominal controller follows it (the intelligent driver
+    # model's interaction term: desired gap min_gap + v time_gap + v dv / (2 sqrt(a b)),
+    # a = the car's largest acceleration, b = comfort_brake), braking at most at the car's
+    # maximum; without `follow` it holds its speed whatever is ahead (the paper's ego, and
+    # always the label's counterfactual).
+    follow: bool = False
+    time_gap: float = bounded(1.5, 0.0, MAX_DURATION, "s", open_low=True)  # desired time headway
+    min_gap: float = bounded(2.0, 0.0, MAX_LENGTH, "m")  # desired bumper gap at standstill
+    comfort_brake: float = bounded(2.0, 0.0, MAX_ACCEL, "m/s^2", open_low=True)  # IDM's b
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check(isinstance(self.follow, bool), "ego.follow", self.follow, "true or false")
 
 
 @dataclass(frozen=True)
