@@ -21,6 +21,7 @@ from cdf_mj.config.cdf import CDFConfig, DriverPrior, RiskConfig
 from cdf_mj.config.scale import scaled, unit_of
 from cdf_mj.config.scenario import (
     AFTER_MERGE,
+    DRIVER_FAMILIES,
     FLAT_KEYS,
     GROUPS,
     MAX_ACCEL,
@@ -49,6 +50,7 @@ from cdf_mj.config.scenario import (
 
 __all__ = [
     "AFTER_MERGE",
+    "DRIVER_FAMILIES",
     "FLAT_KEYS",
     "GROUPS",
     "MAX_ACCEL",

@@ -17,10 +17,10 @@ from cdf_mj.traits import MAX_ACCEL, MAX_DURATION, MAX_LENGTH, MAX_SPEED, bounde
 from cdf_mj.traits import check as _check
 from cdf_mj.traits import within as _within
 
-__all__ = ["AFTER_MERGE", "FLAT_KEYS", "GROUPS", "MAX_ACCEL", "MAX_BRAKE", "MAX_DURATION", "MAX_EPISODES", "MAX_LENGTH",
-           "MAX_PARTICLES", "MAX_SEED", "MAX_SPEED", "MAX_START_SPREAD", "MAX_WORKERS", "SCENARIO_KEYS",
-           "AfterMerge", "Ego", "Observation", "ObstacleDriver", "ProcessNoise", "Pursuit", "ScenarioConfig",
-           "SceneNames", "Sensing", "Timing", "scenario_key"]
+__all__ = ["AFTER_MERGE", "DRIVER_FAMILIES", "FLAT_KEYS", "GROUPS", "MAX_ACCEL", "MAX_BRAKE", "MAX_DURATION",
+           "MAX_EPISODES", "MAX_LENGTH", "MAX_PARTICLES", "MAX_SEED", "MAX_SPEED", "MAX_START_SPREAD",
+           "MAX_WORKERS", "SCENARIO_KEYS", "AfterMerge", "Ego", "Observation", "ObstacleDriver",
+           "ProcessNoise", "Pursuit", "ScenarioConfig", "SceneNames", "Sensing", "Timing", "scenario_key"]
 
 #: Maximum braking of a passenger car on a moderate-friction road, 16 ft/s^2 [m/s^2].
 MAX_BRAKE = 16 * 0.3048
@@ -171,6 +171,11 @@ class Ego(_Group):
         _check(isinstance(self.follow, bool), "ego.follow", self.follow, "true or false")
 
 
+#: The obstacle's driver families (``obstacle.family``): the traits' state machine
+#: (``model``) and those of :mod:`cdf_mj.scenario.drivers`, which checks that it has these.
+DRIVER_FAMILIES = ("model", "gap-acceptance", "rolling-stop", "aggressive", "off-route")
+
+
 @dataclass(frozen=True)
 @with_traits("world")
 class ObstacleDriver(_Group):
@@ -181,9 +186,20 @@ class ObstacleDriver(_Group):
     its own model of the driver (:class:`DriverPrior`)."""
 
     _prefix: ClassVar[str] = "obstacle."
+    # Which driver drives the obstacle: "model", the state machine of these traits (the
+    # filter's own model: the matched, easy case), or a family written apart from it
+    # (cdf_mj.scenario.drivers: gap acceptance with a reaction time and the intelligent
+    # driver model, a rolling stop, an aggressive driver, a driver off the scene's route),
+    # each with its own parameters drawn per episode; the traits above then go unread.
+    family: str = "model"
     if TYPE_CHECKING:  # the fields are the schema's (cdf_mj.traits.with_traits)
         def __init__(self, **traits: Any) -> None: ...
         def __getattr__(self, name: str) -> Any: ...
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check(self.family in DRIVER_FAMILIES, "obstacle.family", self.family,
+               f"one of {', '.join(DRIVER_FAMILIES)}")
 
 
 @dataclass(frozen=True)
