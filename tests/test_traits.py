@@ -54,9 +54,10 @@ def _sentinels(fields: tuple[str, ...]) -> dict[str, float]:
 def test_the_world_the_prior_and_the_columns_are_the_schemas():
     names = [t.name for t in TRAITS]
     world = ObstacleDriver()
-    assert [f.name for f in dataclasses.fields(ObstacleDriver)] == names
+    # The traits, then the choice of driver (family: not a trait of any one driver).
+    assert [f.name for f in dataclasses.fields(ObstacleDriver)] == [*names, "family"]
     assert [getattr(world, t.name) for t in TRAITS] == [t.default for t in TRAITS]
-    assert [f.name for f in dataclasses.fields(ScenarioConfig().obstacle)] == names
+    assert [f.name for f in dataclasses.fields(ScenarioConfig().obstacle)] == [*names, "family"]
     modelled = [t.name for t in TRAITS if t.prior is not None]
     prior = DriverPrior()
     assert [f.name for f in dataclasses.fields(DriverPrior)][:len(modelled)] == modelled
