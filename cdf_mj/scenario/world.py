@@ -24,6 +24,8 @@ from cdf_mj.config import ScenarioConfig
 from cdf_mj.model.conflict import right_turn_overlap
 from cdf_mj.model.driver import DriverModel, Intent, Mode, obstacle_control, road_clear, update_belief
 from cdf_mj.model.geometry import box_gap
+from cdf_mj.scenario.after_merge import AfterMergeOverride
+from cdf_mj.scenario.drivers import WorldDriver, make_driver
 from cdf_mj.sim.checks import SceneWarning
 from cdf_mj.sim.scene import Scene, SimulationDivergedError
 from cdf_mj.sim.visibility import ego_visible
@@ -68,9 +70,10 @@ class Tick:
 
 def _streams(seed: int) -> dict[str, np.random.Generator]:
     ss = np.random.SeedSequence(seed)
-    # Children of a SeedSequence depend on their index only: "departure" (added later) leaves
-    # the first four streams, and so every earlier seed's draws, as they were.
-    names = ("scenario", "obstacle", "ego", "planner", "departure")
+    # Children of a SeedSequence depend on their index only: the streams added later
+    # ("departure", then the world options') leave the earlier ones, and so every earlier
+    # seed's draws, as they were.
+    names = ("scenario", "obstacle", "ego", "planner", "departure", "sensing", "after_merge", "driver")
     return {n: np.random.Generator(np.random.PCG64(s)) for n, s in zip(names, ss.spawn(len(names)), strict=True)}
 
 
@@ -119,7 +122,16 @@ class World:
     stopped again, else ``None``), ``first_seen`` [s], ``yielded``, ``entered_lane`` [s], ``min_gap`` [m],
     ``collision`` (``"obstacle"``/``"building"``/``None``), ``collision_time`` [s], ``done`` and
     ``end_reason`` (``None`` while running, then ``"collision"``, ``"passed"``: the ego's
-    rear axle 20 m past the conflict point, or ``"duration"``).
+    rear axle ``timing.end_distance`` past the conflict point, with no car ahead of it in its
+    lane where ``timing.until_clear``, or ``"duration"``), ``label_outcome`` and
+    ``label_time`` (whether the ego touched the obstacle before it got
+    ``timing.label_distance`` past the conflict point, and when that was decided; None
+    until then).
+
+    World options (off by default): ``config.obstacle.family`` drives the obstacle with a
+    driver of :mod:`cdf_mj.scenario.drivers` (placed at its own start) instead of the
+    traits' state machine; ``config.after_merge`` overrides its acceleration once it is in
+    the ego's lane (:mod:`cdf_mj.scenario.after_merge`).
     """
 
     def __init__(self, scene: Scene, config: ScenarioConfig | None = None) -> None:
@@ -147,6 +159,13 @@ class World:
                           "drivers' model and every planner built on it take for impossible; give the right "
                           "route a wider turn or the obstacle a smaller box", SceneWarning, stacklevel=2)
         behaviour = config.obstacle
+        # The obstacle's driver: the traits' state machine, or a family written apart from it.
+        self.family: WorldDriver | None = None if behaviour.family == "model" else make_driver(behaviour.family)
+        self.after_merge = AfterMergeOverride(config.after_merge)
+        room = layout.route_left.length - float(layout.route_left.project(layout.conflict)[0])
+        if config.after_merge.behaviour == "brake" and config.after_merge.at[1] >= room:
+            raise ValueError(f"after_merge.at={config.after_merge.at} m: the obstacle's left route goes on for "
+                             f"{room:.1f} m past the conflict point in {scene.source}; give distances below it")
         if behaviour.hesitation > 0.0:  # a stop past the commit point would never happen
             start = layout.obstacle_start[:2]
             room = min(float(s - r.project(start)[0]) for r, s in zip(layout.obstacle_routes,
@@ -183,8 +202,13 @@ class World:
         self._line = layout.obstacle_start[:2].copy()  # where it stood
         ahead = route.point_at(self._s0 + offset + 1.0)
         heading0 = math.atan2(ahead[1] - xy0[1], ahead[0] - xy0[0])
-        scene.reset(ego=np.array([xy0[0], xy0[1], heading0, config.ego.speed]),
-                    obstacle=layout.obstacle_start)
+        # The world options draw from streams of their own (the same per seed whatever they are).
+        self.after_merge.reset(rng["after_merge"])
+        obstacle_start = layout.obstacle_start
+        if self.family is not None:
+            self.family.reset(layout, int(self.intent), rng["driver"])
+            obstacle_start = self.family.start
+        scene.reset(ego=np.array([xy0[0], xy0[1], heading0, config.ego.speed]), obstacle=obstacle_start)
         self._mode = np.array([Mode.WAITING])
         self._belief = np.zeros((1, 4))
         self._has_belief = np.zeros(1, dtype=bool)
@@ -198,6 +222,10 @@ class World:
         self.collision_time: float | None = None
         self.done = False
         self.end_reason: str | None = None
+        # The label's outcome on this run: True once the ego touched the obstacle before its
+        # rear axle was timing.label_distance past the conflict point, False once it got there.
+        self.label_outcome: bool | None = None
+        self.label_time: float | None = None  # [s] when that outcome was decided
         self._k = 0
         self._measured: Measurement | None = None
         return self.measure()
@@ -268,38 +296,48 @@ class World:
                 visible = ego_visible(scene, obs, ego)
             return visible
 
-        observed = bool(u_look < behaviour.beta) and sees_ego()
-        self._belief, self._has_belief = update_belief(
-            self._belief, self._has_belief, np.array([observed]), (ego + noise)[None], dt,
-            layout.obstacle.wheelbase)
-        if (self.hesitates and self.hesitated is None and int(self._mode[0]) == Mode.GOING
-                and math.dist(obs[:2], self._line) >= behaviour.hesitation_creep):
-            # It has nosed out and stops again: it stands its pause, then may go on.
-            self.hesitated = t
-            self._mode[0] = Mode.WAITING
-            self._go_after = t + self.hesitation_pause
-        may_go = t >= self._go_after - 1e-9
-        if (not observed and may_go and u_depart < behaviour.departure_look
-                and int(self._mode[0]) == Mode.WAITING
-                and road_clear(self.driver, self._belief, self._has_belief, self._intents)[0]
-                and sees_ego()):
-            # It would leave now: it looks once more, and sees the ego.
-            observed = True
+        if self.family is None:  # the traits' state machine, the filter's own model
+            observed = bool(u_look < behaviour.beta) and sees_ego()
             self._belief, self._has_belief = update_belief(
-                self._belief, self._has_belief, np.array([True]), (ego + noise)[None], dt,
+                self._belief, self._has_belief, np.array([observed]), (ego + noise)[None], dt,
                 layout.obstacle.wheelbase)
-        if observed and self.first_seen is None:
-            self.first_seen = t
+            if (self.hesitates and self.hesitated is None and int(self._mode[0]) == Mode.GOING
+                    and math.dist(obs[:2], self._line) >= behaviour.hesitation_creep):
+                # It has nosed out and stops again: it stands its pause, then may go on.
+                self.hesitated = t
+                self._mode[0] = Mode.WAITING
+                self._go_after = t + self.hesitation_pause
+            may_go = t >= self._go_after - 1e-9
+            if (not observed and may_go and u_depart < behaviour.departure_look
+                    and int(self._mode[0]) == Mode.WAITING
+                    and road_clear(self.driver, self._belief, self._has_belief, self._intents)[0]
+                    and sees_ego()):
+                # It would leave now: it looks once more, and sees the ego.
+                observed = True
+                self._belief, self._has_belief = update_belief(
+                    self._belief, self._has_belief, np.array([True]), (ego + noise)[None], dt,
+                    layout.obstacle.wheelbase)
+            if observed and self.first_seen is None:
+                self.first_seen = t
 
-        # The obstacle decides.
-        u1, self._mode = obstacle_control(self.driver, obs[None], self._mode, self._belief,
-                                          self._has_belief, self._intents, may_go=may_go)
-        mode = int(self._mode[0])
+            # The obstacle decides.
+            u1, self._mode = obstacle_control(self.driver, obs[None], self._mode, self._belief,
+                                              self._has_belief, self._intents, may_go=may_go)
+            mode = int(self._mode[0])
+        else:  # a driver written apart from it: it looks whenever it looks, and acts on what it sees
+            observed = self.family.looking and sees_ego()
+            if observed and self.first_seen is None:
+                self.first_seen = t
+            a1, steer1 = self.family.control(t, obs, ego if observed else None, dt)
+            u1, mode, may_go = np.array([[a1, steer1]]), int(self.family.mode), True
+        # Once in the ego's lane, what it does next is the world's option (keep by default).
+        u1[0, 0] = self.after_merge.accel(t, obs, m.obstacle_in_lane, float(u1[0, 0]))
         if mode in _MOVING and self.departed is None:
             self.departed = t
         # Held back by what it believes: braking to yield, or still waiting once its dwell
         # is over (waiting out the dwell itself is not yielding).
-        self.yielded |= mode in _HELD_BACK and (may_go or mode != Mode.WAITING)
+        self.yielded |= mode in _HELD_BACK and (may_go or mode != Mode.WAITING) if self.family is None \
+            else mode == Mode.YIELDING
         if m.obstacle_in_lane and self.entered_lane is None:
             self.entered_lane = t
         gap = box_gap(self._ego_hull, self._hull)
@@ -315,17 +353,32 @@ class World:
             raise NonFiniteStateError(f"non-finite system pose between t={t:.1f} s and "
                                       f"t={t + dt:.1f} s (seed {self.seed}): {exc}") from None
         self._k += 1
+        timing = self.config.timing
+        past = layout.route_ego.project_point(*scene.pose(scene.ego)[:2].tolist())[0] - self._s_conflict
         if hit is not None:
             self.collision = hit
             self.collision_time = self.end_time
             self.min_gap = 0.0
             self.end_reason = "collision"
-        # The ego's rear axle is 20 m past the conflict point: nothing more can happen to it.
-        elif layout.route_ego.project_point(*scene.pose(scene.ego)[:2].tolist())[0] > self._s_conflict + 20.0:
+        # The ego's rear axle is end_distance past the conflict point (and, until_clear, no car
+        # is ahead of it in its lane): nothing more can happen to it.
+        elif past > timing.end_distance and not (timing.until_clear and self.car_ahead()):
             self.end_reason = "passed"
         elif self._k >= self.config.n_ticks:
             self.end_reason = "duration"
+        if self.label_outcome is None and (hit == "obstacle" or past > timing.label_distance):
+            self.label_outcome, self.label_time = hit == "obstacle", self.end_time
         self.done = self.end_reason is not None
+        seen = bool(self._has_belief[0]) if self.family is None else self.first_seen is not None
         return Tick(t=t, poses=poses, obstacle_in_lane=m.obstacle_in_lane, observed=observed,
-                    mode=mode, seen=bool(self._has_belief[0]), belief=self._belief[0].copy(),
-                    gap=gap, collision=hit, done=self.done)
+                    mode=mode, seen=seen, belief=self._belief[0].copy(), gap=gap, collision=hit, done=self.done)
+
+    def car_ahead(self) -> bool:
+        """Whether the obstacle is ahead of the ego in the ego's lane now (any corner of its
+        collision box in the lane, its rear axle further along the ego's route)."""
+        scene, layout = self.scene, self.layout
+        (ex, ey, _, _), (ox, oy, oth, _) = scene.poses().tolist()
+        if not layout.ego_lane.contains_any(layout.obstacle.footprint_one(ox, oy, oth)):
+            return False
+        route = layout.route_ego
+        return bool(route.project_point(ox, oy)[0] > route.project_point(ex, ey)[0])
