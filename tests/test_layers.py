@@ -2,7 +2,7 @@
 
 Layers, lowest first (a name is a top-level module or subpackage of ``cdf_mj``)::
 
-    config, records, extras, presets, traits -> model -> sim -> inference -> planners, analysis -> scenario
+    config, records, extras, presets, traits, inputs -> model -> sim -> inference -> planners, analysis -> scenario
     -> viz -> envs -> experiments -> cli, __main__
 
 Every module's source is read with ``ast`` and every ``cdf_mj`` import counted, also
@@ -25,7 +25,7 @@ import cdf_mj
 
 PACKAGE = Path(cdf_mj.__file__).resolve().parent
 LAYERS: list[set[str]] = [
-    {"config", "records", "extras", "presets", "traits"},
+    {"config", "records", "extras", "presets", "traits", "inputs"},
     {"model"},
     {"sim"},
     {"inference"},
