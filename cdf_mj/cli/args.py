@@ -28,6 +28,7 @@ from cdf_mj.config import (
     RiskConfig,
     ScenarioConfig,
 )
+from cdf_mj.inputs import InputError, parse_json
 from cdf_mj.planners.registry import PLANNERS, bind_planner, planner_spec
 from cdf_mj.presets import preset_names, read_preset
 from cdf_mj.sim.checks import read_names
@@ -110,10 +111,14 @@ def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:
                              "Keys: " + ", ".join(SETTABLE))
 
 
-def _parse_value(text: str) -> Any:
-    """JSON if it parses (lists become tuples), else the text itself."""
+def _parse_value(text: str, name: str) -> Any:
+    """JSON if it parses (lists become tuples), else the text itself. CLIError naming the
+    field ``name`` for a value nested deeper than :data:`cdf_mj.inputs.MAX_DEPTH` levels
+    (checked before the parser recurses)."""
     try:
-        value = json.loads(text)
+        value = parse_json(text, f"--set {name}: the value")
+    except InputError as exc:
+        raise CLIError(str(exc)) from None
     except ValueError:
         return text
     return tuple(value) if isinstance(value, list) else value
@@ -159,7 +164,7 @@ def parse_overrides(items: Iterable[str]) -> dict[str, Any]:
             key = FLAT_KEYS[key]
         if key not in SETTABLE:
             raise CLIError(f"--set {key}: unknown parameter; choose from {', '.join(SETTABLE)}")
-        changes[key] = _coerce(key, _parse_value(text), base.get(key))
+        changes[key] = _coerce(key, _parse_value(text, key), base.get(key))
     return changes
 
 

@@ -1,4 +1,7 @@
-"""``cdf-mj presets``: list the scenario presets that ``--preset`` takes, or show one."""
+"""``cdf-mj presets``: list the scenario presets that ``--preset`` takes, or show one.
+Text read from a preset file (its name, description and path) is printed with its control
+characters escaped (:func:`cdf_mj.inputs.printable`): an ESC or a NUL in a description
+cannot drive the terminal."""
 
 from __future__ import annotations
 
@@ -6,6 +9,7 @@ import argparse
 import json
 
 from cdf_mj.cli.args import PROG, _command
+from cdf_mj.inputs import printable
 from cdf_mj.presets import preset_names, read_preset
 
 
@@ -14,18 +18,19 @@ def _cmd_presets(args: argparse.Namespace) -> int:
         names = preset_names()
         width = max(map(len, names))
         for name in names:
-            print(f"{name:<{width}}  {read_preset(name).summary}")
+            print(printable(f"{name:<{width}}  {read_preset(name).summary}"))
         print(f"\n'{PROG} presets NAME' shows the settings of one; "
               f"'{PROG} experiment --preset NAME' runs it.")
         return 0
     preset = read_preset(args.name)  # PresetError: one line
     preset.config()  # values in range
-    print(f"{preset.name}: {preset.description}\nsource: {preset.source}")
+    print(printable(f"{preset.name}: {preset.description}"))
+    print(printable(f"source: {preset.source}"))
     changes = preset.changes()
     if not changes:
         print("the default ScenarioConfig: no field changed")
     for key, (default, value) in changes.items():
-        print(f"  {key} = {json.dumps(value)}  (default {json.dumps(default)})")
+        print(printable(f"  {key} = {json.dumps(value)}  (default {json.dumps(default)})"))
     return 0
 
 

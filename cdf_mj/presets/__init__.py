@@ -33,7 +33,6 @@ of one line naming the file and the field.
 
 from __future__ import annotations
 
-import sys
 import warnings
 from dataclasses import dataclass
 from importlib import resources
@@ -41,11 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from cdf_mj.config import FLAT_KEYS, GROUPS, SCENARIO_KEYS, ScenarioConfig
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # Python 3.10: the same parser from PyPI (a dependency there)
-    import tomli as tomllib
+from cdf_mj.inputs import PRESET_MAX_BYTES, InputError, TOMLDecodeError, parse_toml, read_text
 
 __all__ = ["SUFFIX", "Preset", "PresetError", "load_preset", "preset_description", "preset_names", "read_preset"]
 
@@ -162,9 +157,11 @@ def _dotted(table: dict[str, Any], source: str) -> dict[str, Any]:
 def _parse(text: str, name: str, source: str) -> Preset:
     """The preset in the TOML ``text`` read from ``source``."""
     try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
+        data = parse_toml(text, f"preset {source}")  # nested at most MAX_DEPTH levels
+    except TOMLDecodeError as exc:
         raise PresetError(f"preset {source}: not valid TOML: {' '.join(str(exc).split())}") from None
+    except InputError as exc:
+        raise PresetError(str(exc)) from None
     unknown = sorted(set(data) - set(_KEYS))
     if unknown:
         raise PresetError(f"preset {source}: unknown key {unknown[0]!r}; a preset holds only 'description' "
@@ -197,14 +194,16 @@ def read_preset(name_or_path: str | Path) -> Preset:
     """
     if _is_path(name_or_path):
         path = Path(name_or_path)
-        try:
-            text = path.read_text(encoding="utf-8")
+        try:  # a regular file (a FIFO or a device is refused unopened) of at most PRESET_MAX_BYTES
+            text = read_text(path, "preset file", PRESET_MAX_BYTES)
         except FileNotFoundError:
             raise PresetError(f"preset file {path} does not exist; give a path to a .toml file or one of the "
                               f"names: {', '.join(preset_names())}") from None
         except (OSError, UnicodeDecodeError) as exc:
             why = exc.strerror if isinstance(exc, OSError) and exc.strerror else type(exc).__name__
             raise PresetError(f"preset file {path} cannot be read ({why})") from None
+        except InputError as exc:
+            raise PresetError(str(exc)) from None
         return _parse(text, path.stem, str(path))
     packaged = _packaged()
     if name_or_path not in packaged:

@@ -9,7 +9,6 @@ import dataclasses
 import enum
 import json
 import os
-import stat
 import tempfile
 from collections.abc import Sequence
 from contextlib import suppress
@@ -19,6 +18,14 @@ from typing import Any
 
 import numpy as np
 
+from cdf_mj.inputs import (
+    RECORDS_MAX_BYTES,
+    SETTINGS_MAX_BYTES,
+    InputError,
+    NotRegularFileError,
+    parse_json,
+    read_regular,
+)
 from cdf_mj.records.schema import check_record
 
 __all__ = ["RECORDS_FILE", "SETTINGS_FILE", "RecordsFile", "check_settings", "fsync_directory", "jsonable",
@@ -75,7 +82,7 @@ def read_records(path: str | Path, seeds: range | None = None,
     regular file (a directory, a FIFO) is a ValueError too. The file is not changed.
     """
     path = Path(path)
-    data = _read_regular(path)
+    data = _read_regular(path, "records file", RECORDS_MAX_BYTES)
     end = data.rfind(b"\n") + 1
     records: list[dict[str, Any]] = []
     seen: dict[tuple[int, str], int] = {}
@@ -84,11 +91,11 @@ def read_records(path: str | Path, seeds: range | None = None,
         if not line.strip():
             continue
         try:
-            rec = json.loads(line)
+            rec = parse_json(line, f"{path}:{number}")
             check_record(rec)
-        except (ValueError, RecursionError) as exc:  # JSONDecodeError, UnicodeDecodeError included
+        except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError and InputError included
             reason = (f"not JSON ({exc.msg})" if isinstance(exc, json.JSONDecodeError) else
-                      "not JSON (nested too deeply)" if isinstance(exc, RecursionError) else
+                      "not JSON (nested too deeply)" if isinstance(exc, InputError) else
                       "not JSON (not UTF-8 text)" if isinstance(exc, UnicodeDecodeError) else str(exc))
             raise ValueError(f"{path}:{number} is not an episode record: {reason}") from None
         key = (rec["seed"], rec["planner"])
@@ -106,17 +113,15 @@ def read_records(path: str | Path, seeds: range | None = None,
     return RecordsFile(path, records, end, len(data))
 
 
-def _read_regular(path: Path) -> bytes:
-    """The bytes of ``path``; ValueError (naming it) unless it is a regular file, so that
-    a FIFO or a device never blocks the reader."""
-    fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+def _read_regular(path: Path, what: str, max_bytes: int) -> bytes:
+    """The bytes of ``path`` (:func:`cdf_mj.inputs.read_regular`); ValueError naming it
+    unless it is a regular file of at most ``max_bytes``, so that a FIFO or a device never
+    blocks or floods the reader."""
     try:
-        if not stat.S_ISREG(os.fstat(fd).st_mode):
-            raise ValueError(f"{path} is not a regular file: move it away or choose another directory")
-        with os.fdopen(fd, "rb", closefd=False) as fh:
-            return fh.read()
-    finally:
-        os.close(fd)
+        return read_regular(path, what, max_bytes)
+    except NotRegularFileError as exc:
+        raise ValueError(f"{path} is not a regular file ({exc.kind}): move it away or choose another "
+                         "directory") from None
 
 
 #: The name of the settings file beside the records file in an experiment directory.
@@ -164,12 +169,13 @@ def read_settings(path: str | Path) -> dict[str, Any]:
     """The settings file at ``path``, read and checked (:func:`check_settings`). ValueError
     naming the file if it is not a regular file, not JSON, or fails the check."""
     path = Path(path)
+    data = _read_regular(path, "settings file", SETTINGS_MAX_BYTES)
     try:
-        data = json.loads(_read_regular(path))
+        data = parse_json(data, f"settings file {path}")
     except json.JSONDecodeError as exc:
         raise ValueError(f"{path}: not JSON ({exc.msg})") from None
-    except (UnicodeDecodeError, RecursionError):
-        raise ValueError(f"{path}: not JSON (not UTF-8 text, or nested too deeply)") from None
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not JSON (not UTF-8 text)") from None
     return check_settings(data, path)
 
 

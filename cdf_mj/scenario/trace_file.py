@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from cdf_mj.config import SceneNames
+from cdf_mj.inputs import TRACE_MAX_BYTES, InputError, parse_json, read_text
 from cdf_mj.model.vehicle import CarGeometry
 from cdf_mj.records import write_atomic
 
@@ -87,8 +88,10 @@ def read_trace(path: str | Path) -> MonitorTrace:
     """Read a file of :meth:`CDFMonitor.save_trace`. TraceError ``file:line: what`` for a
     file that is missing, not JSON lines, of another format, or with a bad field."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
+    try:  # a regular file (a FIFO or a device is refused unopened) of at most TRACE_MAX_BYTES
+        text = read_text(path, "trace", TRACE_MAX_BYTES)
+    except InputError as exc:
+        raise TraceError(str(exc)) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise TraceError(f"{path}: cannot read the trace ({getattr(exc, 'strerror', None) or exc})") from None
     lines = [(i + 1, line) for i, line in enumerate(text.splitlines()) if line.strip()]
@@ -97,7 +100,9 @@ def read_trace(path: str | Path) -> MonitorTrace:
     rows: list[tuple[int, dict[str, Any]]] = []
     for no, line in lines:
         try:
-            obj = json.loads(line)
+            obj = parse_json(line, f"{path}:{no}: the line")  # nested at most MAX_DEPTH levels
+        except InputError as exc:
+            raise TraceError(str(exc)) from None
         except json.JSONDecodeError as exc:
             raise TraceError(f"{path}:{no}: not JSON ({exc.msg} at column {exc.colno})") from None
         if not isinstance(obj, dict):

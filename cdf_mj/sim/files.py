@@ -14,43 +14,37 @@ import dataclasses
 import json
 import os
 import stat
-import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
 
 from cdf_mj.config import SceneNames
+from cdf_mj.inputs import (
+    NAMES_MAX_BYTES,
+    InputError,
+    TOMLDecodeError,
+    check_regular,
+    kind_of,
+    parse_json,
+    parse_toml,
+    read_text,
+)
 from cdf_mj.sim.errors import SceneError
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # Python 3.10: the same parser from PyPI (a dependency there)
-    import tomli as tomllib
-
 __all__ = ["check_regular_files", "read_names"]
-
-
-def _kind_of(mode: int) -> str:
-    """What a non-regular file is, in words."""
-    for test, word in ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
-                       (stat.S_ISSOCK, "a socket"), (stat.S_ISCHR, "a character device"),
-                       (stat.S_ISBLK, "a block device")):
-        if test(mode):
-            return word
-    return "not a regular file"
 
 
 def _regular(path: Path, what: str) -> None:
     """SceneError unless ``path`` (followed if a link) is a regular file; nothing is opened,
     so a FIFO or device cannot block."""
     try:
-        mode = os.stat(path).st_mode
+        check_regular(path, what)  # the input layer: stat only
     except FileNotFoundError:
         raise SceneError(f"{what} not found: {path}") from None
     except OSError as exc:
         raise SceneError(f"{what} {path} cannot be read: {exc.strerror or exc}") from None
-    if not stat.S_ISREG(mode):
-        raise SceneError(f"{what} {path} is {_kind_of(mode)}, not a regular file")
+    except InputError as exc:
+        raise SceneError(str(exc)) from None
 
 
 def check_regular_files(path: str | Path) -> None:
@@ -90,7 +84,7 @@ def check_regular_files(path: str | Path) -> None:
                     continue
                 if not stat.S_ISREG(mode):
                     raise SceneError(f"scene {path}: <{element.tag} file=\"{name}\"> is "
-                                     f"{candidate}, {_kind_of(mode)}, not a regular file; MuJoCo "
+                                     f"{candidate}, {kind_of(mode)}, not a regular file; MuJoCo "
                                      "would block or fail reading it")
                 if element.tag == "include":
                     todo.append(candidate)
@@ -109,26 +103,21 @@ def read_names(path: str | Path) -> SceneNames:
     kind = path.suffix.lower()
     if kind not in (".json", ".toml"):
         raise SceneError(f"names file {path}: expected a .json or .toml file, got {path.suffix or 'no suffix'!r}")
-    if path.exists():  # a FIFO or a device would block or flood read_text
-        _regular(path, "names file")
-    try:
-        text = path.read_text(encoding="utf-8")
+    data: Any
+    try:  # the input layer: a regular file of at most NAMES_MAX_BYTES, nested at most MAX_DEPTH
+        text = read_text(path, "names file", NAMES_MAX_BYTES)
+        data = (parse_json if kind == ".json" else parse_toml)(text, f"names file {path}")
     except FileNotFoundError:
         raise SceneError(f"names file {path} does not exist") from None
+    except InputError as exc:
+        raise SceneError(str(exc)) from None
+    except json.JSONDecodeError as exc:
+        raise SceneError(f"names file {path}: not valid JSON at line {exc.lineno}, column "
+                         f"{exc.colno}: {exc.msg}") from None
+    except TOMLDecodeError as exc:
+        raise SceneError(f"names file {path}: not valid TOML: {' '.join(str(exc).split())}") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise SceneError(f"names file {path} cannot be read: {exc}") from None
-    data: Any
-    if kind == ".json":
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise SceneError(f"names file {path}: not valid JSON at line {exc.lineno}, column "
-                             f"{exc.colno}: {exc.msg}") from None
-    else:
-        try:
-            data = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as exc:
-            raise SceneError(f"names file {path}: not valid TOML: {' '.join(str(exc).split())}") from None
     if not isinstance(data, dict):
         raise SceneError(f"names file {path}: expected an object of SceneNames fields, e.g. "
                          f'{{"route_ego": "my_path"}}, got a {type(data).__name__}')
