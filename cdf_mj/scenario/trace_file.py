@@ -26,15 +26,23 @@ from typing import Any
 
 import numpy as np
 
-from cdf_mj.config import SceneNames
+from cdf_mj.config import MAX_DURATION, SceneNames
 from cdf_mj.inputs import TRACE_MAX_BYTES, InputError, parse_json, read_text
 from cdf_mj.model.vehicle import CarGeometry
 from cdf_mj.records import write_atomic
 
-__all__ = ["TRACE_FORMAT", "MonitorTrace", "TraceError", "read_trace", "write_trace"]
+__all__ = ["MAX_TRACE_TICKS", "MIN_TRACE_STEP", "TRACE_FORMAT", "MonitorTrace", "TraceError", "read_trace",
+           "write_trace"]
 
 #: The ``format`` of the header line of a trace file (:meth:`CDFMonitor.save_trace`).
 TRACE_FORMAT = "cdf_mj.monitor_trace/1"
+#: [s] the least time between two observations of a trace (the monitor writes one per
+#: 0.1 s tick; a simulation at 1 kHz still fits).
+MIN_TRACE_STEP = 1e-3
+#: Most observations a trace holds: 600 s (:data:`cdf_mj.config.MAX_DURATION`, the longest
+#: span a trace may cover from its first observation) at about 166 Hz, or 100 s at 1 kHz.
+MAX_TRACE_TICKS = 100_000
+_ROUNDING = 1e-9  # [s] how far a difference of two times may miss a bound by rounding (10.001 - 10)
 
 
 def write_trace(path: str | Path, header: dict[str, Any], rows: Iterable[dict[str, Any]]) -> Path:
@@ -86,7 +94,11 @@ _POSTERIOR_KEYS = ("p_left", "p_right", "p_seen", "p_cutoff", "ess")
 
 def read_trace(path: str | Path) -> MonitorTrace:
     """Read a file of :meth:`CDFMonitor.save_trace`. TraceError ``file:line: what`` for a
-    file that is missing, not JSON lines, of another format, or with a bad field."""
+    file that is missing, not JSON lines, of another format, or with a bad field; for more
+    than :data:`MAX_TRACE_TICKS` observations (counted before parsing), and for times that
+    are not finite, not :data:`MIN_TRACE_STEP` apart or more, or more than
+    :data:`~cdf_mj.config.MAX_DURATION` after the first (so that whatever draws the trace
+    has a bounded span and count of ticks)."""
     path = Path(path)
     try:  # a regular file (a FIFO or a device is refused unopened) of at most TRACE_MAX_BYTES
         text = read_text(path, "trace", TRACE_MAX_BYTES)
@@ -95,6 +107,9 @@ def read_trace(path: str | Path) -> MonitorTrace:
     except (OSError, UnicodeDecodeError) as exc:
         raise TraceError(f"{path}: cannot read the trace ({getattr(exc, 'strerror', None) or exc})") from None
     lines = [(i + 1, line) for i, line in enumerate(text.splitlines()) if line.strip()]
+    if len(lines) - 1 > MAX_TRACE_TICKS:  # counted before any line is parsed
+        raise TraceError(f"{path}: {len(lines) - 1} observations, more than the {MAX_TRACE_TICKS} a trace "
+                         "may hold; split it or write fewer ticks")
     if not lines:
         raise TraceError(f"{path}:1: empty file; a trace starts with a header line ({TRACE_FORMAT})")
     rows: list[tuple[int, dict[str, Any]]] = []
@@ -156,8 +171,12 @@ def read_trace(path: str | Path) -> MonitorTrace:
         if pose.shape != (2, 4) or not np.all(np.isfinite(pose)) or not math.isfinite(t):
             raise TraceError(f"{path}:{no}: 'ego' and 'obstacle' must be 4 finite numbers each "
                              "and 't' a finite time")
-        if times and t <= times[-1]:
-            raise TraceError(f"{path}:{no}: time {t:g} s does not follow {times[-1]:g} s")
+        if times and not t - times[-1] >= MIN_TRACE_STEP - _ROUNDING:
+            raise TraceError(f"{path}:{no}: time {t:g} s does not follow {times[-1]:g} s by at least "
+                             f"{MIN_TRACE_STEP:g} s (MIN_TRACE_STEP)")
+        if times and not t - times[0] <= MAX_DURATION + _ROUNDING:
+            raise TraceError(f"{path}:{no}: time {t:g} s is {t - times[0]:g} s after the first observation "
+                             f"({times[0]:g} s); a trace spans at most {MAX_DURATION:g} s (MAX_DURATION)")
         if not isinstance(b, bool):
             raise TraceError(f"{path}:{no}: 'brake' must be true or false, got {b!r}")
         bad = [k for k, v in zip(keys, values, strict=True)
