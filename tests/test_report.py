@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
+import sys
 
 import numpy as np
 import pytest
@@ -17,6 +19,7 @@ from cdf_mj.planners.cdf import CDFPlanner
 from cdf_mj.scenario.episode import run_episode
 from cdf_mj.sim.scene import Scene
 from cdf_mj.viz.report import FIGURES, ReportError, load_experiment, scene_extent, trajectories_figure, write_report
+from tests.cli_helpers import run_cli
 from tests.junctions import build_junction
 
 pytest.importorskip("matplotlib", reason="the viz extra (matplotlib) is not installed")
@@ -248,3 +251,20 @@ def test_the_report_replaces_planted_symlinks_and_never_writes_their_targets(exp
     assert not res.markdown.is_symlink() and res.markdown.read_text().startswith("# Experiment report")
     assert not (d / "confusion.png").is_symlink() and (d / "confusion.png").read_bytes()[:8] == PNG_MAGIC
     assert not [p for p in d.iterdir() if p.name.endswith(".tmp") and not p.is_symlink()]  # no temporary left
+
+
+@pytest.mark.skipif(sys.platform in ("win32", "darwin"), reason="needs a file system that takes any bytes in a name")
+def test_a_directory_whose_name_is_not_utf8_is_reported(experiment, tmp_path, capsys) -> None:
+    """``experiment --out $'r\\xff'`` writes such a directory; its report shows the byte
+    as ``\\xff`` on the page and in the one line printed (any terminal takes it)."""
+    d = tmp_path / os.fsdecode(b"r\xff\x1b")  # not UTF-8, and an ESC
+    d.mkdir()
+    for name in ("settings.json", "episodes.jsonl"):
+        shutil.copy(experiment / name, d)
+    status, out, err = run_cli(capsys, "report", str(d), "--seeds", "1")
+    assert status == 0, err
+    shown = f"{os.fsencode(tmp_path).decode('utf-8', 'backslashreplace')}/r\\xff\\x1b"
+    assert out.startswith(f"wrote {shown}/report.md and 5 figure(s)")
+    out.encode("ascii")  # nothing a strict terminal refuses, no ESC
+    page = (d / "report.md").read_text(encoding="utf-8")
+    assert page.startswith(f"# Experiment report: {shown}\n")

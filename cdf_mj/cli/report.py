@@ -10,13 +10,13 @@ from cdf_mj.extras import install_hint
 
 
 def _cmd_report(args: argparse.Namespace) -> int:
-    from cdf_mj.viz.report import write_report
+    from cdf_mj.viz.report import shown_path, write_report
 
     result = write_report(args.dir, out=args.out, seeds=args.seeds, planner=args.planner)
     skipped = f"; skipped {result.failed} failed episode(s)" if result.failed else ""
     if result.unreadable:
         skipped += f" and {result.unreadable} unreadable line(s)"
-    print(f"wrote {result.markdown} and {len(result.figures)} figure(s): "
+    print(f"wrote {shown_path(result.markdown)} and {len(result.figures)} figure(s): "
           f"{', '.join(p.name for p in result.figures.values())} from {result.records} records{skipped}")
     for name, why in result.omitted.items():
         print(f"  {name}: not drawn ({why})")

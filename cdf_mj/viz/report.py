@@ -35,11 +35,13 @@ figures are drawn by :mod:`cdf_mj.viz.report_figures`; this module writes the pa
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 from cdf_mj.analysis.tables import experiment_tables
+from cdf_mj.inputs import printable
 from cdf_mj.records import write_atomic
 from cdf_mj.viz.report_data import Experiment, ReportError, load_experiment
 from cdf_mj.viz.report_figures import (
@@ -56,7 +58,7 @@ from cdf_mj.viz.report_figures import (
 )
 
 __all__ = ["FIGURES", "Experiment", "ReportError", "ReportResult", "load_experiment", "scene_extent",
-           "trajectories_figure", "write_report"]
+           "shown_path", "trajectories_figure", "write_report"]
 
 
 @dataclass(frozen=True)
@@ -69,6 +71,13 @@ class ReportResult:
     records: int  # completed records used
     failed: int  # failed records skipped
     unreadable: int  # 1 if a half-written last line was skipped, else 0
+
+
+def shown_path(path: str | Path) -> str:
+    """``path`` as text that any page or terminal takes: bytes of the name that are not
+    UTF-8 and control characters written as escapes (the byte 0xFF as ``\\xff``, a newline
+    as ``\\n``), the rest as it is."""
+    return printable(os.fsencode(path).decode("utf-8", "backslashreplace"))
 
 
 def write_report(path: str | Path, out: str | Path | None = None, seeds: Sequence[int] | None = None,
@@ -118,7 +127,7 @@ def write_report(path: str | Path, out: str | Path | None = None, seeds: Sequenc
 
     s = exp.settings
     span = s.get("seeds", [])
-    lines = [f"# Experiment report: {exp.path}", "",
+    lines = [f"# Experiment report: {shown_path(exp.path)}", "",
              f"{len(exp.records)} completed episode records, planners {', '.join(exp.planners)}"
              + (f", seeds {span[0]}-{span[1] - 1}" if len(span) == 2 else "") + "."]
     skipped = []
