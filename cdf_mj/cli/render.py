@@ -5,6 +5,7 @@ own episode over their scene (``--trace``)."""
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from cdf_mj.cli.args import (
     CLIError,
@@ -26,6 +27,16 @@ from cdf_mj.sim.checks import read_names
 from cdf_mj.sim.scene import Scene
 
 
+def _say_removed(stale: tuple[Path, ...], out: str) -> None:
+    """One line naming the temporary files of killed renders of ``out`` that the render
+    removed (:func:`cdf_mj.viz.encoding.remove_stale_temporaries`), if any."""
+    from cdf_mj.viz.report import shown_path
+
+    if stale:
+        print(f"removed {len(stale)} temporary file(s) that killed renders of {shown_path(out)} left: "
+              + ", ".join(shown_path(p.name) for p in stale))
+
+
 def _cmd_render_trace(args: argparse.Namespace) -> int:
     from cdf_mj.viz.trace import render_trace
 
@@ -39,6 +50,7 @@ def _cmd_render_trace(args: argparse.Namespace) -> int:
     names = read_names(args.names) if args.names is not None else None
     result = render_trace(args.trace, args.scene, args.out, names=names, width=args.width,
                           height=args.height, fps=args.fps, frame_time=args.frame, camera=args.camera)
+    _say_removed(result.stale_removed, args.out)
     what = (f"{result.n_frames} frames, {result.duration:.2f} s of the trace at "
             f"{result.frames_per_second:g} fps" if result.n_frames > 1
             else f"the frame at {result.duration:.2f} s")
@@ -57,6 +69,7 @@ def _cmd_render_compare(args: argparse.Namespace, config: ScenarioConfig, scene:
                             height=args.height, fps=args.fps, frame_time=args.frame,
                             layout=args.layout, max_particles=args.max_particles,
                             shadows=args.shadows, antialias=args.antialias)
+    _say_removed(result.stale_removed, args.out)
     rate = result.n_frames / max(result.render_seconds, 1e-9)
     what = (f"{result.n_frames} frames of {len(result.records)} tiles, {result.duration:.2f} s at "
             f"{result.frames_per_second:g} fps; rendered at {rate:.1f} frames/s" if result.n_frames > 1
@@ -83,6 +96,7 @@ def _cmd_render(args: argparse.Namespace) -> int:
                             height=args.height, fps=args.fps, frame_time=args.frame,
                             layout=args.layout, max_particles=args.max_particles,
                             shadows=args.shadows, antialias=args.antialias)
+    _say_removed(result.stale_removed, args.out)
     if result.n_frames > 1:
         rate = result.n_frames / max(result.render_seconds, 1e-9)
         what = (f"{result.n_frames} frames, {result.duration:.2f} s of simulated time at "

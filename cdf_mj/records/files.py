@@ -205,7 +205,8 @@ def write_atomic(path: str | Path, data: str | bytes) -> Path:
     """
     path = Path(path)
     raw = data.encode("utf-8") if isinstance(data, str) else data
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=temp_prefix(path, reserve=len(".12345678.tmp")) + ".",
+                               suffix=".tmp", dir=path.parent)  # mkstemp adds 8 characters
     try:
         with os.fdopen(fd, "wb") as fh:
             fh.write(raw)
@@ -219,6 +220,31 @@ def write_atomic(path: str | Path, data: str | bytes) -> Path:
         raise
     fsync_directory(path.parent)
     return path
+
+
+#: [bytes] the longest file name where the file system cannot say (``PC_NAME_MAX``).
+_NAME_MAX = 255
+
+
+def name_max(directory: str | Path) -> int:
+    """[bytes] the longest file name the file system of ``directory`` takes
+    (``os.pathconf(directory, "PC_NAME_MAX")``; 255 where it cannot be asked)."""
+    try:
+        return int(os.pathconf(directory, "PC_NAME_MAX"))
+    except (OSError, ValueError, AttributeError):  # missing, no such setting, or Windows
+        return _NAME_MAX
+
+
+def temp_prefix(path: Path, reserve: int) -> str:
+    """The start of the name of a temporary file beside ``path``: ``"." + path.name``, cut
+    short (whole characters, counted as the bytes the OS stores) so that ``reserve`` more
+    bytes still fit :func:`name_max` of ``path``'s directory, however long ``path``'s name.
+    The cut is the same for every temporary file of ``path``."""
+    room = name_max(path.parent) - reserve
+    name = "." + path.name
+    while len(os.fsencode(name)) > room and len(name) > 2:
+        name = name[:-1]
+    return name
 
 
 def _umask() -> int:

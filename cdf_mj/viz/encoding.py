@@ -5,15 +5,22 @@ the final rename stays on one file system), checks everything the encoder report
 exit status, every write, the final flush and ``fsync``), and only then renames it onto the
 target. On any failure the temporary file is removed, the target is left as it was, and
 :class:`EncodingError` names the path: a full disk never reports success or leaves a
-partial file. ::
+partial file.
+
+The temporary file is ``.STEM-PID-HEX.SUFFIX`` (the stem cut short where the name would
+pass the file system's limit, :func:`cdf_mj.records.files.temp_prefix`), ``PID`` the
+writing process. A process killed while writing leaves its temporary file behind; the next
+:class:`FrameWriter` of the same target removes those of processes that no longer run
+(:attr:`FrameWriter.stale_removed`). ::
 
     with FrameWriter("episode.mp4", fps=30) as writer:
         for frame in frames:            # (height, width, 3) uint8 RGB, all the same size
             writer.append(frame)
     # the file exists, complete, only here
 
-MP4 is H.264 in yuv420p through the ffmpeg of ``imageio-ffmpeg``; GIF and PNG are
-Pillow's, through ``imageio``. Needs the ``viz`` extra.
+MP4 (H.264 in yuv420p) and GIF are streamed to the ffmpeg of ``imageio-ffmpeg`` frame by
+frame, so memory does not grow with the number of frames (a GIF gets a palette of its own
+per frame); a PNG is Pillow's, through ``imageio``. Needs the ``viz`` extra.
 """
 
 from __future__ import annotations
@@ -32,17 +39,24 @@ from typing import IO, TYPE_CHECKING
 import numpy as np
 
 from cdf_mj.extras import require
+from cdf_mj.records.files import temp_prefix
 
 if TYPE_CHECKING:
     from typing_extensions import Self
 
-__all__ = ["FORMATS", "EncodingError", "FrameWriter", "check_writable"]
+__all__ = ["FORMATS", "EncodingError", "FrameWriter", "check_writable", "remove_stale_temporaries"]
 
 #: Output formats by file suffix.
 FORMATS = {".mp4": "mp4", ".gif": "gif", ".png": "png"}
-# H.264 as imageio's ffmpeg writer makes it at quality 7 (crf 15), fast preset.
-_MP4_OUTPUT = ["-an", "-vcodec", "libx264", "-pix_fmt", "yuv420p", "-crf", "15", "-v", "error",
-               "-preset", "veryfast"]
+# ffmpeg's output options per streamed format. MP4: H.264 as imageio's ffmpeg writer makes
+# it at quality 7 (crf 15), fast preset. GIF: a 256-colour palette computed for each frame
+# (palettegen's single mode needs no other frame, so nothing is held), looping forever.
+_OUTPUT = {
+    "mp4": ["-an", "-vcodec", "libx264", "-pix_fmt", "yuv420p", "-crf", "15", "-preset", "veryfast"],
+    "gif": ["-an", "-filter_complex",
+            "split[a][b];[a]palettegen=stats_mode=single:reserve_transparent=0[p];[b][p]paletteuse=new=1",
+            "-loop", "0"],
+}
 _FFMPEG_PREFIX = re.compile(r"^(\[[^\]]*\]\s*)+")  # "[libx264 @ 0x55e9c6ab5e40] "
 
 
@@ -54,12 +68,53 @@ class EncodingError(OSError):
         return f"{self.filename}: {self.strerror}"
 
 
+def _temp_prefix(path: Path) -> str:
+    """``.STEM``: the start of the name of every temporary file of ``path`` (cut so that
+    the longest ``-PID-HEX.SUFFIX`` still fits the file system's limit)."""
+    return temp_prefix(path.with_suffix(""), reserve=len(f"-{2**32}-{'0' * 16}{path.suffix}"))
+
+
 def _temp_beside(path: Path) -> tuple[int, Path]:
-    """A new, empty hidden file in ``path``'s directory with ``path``'s suffix (which tells
-    ffmpeg the container), its mode that of any new file (the umask applies):
-    ``(descriptor open for writing, its path)``. OSError if it cannot be made."""
-    tmp = path.with_name(f".{path.stem}-{secrets.token_hex(8)}{path.suffix}")
+    """A new, empty hidden file ``.STEM-PID-HEX.SUFFIX`` in ``path``'s directory (the
+    suffix tells ffmpeg the container, the pid who wrote it), its mode that of any new
+    file (the umask applies): ``(descriptor open for writing, its path)``. OSError if it
+    cannot be made."""
+    tmp = path.with_name(f"{_temp_prefix(path)}-{os.getpid()}-{secrets.token_hex(8)}{path.suffix}")
     return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666), tmp
+
+
+def _running(pid: int) -> bool:
+    """Whether process ``pid`` runs (or might: True wherever it cannot be told)."""
+    if os.name != "posix":  # os.kill would end the process there
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (OSError, OverflowError):  # another user's process, or no such pid at all
+        return True
+    return True
+
+
+def remove_stale_temporaries(path: str | Path) -> tuple[Path, ...]:
+    """Remove the temporary files that writers of ``path`` killed while writing left
+    beside it: only names of :class:`FrameWriter`'s pattern for this target, and only those
+    whose writing process no longer runs. Returns the files removed (none where the
+    directory cannot be listed)."""
+    path = Path(path)
+    pattern = re.compile(re.escape(_temp_prefix(path)) + r"-(\d{1,10})-[0-9a-f]{16}" + re.escape(path.suffix))
+    removed = []
+    try:
+        names = os.listdir(path.parent)
+    except OSError:
+        return ()
+    for name in names:
+        match = pattern.fullmatch(name)
+        if match and not _running(int(match.group(1))):
+            with contextlib.suppress(FileNotFoundError):  # another writer removed it first
+                (path.parent / name).unlink()
+                removed.append(path.parent / name)
+    return tuple(removed)
 
 
 def check_writable(path: str | Path) -> None:
@@ -82,9 +137,11 @@ class FrameWriter:
     block calls :meth:`abort`).
 
     Args:
-        path: the target; its directory must exist. An existing file is replaced.
+        path: the target; its directory must exist. An existing file is replaced, and the
+            temporary files that killed writers of it left are removed
+            (:func:`remove_stale_temporaries`, listed in :attr:`stale_removed`).
         fps: frame rate [frames per second of the video]; a GIF stores it as whole
-            milliseconds per frame.
+            hundredths of a second per frame.
 
     Raises:
         ValueError: an unknown suffix.
@@ -101,7 +158,7 @@ class FrameWriter:
                               f"use {', '.join(FORMATS)}")
         self.fmt, self.fps = fmt, fps
         feature = f"writing {fmt.upper()}"
-        if fmt == "mp4":
+        if fmt in _OUTPUT:
             self._ffmpeg_exe: str = require("imageio_ffmpeg", "viz", feature).get_ffmpeg_exe()
         else:
             self._iio: ModuleType = require("imageio.v3", "viz", feature)
@@ -109,9 +166,11 @@ class FrameWriter:
             fd, self._tmp = _temp_beside(self.path)
         except OSError as exc:
             raise self._error(exc.strerror or type(exc).__name__, exc.errno) from exc
+        #: The temporary files of killed writers of :attr:`path` that this one removed.
+        self.stale_removed: tuple[Path, ...] = remove_stale_temporaries(self.path)
         self._file: IO[bytes] | None = os.fdopen(fd, "wb")
-        self._frames: list[np.ndarray] = []  # GIF and PNG: encoded at close
-        self._ffmpeg: subprocess.Popen[bytes] | None = None  # MP4: started by the first frame
+        self._png: np.ndarray | None = None  # PNG: its one frame, encoded at close
+        self._ffmpeg: subprocess.Popen[bytes] | None = None  # MP4, GIF: started by the first frame
         self._stderr: IO[bytes] | None = None  # ffmpeg's messages
         self._shape: tuple[int, ...] | None = None
         self._open = True
@@ -156,10 +215,10 @@ class FrameWriter:
             self._shape = frame.shape
         elif frame.shape != self._shape:
             raise ValueError(f"frame of size {frame.shape[:2]} after frames of {self._shape[:2]}")
-        if self.fmt == "png" and self._frames:
-            raise ValueError(f"{self.path}: a PNG holds one frame")
-        if self.fmt != "mp4":
-            self._frames.append(frame.copy())
+        if self.fmt == "png":
+            if self._png is not None:
+                raise ValueError(f"{self.path}: a PNG holds one frame")
+            self._png = frame.copy()
             return
         if self._ffmpeg is None:
             self._start_ffmpeg(frame.shape[1], frame.shape[0])
@@ -179,7 +238,7 @@ class FrameWriter:
         fps = str(Fraction(self.fps).limit_denominator())
         cmd = [self._ffmpeg_exe, "-y", "-f", "rawvideo", "-vcodec", "rawvideo",
                "-s", f"{width}x{height}", "-pix_fmt", "rgb24", "-r", fps, "-i", "-",
-               *_MP4_OUTPUT, str(self._tmp)]
+               *_OUTPUT[self.fmt], "-v", "error", str(self._tmp)]
         self._ffmpeg = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
                                         stderr=self._stderr)
 
@@ -192,10 +251,10 @@ class FrameWriter:
         try:
             if self._shape is None:
                 raise self._error("no frames")
-            if self.fmt == "mp4":
-                self._finish_ffmpeg()
+            if self.fmt == "png":
+                self._write_png()
             else:
-                self._write_image()
+                self._finish_ffmpeg()
             fd = os.open(self._tmp, os.O_RDONLY)  # what the kernel still holds must reach the disk
             try:
                 os.fsync(fd)
@@ -224,12 +283,8 @@ class FrameWriter:
                                                 else f"exit status {status}")
             raise self._error(f"ffmpeg failed: {cause}")
 
-    def _write_image(self) -> None:
-        if self.fmt == "png":
-            data = self._iio.imwrite("<bytes>", self._frames[0], extension=".png")
-        else:
-            data = self._iio.imwrite("<bytes>", np.stack(self._frames), extension=".gif",
-                                     plugin="pillow", duration=round(1000.0 / self.fps), loop=0)
+    def _write_png(self) -> None:
+        data = self._iio.imwrite("<bytes>", self._png, extension=".png")
         assert self._file is not None
         self._file.write(data)
         self._file.flush()
@@ -240,7 +295,7 @@ class FrameWriter:
         """Stop without writing: the encoder is stopped, the temporary file removed, the
         target left as it was (idempotent)."""
         self._open = False
-        self._frames.clear()
+        self._png = None
         if self._file is not None:
             with contextlib.suppress(OSError):
                 self._file.close()

@@ -37,6 +37,7 @@ jobs of a render, each in its own module:
 from __future__ import annotations
 
 import math
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -48,6 +49,7 @@ from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.extras import require
 from cdf_mj.planners import make_planner
 from cdf_mj.records import EpisodeRecord
+from cdf_mj.records.files import name_max
 from cdf_mj.sim.gl import Offscreen, RenderError, gl_backend
 from cdf_mj.sim.scene import Scene
 from cdf_mj.sim.visibility import isovist
@@ -60,6 +62,7 @@ from cdf_mj.viz.replay import Replay, check_frame_time, record_episode
 __all__ = [
     "DEFAULT_SEED",
     "LAYOUTS",
+    "MAX_FRAMES",
     "MAX_RESOLUTION",
     "MIN_RESOLUTION",
     "CompareResult",
@@ -79,6 +82,10 @@ __all__ = [
 MAX_RESOLUTION = 4096
 #: Smallest frame side [px] the overlays and the panel are laid out for.
 MIN_RESOLUTION = 32
+#: Most frames one render draws: :data:`cdf_mj.config.MAX_DURATION` (600 s) at 60 fps,
+#: about ten minutes of drawing at 60 frames/s. Counted from the span and the frame rate
+#: before any frame time is made (:func:`frame_times`).
+MAX_FRAMES = 36_001
 #: The seed rendered by default: the smallest whose default episode is a cut-off the CDF
 #: brakes for (brake decision 0.9 s, lane entry 2.0 s), so the default video shows a decision.
 DEFAULT_SEED = 1
@@ -160,17 +167,20 @@ def check_request(out: str | Path, model: mujoco.MjModel, camera: str | None = "
         raise RenderError(f"--fps {fps:g}: GIF frame delays are whole hundredths of a second; "
                           f"choose {', '.join(map(str, _GIF_FPS))} for a constant rate")
     parent = out.parent if str(out.parent) else Path(".")
-    if out.is_dir():
-        raise RenderError(f"--out {out}: is a directory")
     if not parent.is_dir():
         raise RenderError(f"--out {out}: directory {parent} does not exist")
+    if len(os.fsencode(out.name)) > name_max(parent):
+        raise RenderError(f"--out {out}: the name is {len(os.fsencode(out.name))} bytes, longer than "
+                          f"the {name_max(parent)} its file system takes; choose a shorter name")
+    if out.is_dir():
+        raise RenderError(f"--out {out}: is a directory")
     try:  # the temporary file the writer starts with: permissions alone miss read-only
         check_writable(out)  # and virtual file systems, and root
     except OSError as exc:
         raise RenderError(f"--out {out}: not writable ({exc.strerror or type(exc).__name__})") from None
     require("imageio", "viz", _FEATURE)
     require("PIL", "viz", _FEATURE)
-    if fmt == "mp4":
+    if fmt in ("mp4", "gif"):  # both streamed to ffmpeg
         require("imageio_ffmpeg", "viz", _FEATURE)
     cam_id = -1 if camera is None else names.index(camera)
     return RenderRequest(out, fmt, cam_id, int(width), int(height), float(fps), frame_time, layout)
@@ -190,6 +200,8 @@ class RenderResult:
     backend: str  # OpenGL backend
     record: EpisodeRecord
     label: str | None
+    #: temporary files of killed renders to ``path`` removed before writing (FrameWriter)
+    stale_removed: tuple[Path, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -207,12 +219,21 @@ class CompareResult:
     label: str | None  # the seed's scenario label (the same for every planner)
     tile_width: int  # [px] each tile's width; the frame is len(records) tiles wide
     tile_height: int  # [px]
+    #: temporary files of killed renders to ``path`` removed before writing (FrameWriter)
+    stale_removed: tuple[Path, ...] = ()
 
 
-def frame_times(end_time: float, fps: float) -> np.ndarray:
+def frame_times(end_time: float, fps: float, what: str = "the episode") -> np.ndarray:
     """Frame times ``i / fps`` [s] from 0 up to ``end_time`` (both ends included when on
-    the grid): one frame per ``1 / fps`` of simulated time."""
-    n = math.floor(end_time * fps + 1e-6) + 1
+    the grid): one frame per ``1 / fps`` of simulated time. RenderError naming ``--fps``
+    and ``what`` (whose span ``end_time`` is) for more than :data:`MAX_FRAMES` frames,
+    counted before any is made."""
+    n = math.floor(end_time * fps + 1e-6) + 1 if math.isfinite(end_time * fps) else math.inf
+    if not n <= MAX_FRAMES:
+        most = math.floor((MAX_FRAMES - 1) / end_time) if end_time > 0 else MAX_FRAMES
+        raise RenderError(f"--fps {fps:g}: {end_time:g} s of {what} at {fps:g} fps is {n} frames, more "
+                          f"than the {MAX_FRAMES} a render draws; lower --fps (at most {most} here) or "
+                          f"shorten {what}")
     return np.arange(n) / fps
 
 
@@ -365,7 +386,8 @@ def render_episode(out: str | Path, seed: int = DEFAULT_SEED, planner: str = "cd
     t2 = time.perf_counter()
     return RenderResult(path=req.out, n_frames=len(times), frames_per_second=req.fps,
                         duration=float(times[-1]), render_seconds=t2 - t1, simulate_seconds=t1 - t0,
-                        backend=backend, record=replay.record, label=replay.label)
+                        backend=backend, record=replay.record, label=replay.label,
+                        stale_removed=writer.stale_removed)
 
 
 def tile_caption(record: EpisodeRecord) -> str:
@@ -453,4 +475,5 @@ def render_compare(out: str | Path, seed: int = DEFAULT_SEED,
     return CompareResult(path=req.out, n_frames=len(times), frames_per_second=req.fps,
                          duration=float(times[-1]), render_seconds=t2 - t1, simulate_seconds=t1 - t0,
                          backend=backend, records=tuple(r.record for r in replays),
-                         label=replays[0].label, tile_width=req.frame_width, tile_height=req.height)
+                         label=replays[0].label, tile_width=req.frame_width, tile_height=req.height,
+                         stale_removed=writer.stale_removed)

@@ -62,6 +62,8 @@ class TraceRenderResult:
     render_seconds: float  # [s] wall time of drawing and encoding
     backend: str  # OpenGL backend
     brake_time: float | None  # [s] the monitor's brake decision, None if it never braked
+    #: temporary files of killed renders to ``path`` removed before writing (FrameWriter)
+    stale_removed: tuple[Path, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -163,7 +165,7 @@ def render_trace(trace: str | Path, scene: str | Path, out: str | Path, *,
     req = check_request(out, model, camera or _TOP, width, height, fps, frame_time)
     t0 = float(tr.times[0])
     end = float(tr.times[-1]) - t0
-    rel = (frame_times(end, req.fps) if req.frame_time is None
+    rel = (frame_times(end, req.fps, "the trace") if req.frame_time is None
            else np.array([check_frame_time(req.frame_time, end)]))
     backend, _ = gl_backend()
     replay = _replay(tr)
@@ -194,4 +196,4 @@ def render_trace(trace: str | Path, scene: str | Path, out: str | Path, *,
             writer.append(panel.draw(gl.render().copy(), t))
     return TraceRenderResult(path=req.out, n_frames=len(rel), frames_per_second=req.fps,
                              duration=float(rel[-1]), render_seconds=time.perf_counter() - start,
-                             backend=backend, brake_time=brake_time)
+                             backend=backend, brake_time=brake_time, stale_removed=writer.stale_removed)
