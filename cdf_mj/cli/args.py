@@ -14,7 +14,7 @@ import argparse
 import json
 import sys
 from collections.abc import Callable, Iterable, Sequence
-from typing import Any, get_args
+from typing import Any, TypeVar, get_args
 
 from cdf_mj.analysis.tables import TableFormat
 from cdf_mj.config import (
@@ -37,6 +37,8 @@ from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
 PROG = "cdf-mj"
 EXIT_USAGE = 2  # argparse's status for bad input
 EXIT_FAILED_EPISODES = 1  # an experiment finished, but some of its episodes raised
+
+_T = TypeVar("_T")
 
 #: ScenarioConfig fields that ``--set`` may change, by dotted key (``names`` is given with
 #: ``--names``); the flat keys of version 0.1 (:data:`cdf_mj.config.FLAT_KEYS`) still work.
@@ -88,6 +90,38 @@ def _finite_float(low: float, high: float, what: str, open_low: bool = False) ->
             raise argparse.ArgumentTypeError(f"must be a number {span} {what}, got {_shown(text)}")
         return value
     return parse
+
+
+#: Most items of a comma-separated list argument (``sweep --values``, ``bench --particles``,
+#: ``bench --workers``): each item is a run of its own, so a long list is hours of work.
+MAX_LIST_ITEMS = 100
+
+
+def _comma_list(item: Callable[[str], _T], what: str) -> Callable[[str], list[_T]]:
+    """An argparse type: 1 to :data:`MAX_LIST_ITEMS` comma-separated ``what`` (``"positive
+    integers"``), each parsed and bounded by ``item`` (an argparse type, or a converter
+    that raises ValueError), counted before any is parsed."""
+    def parse(text: str) -> list[_T]:
+        parts = [v for v in text.split(",") if v.strip()]
+        if not parts or len(parts) > MAX_LIST_ITEMS:
+            raise argparse.ArgumentTypeError(f"expected 1 to {MAX_LIST_ITEMS} comma-separated {what}, got "
+                                             f"{len(parts)}" + ("" if parts else f": {_shown(text)}"))
+        try:
+            return [item(v) for v in parts]
+        except argparse.ArgumentTypeError as exc:  # it names the bound
+            raise argparse.ArgumentTypeError(f"expected comma-separated {what}; each {exc}") from None
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected comma-separated {what}, got {_shown(text)}") from None
+    return parse
+
+
+def _out_path(text: str) -> str:
+    """An argparse type for ``--out``: a path that names something (an empty one would
+    write into the working directory)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"must name a file or directory, got {_shown(text)} (an empty path "
+                                         "would write into the working directory; give '.' for that)")
+    return text
 
 
 def add_scenario_arguments(parser: argparse.ArgumentParser) -> None:

@@ -4,9 +4,9 @@ planners, startup, reproduction scaling)."""
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable
 
 from cdf_mj.cli.args import (
+    _comma_list,
     _command,
     _episodes,
     _particles,
@@ -56,19 +56,6 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-def _int_list(item: Callable[[str], int]) -> Callable[[str], list[int]]:
-    """An argparse type: comma-separated integers, each parsed (and bounded) by ``item``."""
-    def parse(text: str) -> list[int]:
-        try:
-            values = [item(v) for v in text.split(",") if v.strip()]
-        except argparse.ArgumentTypeError as exc:  # it names the bound
-            raise argparse.ArgumentTypeError(f"expected comma-separated positive integers; each {exc}") from None
-        if not values:
-            raise argparse.ArgumentTypeError(f"expected comma-separated positive integers, got {_shown(text)}")
-        return values
-    return parse
-
-
 def _add_bench(subparsers: argparse._SubParsersAction) -> None:
     p = _command(
         subparsers, "bench", compiles=True,
@@ -79,8 +66,8 @@ def _add_bench(subparsers: argparse._SubParsersAction) -> None:
                     "processes (Numba compiling or loading its cache, a cold cdf-mj episode).")
     p.add_argument("--episodes", type=_episodes, default=30,
                    help="episodes timed per planner (default 30)")
-    p.add_argument("--particles", type=_int_list(_particles), default=[250, 1000, 10000],
-                   help="filter sizes N to time, each 1 to 10^6 (default 250,1000,10000)")
+    p.add_argument("--particles", type=_comma_list(_particles, "positive integers"), default=[250, 1000, 10000],
+                   help="filter sizes N to time, each 1 to 10^6, at most 100 of them (default 250,1000,10000)")
     p.add_argument("--env-seconds", type=_positive_seconds, default=1.0,
                    help="seconds of each of the 3 timed runs of the Gymnasium env per setting (default 1)")
     p.add_argument("--reproduce", action="store_true",
@@ -88,7 +75,7 @@ def _add_bench(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--only-reproduce", action="store_true", help="only the reproduction rows")
     p.add_argument("--reproduce-episodes", type=_episodes, default=1000,
                    help="seeds in the timed reproduction (default 1000)")
-    p.add_argument("--workers", type=_int_list(_workers), default=[1, 2],
+    p.add_argument("--workers", type=_comma_list(_workers, "positive integers"), default=[1, 2],
                    help="worker counts for the reproduction (default 1,2)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_scenario_arguments(p)

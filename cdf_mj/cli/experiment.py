@@ -19,6 +19,7 @@ from cdf_mj.cli.args import (
     _command,
     _episodes,
     _non_negative_int,
+    _out_path,
     _planner_list,
     _seed_range,
     _workers,
@@ -98,7 +99,7 @@ def _add_experiment_arguments(p: argparse.ArgumentParser, episodes: int, out: st
     p.add_argument("--seed0", type=_non_negative_int, default=0, help="first seed (default 0)")
     p.add_argument("--planners", type=_planner_list, default=["cdf", "reactive"],
                    help="comma-separated planners run on the same seeds (default cdf,reactive)")
-    p.add_argument("--out", default=out, help=f"result directory (default {out})")
+    p.add_argument("--out", type=_out_path, default=out, help=f"result directory (default {out})")
     add_cdf_arguments(p)
     p.add_argument("--workers", type=_workers, default=None,
                    help="worker processes, 1 to 1024 (default: the CPU count; 1 runs in this process)")

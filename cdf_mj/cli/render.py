@@ -13,6 +13,7 @@ from cdf_mj.cli.args import (
     _finite_float,
     _int_in,
     _non_negative_int,
+    _out_path,
     _pixels,
     add_cdf_arguments,
     add_scenario_arguments,
@@ -140,7 +141,7 @@ def _add_render(subparsers: argparse._SubParsersAction) -> None:
                         "charts of the probabilities with tau, both cars' speeds, the brake "
                         "decision and the obstacle's lane entry beside the view (adds 3/4 of "
                         "--height to the width; --height >= 160)")
-    p.add_argument("--out", required=True, help="output file: .mp4, .gif, or .png with --frame")
+    p.add_argument("--out", type=_out_path, required=True, help="output file: .mp4, .gif, or .png with --frame")
     p.add_argument("--trace", metavar="FILE", default=None,
                    help="draw a monitor trace (CDFMonitor.save_trace, JSON lines) over --scene "
                         "instead of running an episode; --frame T is seconds from its first tick")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from cdf_mj.cli.args import _command, _non_negative_int, _shown
+from cdf_mj.cli.args import _command, _non_negative_int, _out_path, _shown
 from cdf_mj.config import MAX_SEED
 from cdf_mj.extras import install_hint
 
@@ -43,7 +43,7 @@ def _add_report(subparsers: argparse._SubParsersAction) -> None:
                     "times. Failed episodes are skipped and counted. "
                     f"Needs matplotlib ({install_hint('viz')}).")
     p.add_argument("dir", metavar="DIR", help="experiment directory (cdf-mj experiment --out DIR)")
-    p.add_argument("--out", default=None, help="output directory (default DIR)")
+    p.add_argument("--out", type=_out_path, default=None, help="output directory (default DIR)")
     p.add_argument("--seeds", type=_seed_list, default=None,
                    help="comma-separated seeds for trajectories and posteriors (default: one per label)")
     p.add_argument("--planner", default=None,

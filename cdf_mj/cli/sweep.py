@@ -8,11 +8,14 @@ import sys
 
 from cdf_mj.cli.args import (
     EXIT_FAILED_EPISODES,
+    MAX_LIST_ITEMS,
     PROG,
     CLIError,
+    _comma_list,
     _command,
     _episodes,
     _non_negative_int,
+    _out_path,
     _planner_list,
     _seed_range,
     _shown,
@@ -24,23 +27,21 @@ from cdf_mj.cli.args import (
 )
 from cdf_mj.extras import install_hint
 
-#: Most points of one sweep (each an experiment on every seed).
-MAX_SWEEP_VALUES = 100
+#: Most points of one sweep (each an experiment on every seed): the CLI's list bound.
+MAX_SWEEP_VALUES = MAX_LIST_ITEMS
 
 
-def _value_list(text: str) -> list[float]:
-    """Comma-separated finite numbers, 1 to :data:`MAX_SWEEP_VALUES` of them (the range of
-    each is the swept setting's, checked by its configuration)."""
-    try:
-        values = [float(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {_shown(text)}") from None
-    if not values or len(values) > MAX_SWEEP_VALUES:
-        raise argparse.ArgumentTypeError(f"expected 1 to {MAX_SWEEP_VALUES} values, got {len(values)}")
-    bad = [v for v in values if not abs(v) < float("inf")]  # inf, nan; also a 400-digit number
-    if bad:
-        raise argparse.ArgumentTypeError(f"expected finite numbers, got {bad[0]!r} in {_shown(text)}")
-    return values
+def _finite(text: str) -> float:
+    """One swept value: a finite number (its range is the swept setting's, checked by its
+    configuration)."""
+    value = float(text)  # ValueError: not a number
+    if not abs(value) < float("inf"):  # inf, nan; also a 400-digit number
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {_shown(text)}")
+    return value
+
+
+#: ``--values``: comma-separated finite numbers, 1 to :data:`MAX_SWEEP_VALUES` of them.
+_value_list = _comma_list(_finite, "numbers")
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
@@ -90,7 +91,7 @@ def _add_sweep(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed0", type=_non_negative_int, default=0, help="first seed (default 0)")
     p.add_argument("--planners", type=_planner_list, default=["cdf", "reactive"],
                    help="comma-separated planners (default cdf,reactive)")
-    p.add_argument("--out", default="results/sweeps", help="output directory (default results/sweeps)")
+    p.add_argument("--out", type=_out_path, default="results/sweeps", help="output directory (default results/sweeps)")
     add_cdf_arguments(p, swept=True)
     p.add_argument("--workers", type=_workers, default=None,
                    help="worker processes per point (default: the CPU count; 1 runs in this process)")
