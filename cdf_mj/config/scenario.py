@@ -239,23 +239,28 @@ class AfterMerge(_Group):
     """What the obstacle does once it has entered the ego's lane: a world option, drawn per
     episode from the ranges (uniform), which the filter's model knows nothing of.
 
-    ``keep`` (default): its driver goes on as it would. ``slow``: from entering the lane it
-    decelerates at ``decel`` [m/s^2] to ``slow_to`` times its speed there, then holds that.
-    ``brake``: after ``at`` [m] in the lane it brakes at ``brake`` [m/s^2] to a stop and
-    stands. ``stop``: an aborted turn: it brakes at ``brake`` to a stop on entering the lane
+    ``keep`` (default): its driver goes on as it would. ``slow``: after ``at`` [m] in the lane
+    it decelerates at ``decel`` [m/s^2] to ``slow_to`` times its speed there, then holds
+    that. ``brake``: after ``at`` [m] in the lane it brakes at ``brake`` [m/s^2] to a stop
+    and stands. ``stop``: an aborted turn: it brakes at ``brake`` to a stop on entering the lane
     and stands. ValueError for another behaviour or a range out of its bounds.
     """
 
     _prefix: ClassVar[str] = "after_merge."
     behaviour: str = "keep"
     decel: tuple[float, float] = bounded((1.5, 2.5), 0.0, MAX_ACCEL, "m/s^2", open_low=True)  # slowing
-    slow_to: tuple[float, float] = bounded((0.3, 0.6), 0.0, 1.0, "1")  # of its speed on entering the lane
+    slow_to: tuple[float, float] = bounded((0.3, 0.6), 0.0, 1.0, "1")  # of its speed when it starts slowing
     brake: tuple[float, float] = bounded((3.5, 5.0), 0.0, MAX_ACCEL, "m/s^2", open_low=True)  # to a stop
-    at: tuple[float, float] = bounded((5.0, 25.0), 0.0, MAX_LENGTH, "m")  # in the lane before braking
+    at: tuple[float, float] = bounded((5.0, 25.0), 0.0, MAX_LENGTH, "m")  # in the lane before slowing, braking
+    # Once in the ego's lane behind the ego, the obstacle keeps a following distance to it
+    # (the ego's IDM parameters: cdf_mj.scenario.following), as any driver would; without
+    # it the obstacle's driver drives into an ego that brakes in front of it.
+    follows: bool = False
 
     def __post_init__(self) -> None:
         super().__post_init__()
         _check(self.behaviour in AFTER_MERGE, "after_merge.behaviour", self.behaviour, " or ".join(AFTER_MERGE))
+        _check(isinstance(self.follows, bool), "after_merge.follows", self.follows, "true or false")
 
 
 @dataclass(frozen=True)
@@ -379,6 +384,11 @@ class ScenarioConfig:
         for name, cls in GROUPS.items():
             value = getattr(self, name)
             _check(isinstance(value, cls), name, value, f"a {cls.__name__} object (or a mapping of its fields)")
+        ticks = self.timing.n_ticks
+        for name in ("latency", "brake_latency"):  # a latency as long as the episode leaves nothing to see
+            v = getattr(self.sensing, name)
+            _check(v < ticks, f"sensing.{name}", v, f"fewer ticks than the episode's {ticks} "
+                                                     f"(timing.duration / timing.dt)")
 
     if not TYPE_CHECKING:  # the flat reads of version 0.1: not for the package's own code
         def __getattr__(self, name: str) -> Any:

@@ -56,6 +56,7 @@ from cdf_mj.planners.base import Planner
 from cdf_mj.planners.registry import PlannerSpec, bind_planner, stored_planner_arguments
 from cdf_mj.records import FAILED, RECORDS_FILE, EpisodeRecord, read_settings
 from cdf_mj.scenario.episode import run_episode
+from cdf_mj.scenario.world import World
 from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
 
 __all__ = ["ExperimentResult", "ResultsExistError", "SettingsMismatchError", "iter_episodes", "run_experiment",
@@ -282,7 +283,8 @@ def run_experiment(out_dir: str | Path, seeds: Sequence[int], planners: Sequence
         except Exception as exc:  # any pickling failure means the same
             raise ValueError(f"the planners cannot be sent to worker processes ({exc}); register "
                              "module-level planner classes, or run with workers=1") from None
-    Scene.load(scene, names=config.names)  # a broken scene is refused before anything is written
+    # A broken scene, or world options it cannot hold, is refused before anything is written.
+    World(Scene.load(scene, names=config.names), config)
 
     out = Path(out_dir)
     settings = _settings(seeds, planners, config, cdf, scene, factories)

@@ -136,7 +136,7 @@ class SeedWorker:
         if done:
             try:
                 label, hit = seed_label(job.config, seed, self.scene,
-                                        [(r["intent"], r["brake_time"], r["collision_with"]) for r in done])
+                                        [(r["intent"], r["counterfactual_collision"]) for r in done])
             except (Exception, SystemExit) as exc:  # without a label no record of this seed is usable
                 records = [_failed(seed, r["planner"], exc) if r["status"] == OK else r for r in records]
             else:

@@ -66,6 +66,11 @@ class EpisodeRecord:
     end_time: float  # [s]
     counterfactual_collision: bool | None  # the constant-speed run hit the obstacle
     planner_info: dict[str, Any] = field(default_factory=dict)
+    # Safety and comfort margins of the episode (cdf_mj.analysis.safety.SafetyMetrics, docs/SAFETY.md).
+    safety: dict[str, Any] | None = None
+    # The world's options drawn for it: the obstacle's driver family and parameters, its
+    # behaviour after merging, the ego's sensing (what was dropped).
+    world: dict[str, Any] | None = None
     trace: dict[str, Any] | None = None  # per-tick arrays when asked for
 
     def to_dict(self) -> dict[str, Any]:

@@ -260,6 +260,10 @@ class WorldDriver(Protocol):
     params: Mapping[str, float]  # this episode's drawn values
     start: np.ndarray  # (4,) where the world places the car at t = 0: [x m, y m, theta rad, v m/s]
 
+    @property
+    def looking(self) -> bool:
+        """Whether it looks for the ego on this tick (the world casts its line of sight only then)."""
+
     def reset(self, layout: Layout, intent: int, rng: np.random.Generator) -> None: ...
 
     def control(self, t: float, pose: np.ndarray, ego: np.ndarray | None, dt: float) -> tuple[float, float]: ...

@@ -42,12 +42,15 @@ from typing import Any
 
 import numpy as np
 
+from cdf_mj.analysis.safety import SafetyRecorder
 from cdf_mj.config import ScenarioConfig
 from cdf_mj.model.driver import Intent, ego_control
 from cdf_mj.planners.base import Planner, PlannerContext, PlannerInput
 from cdf_mj.planners.registry import make_planner
 from cdf_mj.records import EpisodeRecord, Label
-from cdf_mj.scenario.world import Measurement, Tick, World
+from cdf_mj.scenario.following import follow_accel
+from cdf_mj.scenario.sensing import BrakeActuator, Sensor
+from cdf_mj.scenario.world import Measurement, Tick, World, check_seed
 from cdf_mj.sim.scene import Scene
 
 __all__ = ["EpisodeTick", "Observer", "TraceRecorder", "counterfactual", "episode_label", "label_of",
@@ -59,7 +62,7 @@ class EpisodeTick:
     """One tick of an episode as an observer sees it, after the world has stepped."""
 
     measurement: Measurement  # what the planner was given (time t [s], system pose, lane flag)
-    braking: bool  # whether the ego braked over this tick
+    braking: bool  # whether the ego's brake acted over this tick (its decision, sensing.brake_latency late)
     tick: Tick  # the world's tick: the poses after it, the obstacle's mode, look and belief
     planner: Planner  # the planner after its tick (a filter's particles of time t, ...)
     world: World  # the world after the tick (read only)
@@ -102,34 +105,73 @@ class _Run:
     brake_time: float | None = None
     time_lost: float = 0.0
     end_time: float = 0.0
+    label_hit: bool | None = None  # the label's outcome, where this run is the counterfactual up to it
+    world: dict[str, Any] = field(default_factory=dict)
+
+
+def _answer(planner: Planner, wants: object) -> bool:
+    """A planner's answer to "brake now?": a ``bool`` or NumPy bool, else TypeError naming the
+    planner and what it returned (NaN, ``"yes"`` or ``None`` would otherwise read as a
+    decision)."""
+    if not isinstance(wants, (bool, np.bool_)):
+        name = getattr(planner, "name", None) or type(planner).__name__
+        raise TypeError(f"planner {name!r} ({type(planner).__name__}.brake) returned {wants!r} of type "
+                        f"{type(wants).__name__}: it must return a bool (True: brake now)")
+    return bool(wants)
 
 
 def _simulate(scene: Scene, config: ScenarioConfig, seed: int, planner: Planner,
-              observers: Sequence[Observer] = ()) -> _Run:
+              observers: Sequence[Observer] = (), *, holds_speed: bool = False) -> _Run:
+    """One run. ``holds_speed``: the label's counterfactual, whose ego never follows."""
     world = World(scene, config)
     world.reset(seed)
+    layout = world.layout
     # The planner is told only what the ego knows: the map, the tick, its own controller.
-    planner.reset(PlannerContext.of(world.layout, config), world.rng["planner"])
+    planner.reset(PlannerContext.of(layout, config), world.rng["planner"])
+    sensor = Sensor(config.sensing, layout, world.rng["sensing"])
+    actuator = BrakeActuator(config.sensing.brake_latency)
+    follows = config.ego.follow and not holds_speed
     braking = False
     brake_time: float | None = None
+    deviated: float | None = None  # [s] the first tick the ego did not hold its speed
     releases = bool(getattr(planner, "releases_brake", False))
     while not world.done:
         m = world.measure()
+        # What the ego's sensors give it (the truth unless config.sensing says otherwise).
+        poses, in_lane = sensor.sense(m.poses, m.obstacle_in_lane)
         # The ego decides (its first yes to braking is held, unless the planner releases).
-        wants = planner.brake(PlannerInput(t=m.t, poses=m.poses, obstacle_in_lane=m.obstacle_in_lane))
-        braking = bool(wants) if releases else (braking or bool(wants))
+        wants = planner.brake(PlannerInput(t=m.t, poses=poses, obstacle_in_lane=in_lane))
+        wants = _answer(planner, wants)
+        braking = wants if releases else (braking or wants)
         if braking and brake_time is None:
             brake_time = m.t
-        tick = world.step(ego_control(world.driver, world.layout.ego, m.poses[0], braking))
+        acting = actuator(braking)  # the brake as it acts, config.sensing.brake_latency ticks on
+        controls = ego_control(world.driver, layout.ego, m.poses[0], acting)
+        if follows and not acting:
+            behind = follow_accel(layout, layout.ego, m.poses[0], layout.obstacle, poses[1], config.ego)
+            if behind is not None and behind < controls[0]:
+                controls[0] = behind
+                deviated = m.t if deviated is None else deviated
+        if acting and deviated is None:
+            deviated = m.t
+        tick = world.step(controls)
         if observers:
-            step = EpisodeTick(measurement=m, braking=braking, tick=tick, planner=planner, world=world)
+            step = EpisodeTick(measurement=m, braking=acting, tick=tick, planner=planner, world=world)
             for observe in observers:
                 observe(step)
+    # Up to the label's outcome this run was the constant-speed run if its ego held its speed.
+    same = world.label_time is not None and (deviated is None or deviated >= world.label_time - 1e-9)
+    info: dict[str, Any] = {"family": config.obstacle.family,
+                            "after_merge": {**world.after_merge.params, "since": world.after_merge.active_since}}
+    if world.family is not None:
+        info["driver"] = dict(world.family.params)
+    if not config.sensing.perfect:
+        info["dropped"] = sensor.dropped
     return _Run(intent=int(world.intent), offset=world.ego_start_offset,
                 first_seen=world.first_seen, yielded=world.yielded, entered=world.entered_lane,
                 collision=world.collision, collision_time=world.collision_time,
                 min_gap=world.min_gap, brake_time=brake_time, time_lost=world.time_lost,
-                end_time=world.end_time)
+                end_time=world.end_time, label_hit=world.label_outcome if same else None, world=info)
 
 
 def _label(intent: int, counterfactual_collision: bool) -> str:
@@ -146,8 +188,10 @@ def label_of(intent: str, counterfactual_collision: bool) -> str:
 
 def counterfactual(config: ScenarioConfig, seed: int, scene: Scene) -> tuple[str, bool]:
     """``(label, counterfactual_collision)`` of a seed, from its run with the ego holding
-    its speed (resets ``scene``)."""
-    cf = _simulate(scene, config, seed, make_planner("constant"))
+    its speed up to the label's horizon (``timing.label_distance`` past the conflict point;
+    resets ``scene``)."""
+    horizon = config.with_values({"timing.end_distance": config.timing.label_distance, "timing.until_clear": False})
+    cf = _simulate(scene, horizon, seed, make_planner("constant"), holds_speed=True)
     hit = cf.collision == "obstacle"
     return _label(cf.intent, hit), hit
 
@@ -159,19 +203,19 @@ def episode_label(config: ScenarioConfig, seed: int, scene: Scene) -> str:
 
 
 def seed_label(config: ScenarioConfig, seed: int, scene: Scene,
-               runs: Iterable[tuple[str, float | None, str | None]] = ()) -> tuple[str, bool]:
+               runs: Iterable[tuple[str, bool | None]] = ()) -> tuple[str, bool]:
     """``(label, counterfactual_collision)`` of a seed: the one labelling rule.
 
-    ``runs`` are the seed's finished runs as ``(intent, brake_time, collision_with)``
-    (``"left"``/``"right"``, [s] or None, ``"obstacle"``/... or None: fields of its
-    records). A run whose ego never braked *is* the constant-speed counterfactual (the same
-    random streams, the same controls: a planner's own stream does not touch the world),
-    so its collision labels the seed; only when every run braked (or none is given) is the
-    counterfactual simulated, once (it resets ``scene``).
+    ``runs`` are the seed's finished runs as ``(intent, label_hit)`` (``"left"``/``"right"``
+    and, from an unlabelled record, its ``counterfactual_collision``: whether it touched
+    the obstacle before the label's horizon, where its ego held its speed until then, else
+    None). A run whose ego held its speed up to the label's outcome *is* the constant-speed
+    counterfactual up to there (the same random streams, the same controls: a planner's
+    own stream does not touch the world), so it labels the seed; only when no run did (or
+    none is given) is the counterfactual simulated, once (it resets ``scene``).
     """
-    for intent, brake_time, collision_with in runs:
-        if brake_time is None:
-            hit = collision_with == "obstacle"
+    for intent, hit in runs:
+        if hit is not None:
             return label_of(intent, hit), hit
     return counterfactual(config, seed, scene)
 
@@ -193,20 +237,20 @@ def run_episode(config: ScenarioConfig | None = None, seed: int = 0,
         observers: called after every tick with an :class:`EpisodeTick`, in order.
     """
     config = config or ScenarioConfig()
-    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
-        raise ValueError(f"seed={seed!r} is out of range: must be a non-negative integer")
-    seed = int(seed)
+    seed = check_seed(seed)  # before any work: a bool, 1.5 or 2^64 is refused, not truncated
     scene = scene or Scene.load(names=config.names)
     plan = make_planner(planner)
     recorder = TraceRecorder() if trace else None
-    run = _simulate(scene, config, seed, plan, (*observers, recorder) if recorder else tuple(observers))
+    safety = SafetyRecorder()
+    run = _simulate(scene, config, seed, plan, (*observers, safety, *([recorder] if recorder else [])))
     info = plan.summary()
     intent = Intent(run.intent).name.lower()
 
-    cf_collision: bool | None = None
+    # Unlabelled, what this run tells of the label (None: only the counterfactual can tell).
+    cf_collision: bool | None = run.label_hit
     lab: str | None = None
     if label:
-        lab, cf_collision = seed_label(config, seed, scene, [(intent, run.brake_time, run.collision)])
+        lab, cf_collision = seed_label(config, seed, scene, [(intent, run.label_hit)])
 
     return EpisodeRecord(
         seed=seed, planner=plan.name, intent=intent, label=lab,
@@ -215,5 +259,6 @@ def run_episode(config: ScenarioConfig | None = None, seed: int = 0,
         collision_with=run.collision, collision_time=run.collision_time,
         min_gap=float(run.min_gap), brake_time=run.brake_time, time_lost=run.time_lost,
         end_time=run.end_time, counterfactual_collision=cf_collision, planner_info=info,
+        safety=safety.result().to_dict(), world=run.world,
         trace=recorder.trace if recorder else None,
     )

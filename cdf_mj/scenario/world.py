@@ -20,17 +20,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cdf_mj.config import ScenarioConfig
+from cdf_mj.config import MAX_SEED, ScenarioConfig
 from cdf_mj.model.conflict import right_turn_overlap
 from cdf_mj.model.driver import DriverModel, Intent, Mode, obstacle_control, road_clear, update_belief
 from cdf_mj.model.geometry import box_gap
 from cdf_mj.scenario.after_merge import AfterMergeOverride
 from cdf_mj.scenario.drivers import WorldDriver, make_driver
+from cdf_mj.scenario.following import follow_accel
 from cdf_mj.sim.checks import SceneWarning
 from cdf_mj.sim.scene import Scene, SimulationDivergedError
 from cdf_mj.sim.visibility import ego_visible
 
-__all__ = ["Measurement", "NonFiniteStateError", "Tick", "World"]
+__all__ = ["Measurement", "NonFiniteStateError", "Tick", "World", "check_seed"]
 
 
 _HELD_BACK = frozenset((int(Mode.YIELDING), int(Mode.WAITING)))  # plain ints: a cheap test per tick
@@ -66,6 +67,18 @@ class Tick:
     gap: float  # [m] distance between the two cars' collision boxes at the start of the tick
     collision: str | None  # "obstacle" | "building" if the ego touched one during the tick
     done: bool  # the episode is over (contact, the ego past the end, or the duration reached)
+
+
+def check_seed(seed: object, name: str = "seed") -> int:
+    """``seed`` as an ``int`` if it is an integer (``int`` or a NumPy integer, not a bool)
+    from 0 to :data:`~cdf_mj.config.MAX_SEED` (2^53 - 1, exact in every JSON reader);
+    ValueError naming ``name`` and the range otherwise. Every seed the package takes (an
+    episode's, an experiment's, the environment's, the monitor's) passes here."""
+    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) \
+            or not 0 <= int(seed) <= MAX_SEED:
+        raise ValueError(f"{name}={seed!r} is out of range: must be an integer from 0 to {MAX_SEED} "
+                         "(2^53 - 1, exact in JSON)")
+    return int(seed)
 
 
 def _streams(seed: int) -> dict[str, np.random.Generator]:
@@ -119,7 +132,8 @@ class World:
     :meth:`step`): ``seed``, ``intent`` (:class:`cdf_mj.model.driver.Intent`),
     ``ego_start_offset`` [m], ``dwell`` [s], ``departed`` [s] (when it left the line,
     else ``None``), ``hesitates``, ``hesitation_pause`` [s], ``hesitated`` [s] (when it
-    stopped again, else ``None``), ``first_seen`` [s], ``yielded``, ``entered_lane`` [s], ``min_gap`` [m],
+    stopped again, else ``None``), ``first_seen`` [s], ``yielded``, ``entered_lane`` [s],
+    ``min_gap`` [m] (between the two cars' collision boxes at the starts of ticks; 0 once they touched),
     ``collision`` (``"obstacle"``/``"building"``/``None``), ``collision_time`` [s], ``done`` and
     ``end_reason`` (``None`` while running, then ``"collision"``, ``"passed"``: the ego's
     rear axle ``timing.end_distance`` past the conflict point, with no car ahead of it in its
@@ -163,7 +177,7 @@ class World:
         self.family: WorldDriver | None = None if behaviour.family == "model" else make_driver(behaviour.family)
         self.after_merge = AfterMergeOverride(config.after_merge)
         room = layout.route_left.length - float(layout.route_left.project(layout.conflict)[0])
-        if config.after_merge.behaviour == "brake" and config.after_merge.at[1] >= room:
+        if config.after_merge.behaviour in ("slow", "brake") and config.after_merge.at[1] >= room:
             raise ValueError(f"after_merge.at={config.after_merge.at} m: the obstacle's left route goes on for "
                              f"{room:.1f} m past the conflict point in {scene.source}; give distances below it")
         if behaviour.hesitation > 0.0:  # a stop past the commit point would never happen
@@ -183,7 +197,7 @@ class World:
         rest at its start site), and return the first measurement."""
         scene, config, layout = self.scene, self.config, self.layout
         behaviour = config.obstacle
-        self.seed = seed
+        self.seed = seed = check_seed(seed)
         self.rng = rng = _streams(seed)
         # Scenario draw: intent, then the ego's start along its route.
         self.intent = Intent.LEFT if rng["scenario"].random() < behaviour.p_left else Intent.RIGHT
@@ -330,8 +344,13 @@ class World:
                 self.first_seen = t
             a1, steer1 = self.family.control(t, obs, ego if observed else None, dt)
             u1, mode, may_go = np.array([[a1, steer1]]), int(self.family.mode), True
-        # Once in the ego's lane, what it does next is the world's option (keep by default).
+        # Once in the ego's lane, what it does next is the world's option (keep by default),
+        # and behind the ego it keeps its distance (after_merge.follows).
         u1[0, 0] = self.after_merge.accel(t, obs, m.obstacle_in_lane, float(u1[0, 0]))
+        if self.config.after_merge.follows:
+            behind = follow_accel(layout, layout.obstacle, obs, layout.ego, ego, self.config.ego)
+            if behind is not None:
+                u1[0, 0] = min(float(u1[0, 0]), behind)
         if mode in _MOVING and self.departed is None:
             self.departed = t
         # Held back by what it believes: braking to yield, or still waiting once its dwell
@@ -358,7 +377,8 @@ class World:
         if hit is not None:
             self.collision = hit
             self.collision_time = self.end_time
-            self.min_gap = 0.0
+            if hit == "obstacle":  # the two cars touch; a building contact leaves their distance
+                self.min_gap = 0.0
             self.end_reason = "collision"
         # The ego's rear axle is end_distance past the conflict point (and, until_clear, no car
         # is ahead of it in its lane): nothing more can happen to it.

@@ -180,8 +180,7 @@ def record_episode(seed: int, planner: str | Planner = "cdf", config: ScenarioCo
     trace = record.trace or {}
     times = np.append(np.asarray(trace["t"], dtype=float), record.end_time)
     poses = np.concatenate([np.asarray(trace["poses"], dtype=float).reshape(-1, 2, 4), final[None]])
-    lab = seed_label(config, seed, scene, [(record.intent, record.brake_time, record.collision_with)])[0] \
-        if label else None
+    lab = seed_label(config, seed, scene, [(record.intent, record.counterfactual_collision)])[0] if label else None
     particles = particle_recorder.snapshots if isinstance(plan, CDFPlanner) else None
     tau: float | None
     rule = getattr(plan, "rule", None)

@@ -1,0 +1,60 @@
+"""Car following in the ego's lane: the intelligent driver model's (IDM) interaction term,
+used by the world's cars behind another one (the ego's nominal controller behind the
+obstacle, ``ego.follow``; the obstacle behind the ego once it has merged,
+``after_merge.follows``). Its desired speed is the car's own controller's, so only the
+interaction term is taken here (Treiber, Hennecke, Helbing 2000):
+
+    a = a_max (1 - (s* / s)^2),   s* = s0 + v T + v dv / (2 sqrt(a_max b))
+
+with ``s`` the gap between the two collision boxes [m], ``v`` the follower's speed, ``dv``
+its closing speed on the car ahead along its own heading [m/s], ``T`` the time gap [s],
+``s0`` the gap at standstill [m] and ``b`` a comfortable braking [m/s^2]; the result is at
+least minus the follower's maximum braking. World frame, rear-axle poses ``[x, y, theta, v]``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from cdf_mj.config import Ego
+from cdf_mj.model.geometry import box_gap
+from cdf_mj.model.layout import Layout
+from cdf_mj.model.vehicle import CarGeometry
+
+__all__ = ["ahead_in_lane", "follow_accel", "idm_interaction"]
+
+
+def idm_interaction(gap: float, v: float, v_lead: float, a_max: float, b: float, time_gap: float,
+                    min_gap: float, max_brake: float) -> float:
+    """The IDM's interaction acceleration [m/s^2] (see the module docstring)."""
+    desired = min_gap + max(v, 0.0) * time_gap + v * (v - v_lead) / (2.0 * math.sqrt(a_max * b))
+    return max(a_max * (1.0 - (max(desired, 0.0) / max(gap, 1e-3)) ** 2), -max_brake)
+
+
+def ahead_in_lane(layout: Layout, lead: np.ndarray, lead_car: CarGeometry, follower: np.ndarray) -> bool:
+    """Whether the car at pose ``lead`` (of dimensions ``lead_car``) is in the ego's lane
+    (a corner of its box) and further along the ego's route than the car at ``follower``."""
+    lx, ly, lth = float(lead[0]), float(lead[1]), float(lead[2])
+    if not layout.ego_lane.contains_any(lead_car.footprint_one(lx, ly, lth)):
+        return False
+    route = layout.route_ego
+    return bool(route.project_point(lx, ly)[0] > route.project_point(float(follower[0]), float(follower[1]))[0])
+
+
+def follow_accel(layout: Layout, follower_car: CarGeometry, follower: np.ndarray, lead_car: CarGeometry,
+                 lead: np.ndarray, params: Ego) -> float | None:
+    """The follower's IDM acceleration [m/s^2] behind the lead car when the lead is ahead of
+    it in the ego's lane (:func:`ahead_in_lane`), else None (also for a pose that is not
+    finite: a missed measurement). ``params`` gives the time gap, standstill gap and
+    comfortable braking (``ego.time_gap``, ``ego.min_gap``, ``ego.comfort_brake``)."""
+    if not (np.isfinite(lead).all() and np.isfinite(follower).all()):
+        return None
+    if not ahead_in_lane(layout, lead, lead_car, follower):
+        return None
+    fx, fy, fth, fv = (float(v) for v in follower)
+    lx, ly, lth, lv = (float(v) for v in lead)
+    gap = box_gap(follower_car.footprint_one(fx, fy, fth), lead_car.footprint_one(lx, ly, lth))
+    return idm_interaction(gap, fv, lv * math.cos(lth - fth), follower_car.max_accel, params.comfort_brake,
+                           params.time_gap, params.min_gap, follower_car.max_brake)
