@@ -43,7 +43,7 @@ from cdf_mj.analysis.tables import format_number, format_rate
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
 from cdf_mj.planners.registry import PLANNERS
-from cdf_mj.presets import load_preset, preset_names
+from cdf_mj.presets import load_preset, scenario_preset_names
 from cdf_mj.records import completed, is_false_alarm, record_field
 
 PROG = "decision"
@@ -67,7 +67,7 @@ def _parts(episodes: int | None) -> dict[str, Part]:
     n_main, n_preset, n_dev = (episodes or 1000), (episodes or 200), (episodes or 200)
     parts = {"held-out": Part("held-out", "Default scenario, held-out seeds", ScenarioConfig(),
                               range(100000, 100000 + n_main), PLANNERS_DEFAULT, True)}
-    for name in preset_names():
+    for name in scenario_preset_names():
         if name == "default":
             continue
         parts[name] = Part(name, f"Preset `{name}`, held-out seeds", load_preset(name),

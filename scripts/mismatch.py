@@ -39,7 +39,7 @@ from cdf_mj.analysis.tables import format_number, format_rate
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
 from cdf_mj.planners.registry import PLANNERS
-from cdf_mj.presets import Preset, preset_names, read_preset
+from cdf_mj.presets import Preset, read_preset, scenario_preset_names
 from cdf_mj.records import braked, completed, hit_obstacle, is_false_alarm, is_imminent, lead_time, record_field
 
 PROG = "mismatch"
@@ -239,7 +239,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     unknown = [n for n in args.planners if n not in PLANNERS]
     if unknown or not args.planners:
         _fail(f"unknown planner(s) {', '.join(unknown) or '(none)'}: choose from {', '.join(sorted(PLANNERS))}")
-    names = args.presets if args.presets is not None else preset_names()
+    names = args.presets if args.presets is not None else scenario_preset_names()
     try:  # every preset is read and checked before anything runs
         presets = [read_preset(n) for n in names]
     except ValueError as exc:
@@ -263,7 +263,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         f" {flag} {shlex.quote(str(v))}" for flag, v, default in (
             ("--episodes", args.episodes, 200), ("--seed0", args.seed0, 1000),
             ("--planners", ",".join(args.planners), ",".join(PLANNERS_DEFAULT)),
-            ("--presets", ",".join(names), ",".join(preset_names()))) if v != default)
+            ("--presets", ",".join(names), ",".join(scenario_preset_names()))) if v != default)
     doc = write_page(args.doc, mismatch_markdown(results, args.planners), command)
     failed = sum(r.failed for r in results)
     if not args.quiet:

@@ -42,7 +42,8 @@ from typing import Any
 from cdf_mj.config import FLAT_KEYS, GROUPS, SCENARIO_KEYS, ScenarioConfig
 from cdf_mj.inputs import PRESET_MAX_BYTES, InputError, TOMLDecodeError, parse_toml, read_text
 
-__all__ = ["SUFFIX", "Preset", "PresetError", "load_preset", "preset_description", "preset_names", "read_preset"]
+__all__ = ["STRESS_PREFIX", "SUFFIX", "Preset", "PresetError", "load_preset", "preset_description", "preset_names",
+           "read_preset", "scenario_preset_names"]
 
 #: The suffix of a preset file.
 SUFFIX = ".toml"
@@ -92,9 +93,19 @@ def _packaged() -> dict[str, Any]:
     return dict(sorted(found.items()))
 
 
+#: The prefix of the stress presets (scripts/stress.py runs them; docs/STRESS.md).
+STRESS_PREFIX = "stress-"
+
+
 def preset_names() -> list[str]:
     """The names of the presets shipped with the package, sorted."""
     return list(_packaged())
+
+
+def scenario_preset_names() -> list[str]:
+    """The shipped presets that vary the scenario's driver or ego (:func:`preset_names` but
+    the stress presets, whose suite is scripts/stress.py)."""
+    return [n for n in preset_names() if not n.startswith(STRESS_PREFIX)]
 
 
 def _is_path(name_or_path: str | Path) -> bool:
