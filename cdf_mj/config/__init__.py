@@ -45,6 +45,7 @@ from cdf_mj.config.scenario import (
     SceneNames,
     Sensing,
     Timing,
+    check_seed,
     scenario_key,
 )
 
@@ -77,6 +78,7 @@ __all__ = [
     "SceneNames",
     "Sensing",
     "Timing",
+    "check_seed",
     "normalise_settings",
     "scaled",
     "scenario_key",

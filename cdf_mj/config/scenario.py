@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -20,7 +21,8 @@ from cdf_mj.traits import within as _within
 __all__ = ["AFTER_MERGE", "DRIVER_FAMILIES", "FLAT_KEYS", "GROUPS", "MAX_ACCEL", "MAX_BRAKE", "MAX_DURATION",
            "MAX_EPISODES", "MAX_LENGTH", "MAX_PARTICLES", "MAX_SEED", "MAX_SPEED", "MAX_START_SPREAD",
            "MAX_WORKERS", "SCENARIO_KEYS", "AfterMerge", "Ego", "Observation", "ObstacleDriver",
-           "ProcessNoise", "Pursuit", "ScenarioConfig", "SceneNames", "Sensing", "Timing", "scenario_key"]
+           "ProcessNoise", "Pursuit", "ScenarioConfig", "SceneNames", "Sensing", "Timing", "check_seed",
+           "scenario_key"]
 
 #: Maximum braking of a passenger car on a moderate-friction road, 16 ft/s^2 [m/s^2].
 MAX_BRAKE = 16 * 0.3048
@@ -38,6 +40,17 @@ MAX_SEED = 2**53 - 1
 MAX_WORKERS = 1024
 #: Shift of the ego start along its route, either way: a junction scene's scale [m].
 MAX_START_SPREAD = 200.0
+
+
+def check_seed(seed: object, name: str = "seed") -> int:
+    """``seed`` as an ``int`` if it is an integer (``int`` or a NumPy integer, not a bool)
+    from 0 to :data:`MAX_SEED`; ValueError naming ``name`` and the range otherwise. Every
+    seed the package takes (an episode's, an experiment's, the environment's, the
+    monitor's) passes here."""
+    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or not 0 <= int(seed) <= MAX_SEED:
+        raise ValueError(f"{name}={seed!r} is out of range: must be an integer from 0 to {MAX_SEED} "
+                         "(2^53 - 1, exact in JSON)")
+    return int(seed)
 
 @dataclass(frozen=True)
 class SceneNames:

@@ -28,7 +28,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
-from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames
+from cdf_mj.config import MAX_SEED, CDFConfig, ScenarioConfig, SceneNames, check_seed
 from cdf_mj.extras import require
 
 try:
@@ -120,13 +120,14 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
     (None, ``"obstacle"`` or ``"building"``), ``label`` (``Cutoff``/``Yield``/``Right``
     from the constant-speed counterfactual of the same seed, None with ``label=False``),
     ``intent`` (``left``/``right``), ``t`` [s], ``obstacle_in_lane``, ``gap`` [m] between
-    the two collision boxes at the start of the step (0 on contact; None after reset),
+    the two collision boxes at the start of the step (0 when they touch; None after reset),
     ``episode_seed``. ``label`` and ``intent`` are ground truth
     for evaluation: a policy should not read them.
 
     **Seeding**: ``reset(seed=n)`` plays the world of ``run_episode(seed=n)`` (same
     intent, ego start, obstacle observations and noise); ``reset()`` without a seed draws
-    the episode seed from the environment's ``np_random``.
+    the episode seed (0 to :data:`~cdf_mj.config.MAX_SEED`) from the environment's
+    ``np_random``; a seed that is not such an integer (``True``, ``2**64``) is a ValueError.
 
     Args:
         render_mode: None or ``"rgb_array"``.
@@ -228,8 +229,10 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
     def reset(self, *, seed: int | None = None,
               options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         """Start an episode; ``seed`` makes it reproducible (see the class docstring)."""
+        if seed is not None:  # before gymnasium's own seeding, which takes True for 1
+            seed = check_seed(seed)
         super().reset(seed=seed)
-        episode_seed = int(seed) if seed is not None else int(self.np_random.integers(2**62))
+        episode_seed = seed if seed is not None else int(self.np_random.integers(MAX_SEED + 1))
         self._episode_seed = episode_seed
         self._label = episode_label(self.config, episode_seed, self.scene) if self.label else None
         m = self.world.reset(episode_seed)
@@ -269,7 +272,7 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         terminated = world.end_reason in ("collision", "passed")
         in_lane = m.obstacle_in_lane if m is not None else tick.obstacle_in_lane
         return (self._observation(poses), float(reward), bool(terminated), bool(truncated),
-                self._info(in_lane, gap=0.0 if tick.collision else tick.gap,
+                self._info(in_lane, gap=0.0 if tick.collision == "obstacle" else tick.gap,
                            collision=tick.collision))
 
     def render(self) -> np.ndarray | None:

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import operator
 import os
 import pickle
 import stat
@@ -40,7 +39,7 @@ from xml.etree import ElementTree
 from tqdm import tqdm
 
 from cdf_mj import __version__
-from cdf_mj.config import CDFConfig, ScenarioConfig, normalise_settings
+from cdf_mj.config import CDFConfig, ScenarioConfig, check_seed, normalise_settings
 from cdf_mj.experiments.runner import (
     START_METHOD,
     Backend,
@@ -260,10 +259,12 @@ def run_experiment(out_dir: str | Path, seeds: Sequence[int], planners: Sequence
     """
     t0 = time.perf_counter()
     config, cdf = config or ScenarioConfig(), cdf or CDFConfig()
-    try:
-        seeds = [operator.index(s) for s in seeds]  # 1.5 is refused, not truncated
-    except TypeError:
-        raise ValueError("seeds must be integers") from None
+    if isinstance(seeds, range) and seeds.step == 1 and seeds:  # its ends bound it: no loop over 10^7
+        check_seed(seeds[0])
+        check_seed(seeds[-1])
+        seeds = list(seeds)
+    else:  # True, 1.5 or 2^64 is refused, not truncated
+        seeds = [check_seed(s) for s in seeds]
     if not seeds or seeds[0] < 0 or seeds != list(range(seeds[0], seeds[0] + len(seeds))):
         raise ValueError("seeds must be a non-empty contiguous range of non-negative integers")
     planners = tuple(planners)

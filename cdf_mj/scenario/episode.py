@@ -43,14 +43,14 @@ from typing import Any
 import numpy as np
 
 from cdf_mj.analysis.safety import SafetyRecorder
-from cdf_mj.config import ScenarioConfig
+from cdf_mj.config import ScenarioConfig, check_seed
 from cdf_mj.model.driver import Intent, ego_control
 from cdf_mj.planners.base import Planner, PlannerContext, PlannerInput
 from cdf_mj.planners.registry import make_planner
 from cdf_mj.records import EpisodeRecord, Label
 from cdf_mj.scenario.following import follow_accel
 from cdf_mj.scenario.sensing import BrakeActuator, Sensor
-from cdf_mj.scenario.world import Measurement, Tick, World, check_seed
+from cdf_mj.scenario.world import Measurement, Tick, World
 from cdf_mj.sim.scene import Scene
 
 __all__ = ["EpisodeTick", "Observer", "TraceRecorder", "counterfactual", "episode_label", "label_of",

@@ -45,7 +45,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames
+from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames, check_seed
 from cdf_mj.inference.particle_filter import ParticleFilter, Posterior
 from cdf_mj.model.layout import Layout
 from cdf_mj.model.vehicle import CarGeometry
@@ -122,7 +122,8 @@ class CDFMonitor:
             the trace; default :class:`ScenarioConfig`.
         cdf: the filter and its decision rule (N, Sigma, its driver model, ``decision``:
             the risk rule or the paper's threshold tau); default :class:`CDFConfig`.
-        rng: the Generator of the filter's randomness, or a seed.
+        rng: the Generator of the filter's randomness, or a seed (an integer from 0 to
+            :data:`~cdf_mj.config.MAX_SEED`; ValueError otherwise), or None (fresh entropy).
         ego, obstacle: the cars' dimensions, replacing the layout's (default: the
             layout's, which is our car's for a layout built by hand).
         source: where :meth:`step` reads time and poses (set by :func:`attach`).
@@ -172,7 +173,8 @@ class CDFMonitor:
             self.context = dataclasses.replace(self.context, nominal_speed=nominal_speed)
         self.source = source
         self.record_trace = record_trace
-        self.rng = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        self.rng = rng if isinstance(rng, np.random.Generator) else \
+            np.random.default_rng(None if rng is None else check_seed(rng, "rng"))
         self.planner = CDFPlanner(self.cdf)  # the same filter and rule as the `cdf` planner
         self.reset()
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cdf_mj.config import MAX_SEED, ScenarioConfig
+from cdf_mj.config import ScenarioConfig, check_seed
 from cdf_mj.model.conflict import right_turn_overlap
 from cdf_mj.model.driver import DriverModel, Intent, Mode, obstacle_control, road_clear, update_belief
 from cdf_mj.model.geometry import box_gap
@@ -31,7 +31,7 @@ from cdf_mj.sim.checks import SceneWarning
 from cdf_mj.sim.scene import Scene, SimulationDivergedError
 from cdf_mj.sim.visibility import ego_visible
 
-__all__ = ["Measurement", "NonFiniteStateError", "Tick", "World", "check_seed"]
+__all__ = ["Measurement", "NonFiniteStateError", "Tick", "World"]
 
 
 _HELD_BACK = frozenset((int(Mode.YIELDING), int(Mode.WAITING)))  # plain ints: a cheap test per tick
@@ -69,18 +69,6 @@ class Tick:
     done: bool  # the episode is over (contact, the ego past the end, or the duration reached)
 
 
-def check_seed(seed: object, name: str = "seed") -> int:
-    """``seed`` as an ``int`` if it is an integer (``int`` or a NumPy integer, not a bool)
-    from 0 to :data:`~cdf_mj.config.MAX_SEED` (2^53 - 1, exact in every JSON reader);
-    ValueError naming ``name`` and the range otherwise. Every seed the package takes (an
-    episode's, an experiment's, the environment's, the monitor's) passes here."""
-    if isinstance(seed, (bool, np.bool_)) or not isinstance(seed, (int, np.integer)) \
-            or not 0 <= int(seed) <= MAX_SEED:
-        raise ValueError(f"{name}={seed!r} is out of range: must be an integer from 0 to {MAX_SEED} "
-                         "(2^53 - 1, exact in JSON)")
-    return int(seed)
-
-
 def _streams(seed: int) -> dict[str, np.random.Generator]:
     ss = np.random.SeedSequence(seed)
     # Children of a SeedSequence depend on their index only: the streams added later
@@ -88,15 +76,6 @@ def _streams(seed: int) -> dict[str, np.random.Generator]:
     # seed's draws, as they were.
     names = ("scenario", "obstacle", "ego", "planner", "departure", "sensing", "after_merge", "driver")
     return {n: np.random.Generator(np.random.PCG64(s)) for n, s in zip(names, ss.spawn(len(names)), strict=True)}
-
-
-def _substeps(scene: Scene, config: ScenarioConfig) -> int:
-    ratio = config.timing.dt / scene.model.opt.timestep
-    n = round(ratio)
-    if n < 1 or abs(ratio - n) > 1e-6:
-        raise ValueError(f"timing.dt={config.timing.dt} s must be a whole multiple of the scene's timestep "
-                         f"{scene.model.opt.timestep} s")
-    return n
 
 
 class World:
@@ -153,7 +132,7 @@ class World:
         self.config = config = config or ScenarioConfig()
         self.layout = layout = scene.layout()
         self.driver = DriverModel.of_world(layout, config)
-        self.n_sub = _substeps(scene, config)
+        self.n_sub = scene.substeps(config.timing.dt)  # SceneError (a ValueError) unless whole, <= 1000
         seen = config.observation
         self._obs_std = np.array([seen.pos, seen.pos, seen.heading, seen.speed])
         self._nu_std = np.array([config.noise.accel, config.noise.steer])

@@ -37,14 +37,14 @@ import mujoco
 import numpy as np
 
 from cdf_mj.config import SceneNames
-from cdf_mj.model.geometry import OrientedBox, Polyline
-from cdf_mj.sim.drive_check import check_drive, substeps
+from cdf_mj.model.geometry import OrientedBox, Polyline, box_corners, boxes_overlap
+from cdf_mj.sim.drive_check import MAX_SUBSTEPS, MIN_TIMESTEP, check_drive, substeps
 from cdf_mj.sim.errors import MUJOCO_LOGGER as MUJOCO_LOGGER
 from cdf_mj.sim.errors import SceneError, SceneWarning, route_mujoco_warnings
 from cdf_mj.sim.files import check_regular_files, read_names
 
-__all__ = ["SceneError", "SceneWarning", "check_drive", "check_regular_files", "read_names",
-           "route_mujoco_warnings", "substeps", "validate"]
+__all__ = ["MAX_SUBSTEPS", "MIN_TIMESTEP", "SceneError", "SceneWarning", "check_drive", "check_regular_files",
+           "read_names", "route_mujoco_warnings", "substeps", "validate"]
 
 # MuJoCo object types by the word the error messages use.
 _OBJ = {
@@ -148,6 +148,8 @@ def validate(model: mujoco.MjModel, data: mujoco.MjData, names: SceneNames, sour
         for p in (n.ego_prefix, n.obstacle_prefix):
             wrong += _car_problems(m, n, p, has)
     wrong += _building_problems(m, d, n)
+    if not not_finite and not numbers:
+        wrong += _buildings_in_the_way(m, d, n, routes, has, cars)
     problems = ([f"lacks {', '.join(missing)}"] if missing else []) + wrong
     if problems:
         raise SceneError(f"scene {source}: {'; '.join(problems)} "
@@ -166,6 +168,11 @@ def _number_problems(m: mujoco.MjModel, d: mujoco.MjData, skip: set[str]) -> lis
     if not (math.isfinite(timestep) and timestep > 0):
         wrong.append(f"<option timestep=\"{timestep:g}\"> must be a finite number of seconds > 0, "
                      "e.g. 0.005")
+    elif timestep < MIN_TIMESTEP:
+        wrong.append(f"<option timestep=\"{timestep:g}\"> is shorter than {MIN_TIMESTEP:g} s: "
+                     f"{1.0 / timestep:.3g} physics steps per simulated second would make an episode "
+                     "take minutes or hours; use 0.005 (the package's scenes) or at least "
+                     f"{MIN_TIMESTEP:g}")
     views = (("body", m.nbody, (d.xpos, d.xmat), m.body),
              ("geom", m.ngeom, (d.geom_xpos, d.geom_xmat, m.geom_size), m.geom),
              ("site", m.nsite, (d.site_xpos, d.site_xmat, m.site_size), m.site),
@@ -363,4 +370,61 @@ def _building_problems(m: mujoco.MjModel, d: mujoco.MjData, n: SceneNames) -> li
         wrong.append(f"building geoms must be boxes: {', '.join(not_box)}")
     if tilted:
         wrong.append(f"building boxes must be upright (rotated about z only): {', '.join(tilted)}")
+    return wrong
+
+
+def _buildings_in_the_way(m: mujoco.MjModel, d: mujoco.MjData, n: SceneNames, routes: dict[str, Polyline],
+                          has: Callable[[str, str], bool], cars: bool) -> list[str]:
+    """Building boxes (upright, named ``building_prefix``) that a car would meet where the
+    scene puts it: its collision box (geom ``hull``) at its start site, and swept along each
+    of its routes (the rear axle on the route, heading along it, every :data:`_ROUTE_STEP`
+    at the junction's scale). Touching counts. Without ``cars`` (cars that are not ours),
+    the routes' lines and the start sites themselves."""
+    ids = [g for g in range(m.ngeom) if (m.geom(g).name or "").startswith(n.building_prefix)
+           and m.geom_type[g] == mujoco.mjtGeom.mjGEOM_BOX and abs(abs(d.geom_xmat[g, 8]) - 1.0) <= 1e-9]
+    if not ids:
+        return []
+    blocks = [(m.geom(g).name, OrientedBox(np.array(d.geom_xpos[g, :2]), math.atan2(d.geom_xmat[g, 3],
+                                                                                  d.geom_xmat[g, 0]),
+                                           np.array(m.geom_size[g, :2])).corners()) for g in ids]
+    lane = _site_box(m, d, n.ego_lane) if has("site", n.ego_lane) and \
+        m.site(n.ego_lane).type[0] == mujoco.mjtGeom.mjGEOM_BOX else None
+    step = _ROUTE_STEP * max(_junction_scale(lane), 1e-3)
+
+    def hull(prefix: str) -> tuple[np.ndarray, np.ndarray]:  # offset from the rear axle, half sizes
+        name = prefix + n.hull
+        if cars and has("geom", name) and m.geom(name).type[0] == mujoco.mjtGeom.mjGEOM_BOX:
+            return np.array(m.geom(name).pos[:2]), np.array(m.geom(name).size[:2])
+        return np.zeros(2), np.zeros(2)
+
+    def hits(prefix: str, poses: np.ndarray) -> list[tuple[str, int]]:  # (building, first pose) met
+        offset, half = hull(prefix)
+        c, s = np.cos(poses[:, 2]), np.sin(poses[:, 2])
+        centre = poses[:, :2] + np.stack([c * offset[0] - s * offset[1], s * offset[0] + c * offset[1]], axis=1)
+        car = box_corners(centre, poses[:, 2], half)
+        met = [(name, np.flatnonzero(boxes_overlap(car, np.broadcast_to(corners, car.shape))))
+               for name, corners in blocks]
+        return [(name, int(k[0])) for name, k in met if len(k)]
+
+    wrong: list[str] = []
+    what = "the collision box (geom '{p}" + n.hull + "') of car '{p}'" if cars else "the site of car '{p}'"
+    for site, prefix in ((n.ego_start, n.ego_prefix), (n.obstacle_start, n.obstacle_prefix)):
+        if has("site", site):
+            pose = np.array([[*d.site(site).xpos[:2], math.atan2(d.site(site).xmat[3], d.site(site).xmat[0])]])
+            for name, _ in hits(prefix, pose):
+                wrong.append(f"{what.format(p=prefix)} at its start (site '{site}') meets building '{name}': "
+                             "a car cannot start inside a building; move the building or the start")
+    for route_name, prefix in ((n.route_ego, n.ego_prefix), (n.route_left, n.obstacle_prefix),
+                               (n.route_right, n.obstacle_prefix)):
+        route = routes.get(route_name)
+        if route is None:
+            continue
+        s = np.linspace(0.0, route.length, 1 + min(math.ceil(route.length / step), 100_000))
+        ds = min(step, route.length) / 2
+        along = route.point_at(np.minimum(s + ds, route.length)) - route.point_at(np.maximum(s - ds, 0.0))
+        poses = np.column_stack([route.point_at(s), np.arctan2(along[:, 1], along[:, 0])])
+        for name, k in hits(prefix, poses):
+            x, y = poses[k, :2]
+            wrong.append(f"body '{route_name}' is not drivable: {what.format(p=prefix)} driving it meets building "
+                         f"'{name}' at ({x:.4g}, {y:.4g}) m, {s[k]:.4g} m along it; move the building or the route")
     return wrong

@@ -18,7 +18,15 @@ import numpy as np
 from cdf_mj.config import SceneNames
 from cdf_mj.sim.errors import SceneError
 
-__all__ = ["check_drive", "substeps"]
+__all__ = ["MAX_SUBSTEPS", "MIN_TIMESTEP", "check_drive", "substeps"]
+
+#: [s] The shortest physics timestep of a scene (``<option timestep>``): 10^4 steps per
+#: simulated second. Shorter ones make an episode take minutes to hours (10^-6 s: 51 s for
+#: one episode; 10^-9 s: 10^8 steps per tick) and are refused when the scene is loaded.
+MIN_TIMESTEP = 1e-4
+#: Most physics steps per scenario tick (``timing.dt / timestep``): 1000, the paper's 0.1 s
+#: tick at :data:`MIN_TIMESTEP`.
+MAX_SUBSTEPS = 1000
 
 _DRIVE_TIME = 0.3  # [s] length of each phase of the test drive
 _FAR = (2000.0, -3000.0)  # [m] chassis-frame y of ego, obstacle in the test drive: apart, alone
@@ -26,14 +34,18 @@ _FAR = (2000.0, -3000.0)  # [m] chassis-frame y of ego, obstacle in the test dri
 
 def substeps(timestep: float, dt: float, source: str = "<model>") -> int:
     """Physics steps per scenario tick, ``dt / timestep`` [s / s], which must be a whole
-    number: SceneError naming both otherwise (a 0.03 s timestep would make ticks of 0.09 s,
-    not 0.1 s)."""
+    number from 1 to :data:`MAX_SUBSTEPS`: SceneError naming both otherwise (a 0.03 s
+    timestep would make ticks of 0.09 s, not 0.1 s)."""
     ratio = dt / timestep
     n = round(ratio)
     if n < 1 or abs(ratio - n) > 1e-6 * max(1.0, ratio):
-        raise SceneError(f"scene {source}: the scenario tick dt={dt:g} s is not a whole multiple of "
+        raise SceneError(f"scene {source}: the scenario tick timing.dt={dt:g} s is not a whole multiple of "
                          f"the timestep {timestep:g} s ({ratio:.4g} steps per tick); use a timestep "
-                         f"that divides it, e.g. {dt / max(n, 1):.4g} s or 0.005 s, or another dt")
+                         f"that divides it, e.g. {dt / max(n, 1):.4g} s or 0.005 s, or another timing.dt")
+    if n > MAX_SUBSTEPS:
+        raise SceneError(f"scene {source}: the scenario tick timing.dt={dt:g} s is {n} timesteps of "
+                         f"{timestep:g} s, more than {MAX_SUBSTEPS} physics steps per tick; use a timestep "
+                         f"of at least {dt / MAX_SUBSTEPS:g} s, or a shorter timing.dt")
     return n
 
 
