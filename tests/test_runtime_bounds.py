@@ -1,13 +1,18 @@
 """Bounds on what a run may cost and on what the library takes (issue 28): list arguments
 of the command line, empty output paths, seeds, a planner's answer, a scene's timestep,
 buildings over a car's start or route, ``min_gap`` at a building contact, and the Ray
-probe against a server that is not Ray."""
+probe against a server that is not Ray (plain TCP servers here; Ray itself only where
+installed)."""
 
 from __future__ import annotations
 
+import contextlib
 import math
 import shutil
+import socket
+import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +21,7 @@ import pytest
 from cdf_mj import cli
 from cdf_mj.config import MAX_SEED, ScenarioConfig, check_seed
 from cdf_mj.experiments.experiment import run_experiment
+from cdf_mj.experiments.runner import ClusterUnreachableError, _probe_ray_address
 from cdf_mj.planners.base import Planner, PlannerInput
 from cdf_mj.scenario.episode import run_episode
 from cdf_mj.scenario.monitor import CDFMonitor
@@ -209,3 +215,84 @@ def test_min_gap_is_the_distance_between_the_cars_when_the_ego_hits_a_building(t
     record = run_episode(seed=0, planner="constant", scene=scene, label=False)
     assert record.collision_with == "building"
     assert record.min_gap > 10.0  # the cars were never near
+
+
+# ------------------------------------------------------------------ the Ray probe
+@contextlib.contextmanager
+def _server(answer: bytes | None, close: bool = False) -> Iterator[str]:
+    """A TCP server on 127.0.0.1 that accepts, reads the greeting and sends ``answer``
+    (None: says nothing); ``close``: then hangs up. Yields its ``host:port``."""
+    listener = socket.create_server(("127.0.0.1", 0))
+    held: list[socket.socket] = []
+
+    def serve() -> None:
+        with contextlib.suppress(OSError):
+            while True:
+                conn, _ = listener.accept()
+                held.append(conn)
+                conn.settimeout(2.0)
+                with contextlib.suppress(OSError):
+                    conn.recv(1024)
+                    if answer is not None:
+                        conn.sendall(answer)
+                if close:
+                    conn.close()
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    try:
+        yield f"127.0.0.1:{listener.getsockname()[1]}"
+    finally:
+        listener.close()
+        for conn in held:
+            conn.close()
+
+
+_SETTINGS = bytes([0, 0, 6, 4, 0, 0, 0, 0, 0]) + bytes([0, 3, 0, 0, 0, 100])  # a server's first frame
+
+
+@pytest.mark.parametrize(("answer", "close", "why"), [
+    (None, False, "it said nothing"),
+    (b"HTTP/1.1 400 Bad Request\r\nContent-Length: 0\r\n\r\n", False, "as a web server (HTTP/1)"),
+    (b"-ERR unknown command 'PRI'\r\n", False, "not gRPC"),
+    (None, True, "it closed the connection"),
+])
+def test_the_ray_probe_refuses_a_server_that_is_not_grpc(answer, close, why):
+    with _server(answer, close) as address:
+        started = time.perf_counter()
+        with pytest.raises(ClusterUnreachableError, match=f"no Ray cluster answers at {address}: something "
+                                                          "listens there, but") as caught:
+            _probe_ray_address(address, timeout=1.0)
+        assert why in str(caught.value)
+        assert time.perf_counter() - started < 3.0
+
+
+def test_the_ray_probe_passes_a_grpc_server_and_only_connects_under_tls(monkeypatch):
+    with _server(_SETTINGS) as address:
+        _probe_ray_address(address, timeout=2.0)
+        _probe_ray_address(f"ray://{address}", timeout=2.0)
+    monkeypatch.setenv("RAY_USE_TLS", "1")  # the probe does not speak TLS: the connection is all it checks
+    with _server(None) as address:
+        _probe_ray_address(address, timeout=1.0)
+
+
+def test_an_experiment_on_ray_at_a_silent_server_is_one_line(capsys, tmp_path):
+    pytest.importorskip("ray", reason="the ray extra is not installed")
+    with _server(None) as address:
+        started = time.perf_counter()
+        status, out, err = run_cli(capsys, "experiment", "--episodes", "2", "--planners", "constant", "--backend",
+                                   "ray", "--address", address, "--quiet", "--out", str(tmp_path / "run"))
+        assert_one_line_error(status, out, err, f"no Ray cluster answers at {address}", "it said nothing")
+        assert time.perf_counter() - started < 10.0
+
+
+def test_the_ray_probe_passes_a_real_ray_cluster():
+    ray = pytest.importorskip("ray", reason="the ray extra is not installed")
+    started = not ray.is_initialized()
+    if started:
+        ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    try:
+        _probe_ray_address(ray.get_runtime_context().gcs_address, timeout=5.0)
+    finally:
+        if started:
+            ray.shutdown()

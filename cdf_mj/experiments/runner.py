@@ -30,6 +30,7 @@ import resource
 import socket
 import sys
 import threading
+import time
 import traceback
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -45,8 +46,9 @@ from cdf_mj.records import FAILED, OK
 if TYPE_CHECKING:
     from cdf_mj.planners.base import Planner
 
-__all__ = ["BACKENDS", "RAY_CONNECT_TIMEOUT_S", "START_METHOD", "Backend", "ClusterUnreachableError", "SeedJob",
-           "SeedResult", "WorkerDiedError", "check_backend", "effective_backend", "run_seeds", "worker_count"]
+__all__ = ["BACKENDS", "RAY_ANSWER_TIMEOUT_S", "RAY_CONNECT_TIMEOUT_S", "START_METHOD", "Backend",
+           "ClusterUnreachableError", "SeedJob", "SeedResult", "WorkerDiedError", "check_backend",
+           "effective_backend", "run_seeds", "worker_count"]
 
 Backend = Literal["serial", "process", "ray"]
 BACKENDS: tuple[str, ...] = ("serial", "process", "ray")
@@ -61,9 +63,13 @@ class ClusterUnreachableError(ConnectionError):
 
 
 #: [s] How long the ``ray`` backend waits for the cluster at ``address`` to accept a
-#: connection before it gives up with :class:`ClusterUnreachableError` (instead of Ray's own
-#: retrying, which goes on for minutes when nothing listens there).
+#: connection and answer a gRPC greeting before it gives up with
+#: :class:`ClusterUnreachableError` (instead of Ray's own retrying, which goes on for minutes
+#: when nothing, or something other than Ray, listens there).
 RAY_CONNECT_TIMEOUT_S = 10.0
+#: [s] Of that, how long it waits for the answer to its gRPC greeting once connected: a Ray
+#: cluster answers at once (a round trip), so a server silent this long is not one.
+RAY_ANSWER_TIMEOUT_S = 5.0
 
 
 @dataclass(frozen=True)
@@ -224,10 +230,45 @@ def _process_pool(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], wor
                 fut.cancel()
 
 
+#: What a client sends first on an HTTP/2 connection (RFC 9113, 3.4): the preface, then an
+#: empty SETTINGS frame (length 0, type 4, no flags, stream 0).
+_H2_HELLO = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
+
+
+def _h2_answer(sock: socket.socket, seconds: float) -> str | None:
+    """Greet the server on ``sock`` as an HTTP/2 (gRPC) client and read its first 9 bytes
+    for at most ``seconds``: None if they open a SETTINGS frame on stream 0, the server
+    preface that every gRPC server (Ray's GCS and its client server among them) sends first;
+    else what it did instead, in words."""
+    deadline = time.monotonic() + seconds
+    sock.sendall(_H2_HELLO)
+    head = b""
+    while len(head) < 9:
+        sock.settimeout(max(deadline - time.monotonic(), 1e-3))
+        try:
+            chunk = sock.recv(9 - len(head))
+        except TimeoutError:
+            return f"it said nothing within {seconds:g} s" if not head else f"it sent {head!r} and stopped"
+        if not chunk:
+            return "it closed the connection" if not head else f"it sent {head!r} and closed the connection"
+        head += chunk
+    length, kind, stream = int.from_bytes(head[:3], "big"), head[3], int.from_bytes(head[5:9], "big") & 0x7FFFFFFF
+    if kind == 4 and stream == 0 and length % 6 == 0:
+        return None
+    if head.startswith(b"HTTP/"):
+        return ("it answers as a web server (HTTP/1): Ray's dashboard? The cluster's address is its GCS "
+                "port (6379 by default), as `ray start --head` prints it")
+    return f"it answers {head!r}, not gRPC"
+
+
 def _probe_ray_address(address: str, timeout: float = RAY_CONNECT_TIMEOUT_S) -> None:
-    """:class:`ClusterUnreachableError` (one line) unless a TCP connection to ``address``
-    (``host:port`` or ``ray://host:port``) opens within ``timeout`` seconds. An address
-    without a port (``auto``, ``local``) is left to Ray."""
+    """:class:`ClusterUnreachableError` (one line) unless a Ray cluster may answer at ``address``
+    (``host:port`` or ``ray://host:port``) within ``timeout`` seconds: a TCP connection opens,
+    and the server answers an HTTP/2 greeting as every gRPC server does (Ray's GCS and its
+    client server speak gRPC; a silent port, a web server, Redis or SSH do not, and Ray
+    itself would retry against them for minutes). With ``RAY_USE_TLS`` set (TLS, which this
+    probe does not speak) only the connection is checked. An address without a port
+    (``auto``, ``local``) is left to Ray."""
     scheme, sep, rest = address.strip().partition("://")
     host, colon, port_text = (rest if sep else scheme).rpartition(":")
     if not colon:
@@ -240,14 +281,20 @@ def _probe_ray_address(address: str, timeout: float = RAY_CONNECT_TIMEOUT_S) -> 
     if not 0 < port < 65536:
         raise ClusterUnreachableError(f"Ray address {address!r}: the port must be a number from 1 to 65535; "
                                       "give host:port, e.g. 127.0.0.1:6379")
+    deadline = time.monotonic() + timeout
+    tls = os.environ.get("RAY_USE_TLS", "0").strip().lower() in ("1", "true")
     try:
-        with socket.create_connection((host, port), timeout=timeout):
-            pass
+        with socket.create_connection((host, port), timeout=timeout) as sock:
+            why = None if tls else _h2_answer(sock, max(min(deadline - time.monotonic(), RAY_ANSWER_TIMEOUT_S), 0.1))
     except OSError as exc:
         why = exc.strerror or str(exc) or type(exc).__name__
         raise ClusterUnreachableError(f"no Ray cluster answers at {address} within {timeout:g} s ({why}); start "
                                       "one there (ray start --head), or leave out the address to run a "
                                       "local Ray instance") from None
+    if why is not None:
+        raise ClusterUnreachableError(f"no Ray cluster answers at {address}: something listens there, but {why} "
+                                      "to a gRPC greeting, which a Ray cluster answers at once; check the "
+                                      "address (ray start --head prints it)")
 
 
 def _ray(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], workers: int,
@@ -290,7 +337,8 @@ def run_seeds(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], backend
     in this process. Raises :class:`WorkerDiedError` if a
     worker dies; seeds already yielded are unaffected. With ``backend="ray"`` and an
     ``address``, raises :class:`ClusterUnreachableError` at once (before any seed runs) if
-    nothing accepts a connection there within :data:`RAY_CONNECT_TIMEOUT_S`.
+    nothing accepts a connection there, or what does is not a gRPC server (a Ray cluster's
+    GCS is one), within :data:`RAY_CONNECT_TIMEOUT_S`.
     """
     cluster_default = backend == "ray" and address is not None and workers is None
     workers = check_backend(backend, workers)
