@@ -220,7 +220,7 @@ def test_bad_runner_arguments_are_refused_before_work(tmp_path):
         run_experiment(tmp_path / "b", range(4), ("reactive",), progress=False, backend="mpi")  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="distinct"):
         run_experiment(tmp_path / "c", range(4), ("reactive", "reactive"), progress=False)
-    with pytest.raises(ValueError, match="seed=0.5 is out of range: must be an integer"):
+    with pytest.raises(ValueError, match=r"seed=0.5 is out of range: must be an integer"):
         run_experiment(tmp_path / "d", [0.5, 1.5], ("reactive",), progress=False)
     assert main(["experiment", "--episodes", "2", "--address", "host:6379", "--out", str(tmp_path / "e")]) == 2
 

@@ -74,7 +74,9 @@ def test_scaling_by_one_keeps_every_config_and_by_a_tenth_scales_lengths_speeds_
     assert cdf.prior.critical_gap == (4.0, 7.0) and cdf.prior.beta == (0.03, 0.07)
     assert cdf.prior.pursuit.lookahead == pytest.approx(0.3) and cdf.prior.pursuit.lookahead_gain == 0.3
     assert (cdf.n_particles, cdf.tau, cdf.ego_brake) == (1000, 0.85, None)
-    assert scenario.ego.speed == pytest.approx(1.34) and scenario.timing == ScenarioConfig().timing
+    timing = ScenarioConfig().timing  # times stay; the episode's end and the label's horizon are lengths
+    assert scenario.ego.speed == pytest.approx(1.34) and scenario.timing == timing.replace(
+        end_distance=timing.end_distance * 0.1, label_distance=timing.label_distance * 0.1)
     assert scenario.names == SceneNames()
     cov = CDFConfig(likelihood_cov=np.diag([0.09, 0.09, 0.0025, 0.09]).tolist())
     np.testing.assert_allclose(scaled(cov, 0.1).covariance, np.diag([9e-4, 9e-4, 0.0025, 9e-4]))
