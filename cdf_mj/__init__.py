@@ -22,7 +22,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
 from cdf_mj.envs import ENV_ID  # light: neither Gymnasium nor MuJoCo
 

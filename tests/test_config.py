@@ -26,6 +26,7 @@ from cdf_mj.config import (
     normalise_settings,
     scenario_key,
 )
+from cdf_mj.config.scenario import VERSION_0_1_WORLD
 from cdf_mj.planners import CDFPlanner
 from cdf_mj.presets import load_preset, preset_names
 from cdf_mj.scenario.episode import run_episode
@@ -119,21 +120,26 @@ def test_a_flat_settings_file_of_version_0_1_reads_as_today_s_settings():
         warnings.simplefilter("error")  # stored results read without a word
         old = ScenarioConfig.from_dict(OLD_SCENARIO)
         assert CDFConfig.from_dict(OLD_CDF) == CDFConfig(likelihood_std=[0.3, 0.3, 0.05, 0.3])
-    assert old == ScenarioConfig()
+    # Read in version 0.1's world: its 8 s, and what it did not have as it was then.
+    then = ScenarioConfig().with_values({**VERSION_0_1_WORLD, "timing.duration": 8.0})
+    assert old == then
     settings = {"scenario": OLD_SCENARIO, "cdf": OLD_CDF, "seeds": [0, 2]}
-    now = json.loads(json.dumps({"scenario": ScenarioConfig().to_dict(), "cdf": CDFConfig().to_dict(),
-                                 "seeds": [0, 2]}))
+    now = json.loads(json.dumps({"scenario": then.to_dict(), "cdf": CDFConfig().to_dict(), "seeds": [0, 2]}))
     assert normalise_settings(settings) == now
     assert normalise_settings({"scenario": {"beta": 7.0}})["scenario"] == {"beta": 7.0}  # kept, to be refused
 
 
 def test_a_run_stored_with_flat_settings_is_continued_not_refused(tmp_path, capsys):
+    """A flat settings.json reads in version 0.1's world (VERSION_0_1_WORLD): a run of that
+    world, stored flat, continues; today's defaults would be other settings."""
     out = tmp_path / "run"
-    argv = ["experiment", "--episodes", "2", "--planners", "reactive", "--workers", "1", "--quiet", "--out", str(out)]
+    world = [w for key, value in VERSION_0_1_WORLD.items() for w in ("--set", f"{key}={json.dumps(value)}")]
+    argv = ["experiment", "--episodes", "2", "--planners", "reactive", "--workers", "1", "--quiet", "--out", str(out),
+            *world, "--set", "timing.duration=8"]
     assert run_cli(capsys, *argv)[0] == 0
     path = out / "settings.json"
     settings = json.loads(path.read_text())
-    flat = {k: ScenarioConfig().get(v) for k, v in FLAT_KEYS.items()}
+    flat = {k: ScenarioConfig.from_dict(settings["scenario"]).get(v) for k, v in FLAT_KEYS.items()}
     settings["scenario"] = json.loads(json.dumps({**flat, "names": settings["scenario"]["names"]}))
     for key in ("process_noise",):  # the fields version 0.1 did not have
         settings["cdf"].pop(key)

@@ -18,6 +18,7 @@ from gymnasium.utils.env_checker import check_env  # noqa: E402  (after the skip
 from junctions import junction_scene  # noqa: E402
 
 import cdf_mj  # noqa: E402
+from cdf_mj.config import ScenarioConfig  # noqa: E402
 from cdf_mj.extras import install_hint  # noqa: E402
 from cdf_mj.model.driver import ego_control  # noqa: E402
 from cdf_mj.records import Label  # noqa: E402
@@ -85,10 +86,13 @@ def test_reset_seed_is_reproducible_and_is_run_episodes_world(scene):
 @pytest.mark.parametrize("planner", ["constant", "cdf"])
 def test_env_with_the_planners_policy_replays_run_episode(scene, planner):
     """One implementation of the world: driving the env as the planner would gives
-    run_episode's record (seed 1 is a cut-off)."""
-    rec = run_episode(seed=1, planner=planner, scene=scene)
+    run_episode's record (seed 1 is a cut-off). The env's agent is the ego's whole
+    controller; here it is run_episode's nominal one without following (ego.follow off in
+    both)."""
+    config = ScenarioConfig().with_values({"ego.follow": False})
+    rec = run_episode(config, seed=1, planner=planner, scene=scene)
     assert rec.label == Label.CUTOFF
-    env = gym.make(cdf_mj.ENV_ID, scene=scene).unwrapped
+    env = gym.make(cdf_mj.ENV_ID, scene=scene, config=config).unwrapped
     obs, info = env.reset(seed=1)
     brake_time, done, ret = None, False, 0.0
     while not done:

@@ -40,8 +40,9 @@ def _cdf(**changes) -> CDFConfig:
 
 @pytest.fixture(scope="module")
 def cdf_records(scene):
-    """Seeds 0-49 with the CDF planner, labelled by their counterfactual and traced."""
-    cfg = ScenarioConfig()
+    """Seeds 0-49 with the CDF planner, labelled by their counterfactual and traced; the ego
+    without its following controller, so that every brake is the planner's own."""
+    cfg = ScenarioConfig().with_values({"ego.follow": False})
     return [run_episode(cfg, seed, CDFPlanner(_cdf()), scene, label=True, trace=True) for seed in SEEDS]
 
 

@@ -242,8 +242,8 @@ def test_side_layout_puts_the_charts_beside_the_view(backend, scene, tmp_path) -
 
 def test_compare_tiles_same_times_and_the_shorter_holds_its_last_frame(backend, scene, tmp_path,
                                                                        monkeypatch) -> None:
-    """Seed 1 to 4 s: the constant-speed ego hits the obstacle at 3.66 s and its episode
-    ends; cdf and imm run to 4 s. Three tiles, 21 frames at 5 fps, captions written."""
+    """Seed 1 to 4 s: the constant-speed ego (no following) hits the obstacle at 3.66 s and
+    its episode ends; cdf and imm run to 4 s. Three tiles, 21 frames at 5 fps, captions written."""
     calls: dict[str, list[float]] = {}
     frame = render._Painter.frame
 
@@ -253,7 +253,7 @@ def test_compare_tiles_same_times_and_the_shorter_holds_its_last_frame(backend, 
 
     monkeypatch.setattr(render._Painter, "frame", spy)
     out = tmp_path / "compare.mp4"
-    res = render_compare(out, seed=1, planners="cdf,imm,constant", config=ScenarioConfig(timing={"duration": 4.0}),
+    res = render_compare(out, seed=1, planners="cdf,imm,constant", config=ScenarioConfig(timing={"duration": 4.0}, ego={"follow": False}),
                          scene=scene, fps=5, **SMALL)
     ends = {r.planner: r.end_time for r in res.records}
     assert ends["constant"] < 3.8 and ends["cdf"] == ends["imm"] == pytest.approx(4.0)

@@ -36,10 +36,12 @@ def test_the_default_world_is_the_matched_one(scene):
     {"sensing.latency": 2},
 ])
 def test_sensing_changes_what_the_planner_sees_not_the_world(scene, values):
-    """With a planner that never brakes, the world's truth (trace, label, gap) is the
-    default's; the CDF filter reads the measurements and decides on them."""
-    base = _run(scene, {}, planner="constant", trace=True)
-    sensed = _run(scene, values, planner="constant", trace=True)
+    """With a planner that never brakes and an ego that follows no one (what it follows is
+    what it measures), the world's truth (trace, label, gap) is the default's; the CDF
+    filter reads the measurements and decides on them."""
+    still = {"ego.follow": False}
+    base = _run(scene, still, planner="constant", trace=True)
+    sensed = _run(scene, {**values, **still}, planner="constant", trace=True)
     assert sensed.trace == base.trace and sensed.label == base.label and sensed.min_gap == base.min_gap
     cdf_base, cdf_sensed = _run(scene, {}, planner="cdf"), _run(scene, values, planner="cdf")
     assert cdf_sensed.planner_info["history"] != cdf_base.planner_info["history"]
@@ -94,34 +96,39 @@ def test_driver_families_drive_the_obstacle_from_their_own_draws(scene, family):
 
 
 def test_the_episode_ends_where_it_is_told(scene):
-    short = _run(scene, {}, planner="constant", seed=0)  # a right-turner: the ego passes
+    short = _run(scene, {"timing.end_distance": 20.0}, planner="constant", seed=0)  # a right-turner: the ego passes
     world = World(scene, ScenarioConfig())
-    longer = _run(scene, {"timing.end_distance": 60.0, "timing.duration": 15.0}, planner="constant", seed=0)
+    longer = _run(scene, {"timing.end_distance": 60.0}, planner="constant", seed=0)
     speed = world.config.ego.speed
     assert longer.end_time == pytest.approx(short.end_time + 40.0 / speed, abs=0.15)
     assert longer.label == short.label
 
 
 def test_until_clear_waits_while_a_car_is_ahead_in_the_lane(scene):
-    values = {"timing.end_distance": 30.0, "timing.duration": 12.0, "ego.follow": True}
-    free = _run(scene, values, planner="constant")
-    waits = _run(scene, {**values, "timing.until_clear": True}, planner="constant")
+    """Seed 1: the obstacle merges ahead of the ego, which brakes (cdf) and then follows it.
+    Without until_clear the episode ends 30 m past the conflict point; with it, the car
+    ahead keeps it going to the duration."""
+    values = {"timing.end_distance": 30.0, "timing.duration": 12.0}
+    free = _run(scene, {**values, "timing.until_clear": False}, planner="cdf")
+    waits = _run(scene, values, planner="cdf")
+    assert free.collision_with is None and waits.collision_with is None
     assert free.end_time < waits.end_time == pytest.approx(12.0)
 
 
-def test_the_following_ego_drives_into_a_car_that_stops_ahead_less_often(scene):
-    """Behind a merged car that brakes to a stop 5 m into the lane, the paper's ego (which
-    returns to its speed whenever the risk rule releases) hits it in every cut-off; the
-    ego that follows the car ahead hits it in fewer (the rule's own releases remain)."""
-    values = {"after_merge.behaviour": "brake", "after_merge.at": (5.0, 5.0), "timing.end_distance": 60.0,
-              "timing.duration": 15.0, "timing.until_clear": True, "after_merge.follows": True}
+def test_the_following_ego_does_not_drive_into_a_car_that_slows_ahead(scene):
+    """Behind a merged car that slows (at 1.5-2.5 m/s^2, 10 m into the lane), the paper's
+    ego (back to its speed whenever the risk rule releases) hits it in every cut-off; the
+    ego that follows the car ahead (braking at most at an ACC's 3.5 m/s^2) in none. Harder
+    braking ahead is the planner's to answer (measured: 3 of 7 still collide when the car
+    ahead brakes at 3.5-5 m/s^2)."""
+    values = {"after_merge.behaviour": "slow", "after_merge.at": (10.0, 10.0)}
     seeds = range(100000, 100012)
-    holding = [_run(scene, values, planner="cdf", seed=s) for s in seeds]
-    following = [_run(scene, {**values, "ego.follow": True}, planner="cdf", seed=s) for s in seeds]
+    holding = [_run(scene, {**values, "ego.follow": False}, planner="cdf", seed=s) for s in seeds]
+    following = [_run(scene, values, planner="cdf", seed=s) for s in seeds]
     assert [r.label for r in holding] == [r.label for r in following]  # the label's ego holds its speed
     cutoffs = [i for i, r in enumerate(holding) if r.label == "Cutoff"]
     hits = [sum(runs[i].collision_with == "obstacle" for i in cutoffs) for runs in (holding, following)]
-    assert len(cutoffs) >= 5 and hits[0] == len(cutoffs) and hits[1] < hits[0]
+    assert len(cutoffs) >= 5 and hits == [len(cutoffs), 0]
 
 
 @pytest.mark.parametrize(("key", "value", "needle"), [
@@ -129,7 +136,7 @@ def test_the_following_ego_drives_into_a_car_that_stops_ahead_less_often(scene):
     ("sensing.speed", "NaN", "sensing.speed=nan"),
     ("sensing.dropout", "1.5", "sensing.dropout=1.5"),
     ("sensing.latency", "200", "sensing.latency=200"),
-    ("sensing.brake_latency", "90", "sensing.brake_latency=90"),
+    ("sensing.brake_latency", "200", "sensing.brake_latency=200"),
     ("obstacle.family", "drunk", "obstacle.family='drunk'"),
     ("after_merge.behaviour", "fly", "after_merge.behaviour='fly'"),
     ("after_merge.at", "[5, 500]", "after_merge.at="),

@@ -20,9 +20,9 @@ from cdf_mj.traits import within as _within
 
 __all__ = ["AFTER_MERGE", "DRIVER_FAMILIES", "FLAT_KEYS", "GROUPS", "MAX_ACCEL", "MAX_BRAKE", "MAX_DURATION",
            "MAX_EPISODES", "MAX_LENGTH", "MAX_PARTICLES", "MAX_SEED", "MAX_SPEED", "MAX_START_SPREAD",
-           "MAX_WORKERS", "SCENARIO_KEYS", "AfterMerge", "Ego", "Observation", "ObstacleDriver",
-           "ProcessNoise", "Pursuit", "ScenarioConfig", "SceneNames", "Sensing", "Timing", "check_seed",
-           "scenario_key"]
+           "MAX_WORKERS", "SCENARIO_KEYS", "VERSION_0_1_WORLD", "AfterMerge", "Ego", "Observation",
+           "ObstacleDriver", "ProcessNoise", "Pursuit", "ScenarioConfig", "SceneNames", "Sensing", "Timing",
+           "check_seed", "scenario_key"]
 
 #: Maximum braking of a passenger car on a moderate-friction road, 16 ft/s^2 [m/s^2].
 MAX_BRAKE = 16 * 0.3048
@@ -136,11 +136,11 @@ class Timing(_Group):
     _prefix: ClassVar[str] = "timing."
     dt: float = bounded(0.1, 0.0, 1.0, "s", open_low=True, note="(the paper's tick is 0.1 s)")  # planner, driver
     # and observation tick [s] (paper: 0.1 s)
-    duration: float = 8.0  # [s] episode length at most; the ego passes the junction in ~4 s
+    duration: float = 15.0  # [s] episode length at most; the ego passes the junction in ~4 s
     # The episode ends once the ego's rear axle is this far past the conflict point [m]
     # (and, with `until_clear`, no car is ahead of it in its lane), or at `duration`.
-    end_distance: float = bounded(20.0, 0.0, MAX_LENGTH, "m")
-    until_clear: bool = False  # also wait until no car is ahead of the ego in its lane
+    end_distance: float = bounded(60.0, 0.0, MAX_LENGTH, "m")
+    until_clear: bool = True  # also wait until no car is ahead of the ego in its lane
     # The label's horizon [m past the conflict point]: a constant-speed ego that gets this far
     # without touching the obstacle was not cut off (the counterfactual run ends here).
     label_distance: float = bounded(20.0, 0.0, MAX_LENGTH, "m")
@@ -169,15 +169,18 @@ class Ego(_Group):
     start_spread: tuple[float, float] = bounded((-8.0, 8.0), -MAX_START_SPREAD, MAX_START_SPREAD, "m",
                                                 note="(a shift of the start site along the ego's route)")
     speed_gain: float = bounded(1.0, 0.0, 1000.0, "1/s", open_low=True)  # proportional speed hold
-    # Behind a car in its lane the nominal controller follows it (the intelligent driver
-    # model's interaction term: desired gap min_gap + v time_gap + v dv / (2 sqrt(a b)),
-    # a = the car's largest acceleration, b = comfort_brake), braking at most at the car's
-    # maximum; without `follow` it holds its speed whatever is ahead (the paper's ego, and
-    # always the label's counterfactual).
-    follow: bool = False
+    # Behind a car that has merged into its lane the nominal controller follows it (the
+    # intelligent driver model's interaction term: desired gap min_gap + v time_gap +
+    # v dv / (2 sqrt(a b)), a = the car's largest acceleration, b = comfort_brake), braking at
+    # most follow_brake; without `follow` it holds its speed whatever is ahead (the paper's
+    # ego, and always the label's counterfactual).
+    follow: bool = True
     time_gap: float = bounded(1.5, 0.0, MAX_DURATION, "s", open_low=True)  # desired time headway
     min_gap: float = bounded(2.0, 0.0, MAX_LENGTH, "m")  # desired bumper gap at standstill
     comfort_brake: float = bounded(2.0, 0.0, MAX_ACCEL, "m/s^2", open_low=True)  # IDM's b
+    # The most the nominal controller brakes for a car ahead: an adaptive cruise control's
+    # limit (ISO 15622 allows 3.5 m/s^2); harder braking is the planner's (emergency) call.
+    follow_brake: float = bounded(3.5, 0.0, MAX_ACCEL, "m/s^2", open_low=True)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -268,7 +271,7 @@ class AfterMerge(_Group):
     # Once in the ego's lane behind the ego, the obstacle keeps a following distance to it
     # (the ego's IDM parameters: cdf_mj.scenario.following), as any driver would; without
     # it the obstacle's driver drives into an ego that brakes in front of it.
-    follows: bool = False
+    follows: bool = True
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -435,8 +438,11 @@ class ScenarioConfig:
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> ScenarioConfig:
         """The config of a dict: nested (:meth:`to_dict`, groups may leave fields out) or
-        flat (a settings.json of version 0.1; no warning: stored results stay readable)."""
-        return cls(**_apply(_DEFAULT_GROUPS, data, ValueError, warn=False))
+        flat (a settings.json of version 0.1, read in that version's world,
+        :data:`VERSION_0_1_WORLD`; no warning: stored results stay readable)."""
+        flat = bool(data) and all(key in FLAT_KEYS or key == "names" for key in data)
+        base = _VERSION_0_1_GROUPS if flat else _DEFAULT_GROUPS
+        return cls(**_apply(base, data, ValueError, warn=False))
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-serialisable view, nested by group, for records and result directories."""
@@ -481,5 +487,14 @@ def _apply(base: Mapping[str, Any], values: Mapping[str, Any], error: type[Excep
             known = ", ".join(f.name for f in dataclasses.fields(current))
             raise ValueError(f"{group}: unknown key among {sorted(fields)}; the keys are {known}") from None
     return out
+
+
+#: What version 0.1's world was, where today's defaults differ (fields it did not have):
+#: episodes that ended 20 m past the conflict point, an ego and an obstacle that followed no
+#: one. A flat settings.json (that version's) reads in that world.
+VERSION_0_1_WORLD: Mapping[str, Any] = MappingProxyType({
+    "timing.end_distance": 20.0, "timing.until_clear": False, "ego.follow": False, "after_merge.follows": False})
+_VERSION_0_1_GROUPS: Mapping[str, Any] = MappingProxyType(
+    _apply(_DEFAULT_GROUPS, VERSION_0_1_WORLD, ValueError, warn=False))
 
 

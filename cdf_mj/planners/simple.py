@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
-from cdf_mj.planners.base import Planner, PlannerInput
+import numpy as np
+
+from cdf_mj.planners.base import Planner, PlannerContext, PlannerInput
 
 __all__ = ["ConstantPlanner", "ReactivePlanner"]
 
 
 class ConstantPlanner(Planner):
-    """Never brakes: the ego holds its speed (the counterfactual run that labels a seed)."""
+    """Never brakes: the ego's nominal controller drives (holding its speed, and following a
+    car that has merged ahead of it where ``ego.follow``). The label's counterfactual is
+    this planner with the ego holding its speed whatever is ahead."""
 
     name = "constant"
 
@@ -18,11 +22,24 @@ class ConstantPlanner(Planner):
 
 
 class ReactivePlanner(Planner):
-    """Brakes once any part of the obstacle's collision box is inside the ego lane
-    (checked at the planner rate, 10 Hz)."""
+    """Brakes once any part of the obstacle's collision box is inside the ego lane and not
+    wholly behind the ego (checked at the planner rate, 10 Hz). A car that turns into the
+    lane behind an ego that has passed is no reason to brake (episodes that end 20 m past
+    the junction never showed one)."""
 
     name = "reactive"
 
+    def reset(self, context: PlannerContext, rng: np.random.Generator) -> None:
+        """Keep the layout: the ego's route and both cars' boxes."""
+        self._layout = context.layout
+
     def brake(self, obs: PlannerInput) -> bool:
-        """Whether the obstacle is in the ego lane now."""
-        return obs.obstacle_in_lane
+        """Whether the obstacle is in the ego lane now, ahead of the ego's tail."""
+        if not obs.obstacle_in_lane:
+            return False
+        layout = self._layout
+        (ex, ey, eth, _), (ox, oy, oth, _) = obs.poses.tolist()
+        route = layout.route_ego
+        front = max(route.project_point(float(x), float(y))[0] for x, y in layout.obstacle.footprint_one(ox, oy, oth))
+        tail = min(route.project_point(float(x), float(y))[0] for x, y in layout.ego.footprint_one(ex, ey, eth))
+        return bool(front >= tail)

@@ -148,7 +148,8 @@ def _simulate(scene: Scene, config: ScenarioConfig, seed: int, planner: Planner,
         acting = actuator(braking)  # the brake as it acts, config.sensing.brake_latency ticks on
         controls = ego_control(world.driver, layout.ego, m.poses[0], acting)
         if follows and not acting:
-            behind = follow_accel(layout, layout.ego, m.poses[0], layout.obstacle, poses[1], config.ego)
+            behind = follow_accel(layout, layout.ego, m.poses[0], layout.obstacle, poses[1], config.ego,
+                                  max_brake=config.ego.follow_brake)
             if behind is not None and behind < controls[0]:
                 controls[0] = behind
                 deviated = m.t if deviated is None else deviated

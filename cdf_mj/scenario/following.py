@@ -1,5 +1,5 @@
 """Car following in the ego's lane: the intelligent driver model's (IDM) interaction term,
-used by the world's cars behind another one (the ego's nominal controller behind the
+used by the world's cars behind another one that has merged into the ego's lane (the ego's nominal controller behind the
 obstacle, ``ego.follow``; the obstacle behind the ego once it has merged,
 ``after_merge.follows``). Its desired speed is the car's own controller's, so only the
 interaction term is taken here (Treiber, Hennecke, Helbing 2000):
@@ -23,7 +23,7 @@ from cdf_mj.model.geometry import box_gap
 from cdf_mj.model.layout import Layout
 from cdf_mj.model.vehicle import CarGeometry
 
-__all__ = ["ahead_in_lane", "follow_accel", "idm_interaction"]
+__all__ = ["FOLLOW_HEADING", "ahead_in_lane", "follow_accel", "idm_interaction"]
 
 
 def idm_interaction(gap: float, v: float, v_lead: float, a_max: float, b: float, time_gap: float,
@@ -33,10 +33,19 @@ def idm_interaction(gap: float, v: float, v_lead: float, a_max: float, b: float,
     return max(a_max * (1.0 - (max(desired, 0.0) / max(gap, 1e-3)) ** 2), -max_brake)
 
 
+#: [rad] A car is followed once its heading is within this of the follower's: it has merged.
+#: A car still crossing or turning into the lane is a conflict for the planner, not a car
+#: to follow (the nominal controller would otherwise brake for every cut-off by itself).
+FOLLOW_HEADING = math.radians(30.0)
+
+
 def ahead_in_lane(layout: Layout, lead: np.ndarray, lead_car: CarGeometry, follower: np.ndarray) -> bool:
     """Whether the car at pose ``lead`` (of dimensions ``lead_car``) is in the ego's lane
-    (a corner of its box) and further along the ego's route than the car at ``follower``."""
+    (a corner of its box), heading the follower's way (within :data:`FOLLOW_HEADING`) and
+    further along the ego's route than the car at ``follower``."""
     lx, ly, lth = float(lead[0]), float(lead[1]), float(lead[2])
+    if math.cos(lth - float(follower[2])) < math.cos(FOLLOW_HEADING):
+        return False
     if not layout.ego_lane.contains_any(lead_car.footprint_one(lx, ly, lth)):
         return False
     route = layout.route_ego
@@ -44,11 +53,12 @@ def ahead_in_lane(layout: Layout, lead: np.ndarray, lead_car: CarGeometry, follo
 
 
 def follow_accel(layout: Layout, follower_car: CarGeometry, follower: np.ndarray, lead_car: CarGeometry,
-                 lead: np.ndarray, params: Ego) -> float | None:
+                 lead: np.ndarray, params: Ego, max_brake: float | None = None) -> float | None:
     """The follower's IDM acceleration [m/s^2] behind the lead car when the lead is ahead of
     it in the ego's lane (:func:`ahead_in_lane`), else None (also for a pose that is not
     finite: a missed measurement). ``params`` gives the time gap, standstill gap and
-    comfortable braking (``ego.time_gap``, ``ego.min_gap``, ``ego.comfort_brake``)."""
+    comfortable braking (``ego.time_gap``, ``ego.min_gap``, ``ego.comfort_brake``);
+    ``max_brake`` [m/s^2] the most it brakes for it (default: the follower car's maximum)."""
     if not (np.isfinite(lead).all() and np.isfinite(follower).all()):
         return None
     if not ahead_in_lane(layout, lead, lead_car, follower):
@@ -57,4 +67,5 @@ def follow_accel(layout: Layout, follower_car: CarGeometry, follower: np.ndarray
     lx, ly, lth, lv = (float(v) for v in lead)
     gap = box_gap(follower_car.footprint_one(fx, fy, fth), lead_car.footprint_one(lx, ly, lth))
     return idm_interaction(gap, fv, lv * math.cos(lth - fth), follower_car.max_accel, params.comfort_brake,
-                           params.time_gap, params.min_gap, follower_car.max_brake)
+                           params.time_gap, params.min_gap,
+                           follower_car.max_brake if max_brake is None else min(max_brake, follower_car.max_brake))
