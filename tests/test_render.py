@@ -253,8 +253,8 @@ def test_compare_tiles_same_times_and_the_shorter_holds_its_last_frame(backend, 
 
     monkeypatch.setattr(render._Painter, "frame", spy)
     out = tmp_path / "compare.mp4"
-    res = render_compare(out, seed=1, planners="cdf,imm,constant", config=ScenarioConfig(timing={"duration": 4.0}, ego={"follow": False}),
-                         scene=scene, fps=5, **SMALL)
+    config = ScenarioConfig(timing={"duration": 4.0}, ego={"follow": False})
+    res = render_compare(out, seed=1, planners="cdf,imm,constant", config=config, scene=scene, fps=5, **SMALL)
     ends = {r.planner: r.end_time for r in res.records}
     assert ends["constant"] < 3.8 and ends["cdf"] == ends["imm"] == pytest.approx(4.0)
     assert res.n_frames == len(frame_times(4.0, 5)) == 21 and res.tile_width == 160
