@@ -60,7 +60,7 @@ class EpisodeRecord:
     collision: bool  # the ego touched the obstacle or a building
     collision_with: str | None  # "obstacle" | "building"
     collision_time: float | None
-    min_gap: float  # [m] smallest distance between the two hulls (0 at contact)
+    min_gap: float  # [m] smallest distance between the two cars' hulls (0 only when they touch)
     brake_time: float | None  # the planner's decision to brake
     time_lost: float  # [s] the ego's progress deficit at the end, over its nominal speed
     end_time: float  # [s]
