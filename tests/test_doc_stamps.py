@@ -2,8 +2,9 @@
 
 Each page of :data:`cdf_mj.analysis.pages.RESULTS_PAGES` starts with a stamp naming the
 command that made it and the package version it ran with; a page whose stamp names another
-version (or no stamp, or a smaller run than the full one) fails here until it is made
-again with its script. The scripts themselves run end to end here on two seeds.
+version (or no stamp, or a run that left parts out) fails here until it is made again
+with its script. A page may be made on fewer seeds per part (``--episodes``, in its
+stamp). The scripts themselves run end to end here on two seeds.
 """
 
 from __future__ import annotations
@@ -48,7 +49,7 @@ def test_a_results_page_is_stamped_by_its_script_with_this_version(page: str) ->
         f"docs/{page} was made with cdf_mj {stamp.version}, the package is {cdf_mj.__version__}: {remake}")
     assert stamp.visible in text.splitlines()[:6], f"docs/{page}: the visible line under the title differs"
     small = [w for w in stamp.words if w.split("=", 1)[0] in SMALL_RUN_FLAGS]
-    assert not small, f"docs/{page} was made by a smaller run ({' '.join(small)}): {remake} without them"
+    assert not small, f"docs/{page} leaves parts out ({' '.join(small)}): {remake} without them"
     assert "Made before" not in text, f"docs/{page} still says it was made before a rule it describes"
 
 

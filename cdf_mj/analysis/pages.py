@@ -41,9 +41,10 @@ RESULTS_PAGES: dict[str, str] = {
     "STRESS.md": "scripts/stress.py",
 }
 
-#: Options of the page scripts that make a smaller page than the full one (fewer seeds,
-#: parts or presets): a page in ``docs/`` is made without them.
-SMALL_RUN_FLAGS = ("--episodes", "--parts", "--presets")
+#: Options of the page scripts that leave parts out of a page (parts or presets): a page in
+#: ``docs/`` covers every part. ``--episodes`` (fewer seeds per part) may be given; the stamp
+#: says so, and each table gives its own counts and intervals.
+SMALL_RUN_FLAGS = ("--parts", "--presets")
 
 _STAMP = re.compile(r"<!-- made by: (?P<command>.+?) \| cdf_mj (?P<version>\S+) -->")
 
