@@ -76,10 +76,10 @@ SWEEPS: dict[str, SweepSpec] = {s.name: s for s in (
               lambda c, d, v: (c, d.replace(decision="risk", risk=d.risk.replace(brake=float(v),
                                                                                   release=float(v) / 2))),
               cdf_only=True, log_x=True),
-    SweepSpec("noise", "process noise, factor on noise.accel and noise.steer (the world's and the filter's)",
+    SweepSpec("noise", "process noise factor (world's and filter's)",
               (0.5, 1.0, 2.0, 4.0),
               lambda c, d, v: _scale_process(c, d, float(v)), cdf_only=False, log_x=True),
-    SweepSpec("obs-noise", "observation noise, factor on observation.* (the world's and the filter's)",
+    SweepSpec("obs-noise", "observation noise factor (world's and filter's)",
               (0.5, 1.0, 2.0, 4.0),
               lambda c, d, v: _scale_obs(c, d, float(v)), cdf_only=False, log_x=True),
 )}
