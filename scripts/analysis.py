@@ -61,7 +61,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from cdf_mj.analysis.metrics import PlannerMetrics, Rate, mcnemar_exact, paired_counts, planner_metrics
-from cdf_mj.analysis.pages import command_line, markdown_table, write_page
+from cdf_mj.analysis.pages import ScriptParser, command_line, fail, markdown_table, write_page
 from cdf_mj.analysis.tables import filter_table, format_number, format_rate, planner_table
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
@@ -552,18 +552,12 @@ def markdown(sections: dict[str, list[str]], summary: list[str], small: bool, ou
 
 
 def _fail(message: str) -> NoReturn:
-    print(f"{PROG}: error: {' '.join(message.split())}", file=sys.stderr)
-    raise SystemExit(2)
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> NoReturn:  # one line, status 2
-        _fail(message)
+    fail(PROG, message)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the parts and write the page; returns the exit status (1 if some episodes failed)."""
-    p = _Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ScriptParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--parts", default=None, help="comma-separated parts (default: all)")
     p.add_argument("--episodes", type=int, default=None,
                    help="seeds per part (default 1000 for development and held-out, 200 for the others)")

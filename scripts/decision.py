@@ -38,7 +38,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from cdf_mj.analysis.metrics import PlannerMetrics, mcnemar_exact, paired_counts, planner_metrics
-from cdf_mj.analysis.pages import write_page
+from cdf_mj.analysis.pages import ScriptParser, fail, write_page
 from cdf_mj.analysis.tables import format_number, format_rate
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
@@ -236,18 +236,12 @@ def markdown(sections: list[list[str]], small: bool) -> str:
 
 
 def _fail(message: str) -> NoReturn:
-    print(f"{PROG}: error: {' '.join(message.split())}", file=sys.stderr)
-    raise SystemExit(2)
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> NoReturn:  # one line, status 2
-        _fail(message)
+    fail(PROG, message)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the evaluation; returns the exit status (1 if some episodes failed)."""
-    p = _Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ScriptParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--parts", default=None, help="comma-separated parts (default: held-out, every preset "
                                                  "but default, development)")
     p.add_argument("--episodes", type=int, default=None, help="seeds per part (default 1000 held out, 200 "

@@ -34,7 +34,7 @@ from statistics import median
 from typing import Any, NoReturn
 
 from cdf_mj.analysis.metrics import PlannerMetrics, mcnemar_exact, paired_counts, planner_metrics
-from cdf_mj.analysis.pages import write_page
+from cdf_mj.analysis.pages import ScriptParser, fail, write_page
 from cdf_mj.analysis.tables import format_number, format_rate
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
@@ -204,14 +204,8 @@ def mismatch_markdown(results: Sequence[PresetResult], planners: Sequence[str]) 
     return "\n".join(lines).rstrip() + "\n"
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> NoReturn:  # one line, status 2
-        _fail(message)
-
-
 def _fail(message: str) -> NoReturn:
-    print(f"{PROG}: error: {' '.join(message.split())}", file=sys.stderr)
-    raise SystemExit(2)
+    fail(PROG, message)
 
 
 def _names(text: str) -> list[str]:
@@ -220,7 +214,7 @@ def _names(text: str) -> list[str]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the evaluation; returns the exit status (1 if some episodes failed)."""
-    p = _Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ScriptParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--presets", type=_names, default=None,
                    help="comma-separated presets or .toml files (default: every shipped preset)")
     p.add_argument("--episodes", type=int, default=200, help="seeds per preset (default 200)")

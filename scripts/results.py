@@ -46,7 +46,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from cdf_mj.analysis.metrics import PlannerMetrics, Rate, confusion_matrix, cutoff_recall, planner_metrics
-from cdf_mj.analysis.pages import command_line, markdown_table, write_page
+from cdf_mj.analysis.pages import ScriptParser, command_line, fail, markdown_table, write_page
 from cdf_mj.analysis.tables import PAPER_CONFUSION, PAPER_PLANNERS, format_number, format_rate
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
@@ -408,18 +408,12 @@ def markdown(sections: list[list[str]], beside: list[str], causes: list[str], fi
 
 
 def _fail(message: str) -> NoReturn:
-    print(f"{PROG}: error: {' '.join(message.split())}", file=sys.stderr)
-    raise SystemExit(2)
-
-
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> NoReturn:  # one line, status 2
-        _fail(message)
+    fail(PROG, message)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the parts and write the page; returns the exit status (1 if some episodes failed)."""
-    p = _Parser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ScriptParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--parts", default=None, help="comma-separated parts (default: development,held-out)")
     p.add_argument("--episodes", type=int, default=None, help="seeds per part (default 1000)")
     p.add_argument("--workers", type=int, default=None, help="worker processes (default: the CPU count)")

@@ -41,10 +41,10 @@ from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NoReturn
+from typing import Any
 
 from cdf_mj.analysis.metrics import Rate, mcnemar_exact, paired_counts, planner_metrics
-from cdf_mj.analysis.pages import command_line, write_page
+from cdf_mj.analysis.pages import ScriptParser, command_line, write_page
 from cdf_mj.analysis.safety import SafetyParams, safety_summary
 from cdf_mj.analysis.tables import format_number, format_rate
 from cdf_mj.cli.args import CLIError, _episodes, _non_negative_int, _out_path, _planner_list, _seed_range, _workers
@@ -260,12 +260,6 @@ def stress_markdown(runs: Sequence[PresetRun], planners: Sequence[str]) -> str:
     return "\n".join([*lines, *sections]).rstrip() + "\n"
 
 
-class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> NoReturn:
-        """Bad input: one line ``stress: error: ...`` on stderr, exit status 2."""
-        self.exit(2, f"{self.prog}: error: {' '.join(message.split())}\n")
-
-
 def _preset_list(text: str) -> list[str]:
     names = [n.strip() for n in text.split(",") if n.strip()]
     if not names:
@@ -282,7 +276,7 @@ def _command(args: argparse.Namespace, names: Sequence[str]) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the suite and write the page; returns the exit status (1 if some episodes failed)."""
-    p = _Parser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = ScriptParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--presets", "--parts", type=_preset_list, default=None,
                    help=f"comma-separated presets or .toml files (default: {REFERENCE} and every stress-* preset)")
     p.add_argument("--episodes", type=_episodes, default=EPISODES, help=f"seeds per preset (default {EPISODES})")

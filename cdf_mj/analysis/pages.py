@@ -20,17 +20,30 @@ so a page made before a change of version is remade, not kept. ::
 
 from __future__ import annotations
 
+import argparse
 import re
 import shlex
+import sys
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NoReturn
 
 from cdf_mj import __version__
 from cdf_mj.records import write_atomic
 
-__all__ = ["RESULTS_PAGES", "SMALL_RUN_FLAGS", "Stamp", "command_line", "markdown_table", "read_stamp",
-           "stamp_page", "write_page"]
+__all__ = [
+    "RESULTS_PAGES",
+    "SMALL_RUN_FLAGS",
+    "ScriptParser",
+    "Stamp",
+    "command_line",
+    "fail",
+    "markdown_table",
+    "read_stamp",
+    "stamp_page",
+    "write_page",
+]
 
 #: Each results page of ``docs/`` -> the script that writes it (paths from the repository root).
 RESULTS_PAGES: dict[str, str] = {
@@ -130,3 +143,16 @@ def markdown_table(header: Sequence[str], rows: Iterable[Sequence[str]]) -> list
         return "| " + " | ".join(cells) + " |"
 
     return [row(header), "|" + "---|" * len(header), *map(row, rows)]
+
+
+def fail(prog: str, message: str) -> NoReturn:
+    """A page script's bad input: one line ``PROG: error: MESSAGE`` on stderr, exit status 2."""
+    print(f"{prog}: error: {' '.join(message.split())}", file=sys.stderr)
+    raise SystemExit(2)
+
+
+class ScriptParser(argparse.ArgumentParser):
+    """The argument parser of a page script: a bad argument is one :func:`fail` line."""
+
+    def error(self, message: str) -> NoReturn:
+        fail(self.prog, message)
