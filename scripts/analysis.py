@@ -61,7 +61,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from cdf_mj.analysis.metrics import PlannerMetrics, Rate, mcnemar_exact, paired_counts, planner_metrics
-from cdf_mj.analysis.pages import ScriptParser, command_line, fail, markdown_table, write_page
+from cdf_mj.analysis.pages import ScriptParser, command_line, exit_status, fail, markdown_table, write_page
 from cdf_mj.analysis.tables import filter_table, format_number, format_rate, planner_table
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
@@ -597,10 +597,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     write_page(opts.doc, markdown(sections, in_short(compared), small, opts.out), command)
     if not args.quiet:
         print(f"wrote {opts.doc}; records in {opts.out}/<part>/", file=sys.stderr)
-    if failed:
-        print(f"{PROG}: {failed} episode(s) failed; their records hold the error and traceback", file=sys.stderr)
-        return 1
-    return 0
+    return exit_status(PROG, failed)
 
 
 if __name__ == "__main__":

@@ -34,7 +34,7 @@ from statistics import median
 from typing import Any, NoReturn
 
 from cdf_mj.analysis.metrics import PlannerMetrics, mcnemar_exact, paired_counts, planner_metrics
-from cdf_mj.analysis.pages import ScriptParser, fail, write_page
+from cdf_mj.analysis.pages import ScriptParser, exit_status, fail, write_page
 from cdf_mj.analysis.tables import format_number, format_rate
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
@@ -262,10 +262,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     failed = sum(r.failed for r in results)
     if not args.quiet:
         print(f"wrote {doc}; records in {args.out}/<preset>/episodes.jsonl", file=sys.stderr)
-    if failed:
-        print(f"{PROG}: {failed} episode(s) failed; their records hold the error and traceback", file=sys.stderr)
-        return 1
-    return 0
+    return exit_status(PROG, failed)
 
 
 if __name__ == "__main__":

@@ -46,7 +46,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from cdf_mj.analysis.metrics import PlannerMetrics, Rate, confusion_matrix, cutoff_recall, planner_metrics
-from cdf_mj.analysis.pages import ScriptParser, command_line, fail, markdown_table, write_page
+from cdf_mj.analysis.pages import ScriptParser, command_line, exit_status, fail, markdown_table, write_page
 from cdf_mj.analysis.tables import PAPER_CONFUSION, PAPER_PLANNERS, format_number, format_rate
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
@@ -462,10 +462,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     write_page(doc, markdown(sections, beside, causes, figures, small, out), command)
     if not args.quiet:
         print(f"wrote {doc}; records in {out}/<part>/episodes.jsonl", file=sys.stderr)
-    if failed:
-        print(f"{PROG}: {failed} episode(s) failed; their records hold the error and traceback", file=sys.stderr)
-        return 1
-    return 0
+    return exit_status(PROG, failed)
 
 
 if __name__ == "__main__":

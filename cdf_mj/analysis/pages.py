@@ -156,3 +156,12 @@ class ScriptParser(argparse.ArgumentParser):
 
     def error(self, message: str) -> NoReturn:
         fail(self.prog, message)
+
+
+def exit_status(prog: str, failed: int) -> int:
+    """A page script's exit status: 0, or 1 with one line on stderr if ``failed`` episodes
+    failed (the page leaves them out and says so; their records hold the error)."""
+    if failed:
+        print(f"{prog}: {failed} episode(s) failed; their records hold the error and traceback", file=sys.stderr)
+        return 1
+    return 0
