@@ -23,7 +23,7 @@ from cdf_mj.model.geometry import box_gap
 from cdf_mj.model.layout import Layout
 from cdf_mj.model.vehicle import CarGeometry
 
-__all__ = ["FOLLOW_HEADING", "ahead_in_lane", "follow_accel", "idm_interaction"]
+__all__ = ["FOLLOW_HEADING", "ahead_in_lane", "follow_accel", "idm_interaction", "in_lane_ahead"]
 
 
 def idm_interaction(gap: float, v: float, v_lead: float, a_max: float, b: float, time_gap: float,
@@ -39,17 +39,22 @@ def idm_interaction(gap: float, v: float, v_lead: float, a_max: float, b: float,
 FOLLOW_HEADING = math.radians(30.0)
 
 
-def ahead_in_lane(layout: Layout, lead: np.ndarray, lead_car: CarGeometry, follower: np.ndarray) -> bool:
-    """Whether the car at pose ``lead`` (of dimensions ``lead_car``) is in the ego's lane
-    (a corner of its box), heading the follower's way (within :data:`FOLLOW_HEADING`) and
-    further along the ego's route than the car at ``follower``."""
+def in_lane_ahead(layout: Layout, lead: np.ndarray, lead_car: CarGeometry, follower: np.ndarray) -> bool:
+    """Whether the car at pose ``lead`` (of dimensions ``lead_car``) is in the ego's lane (a
+    corner of its box) and its rear axle further along the ego's route than the car's at
+    ``follower``, whatever its heading (the episode's end waits for no such car)."""
     lx, ly, lth = float(lead[0]), float(lead[1]), float(lead[2])
-    if math.cos(lth - float(follower[2])) < math.cos(FOLLOW_HEADING):
-        return False
     if not layout.ego_lane.contains_any(lead_car.footprint_one(lx, ly, lth)):
         return False
     route = layout.route_ego
     return bool(route.project_point(lx, ly)[0] > route.project_point(float(follower[0]), float(follower[1]))[0])
+
+
+def ahead_in_lane(layout: Layout, lead: np.ndarray, lead_car: CarGeometry, follower: np.ndarray) -> bool:
+    """:func:`in_lane_ahead`, and heading the follower's way (within :data:`FOLLOW_HEADING`):
+    a car that has merged, to follow."""
+    return (math.cos(float(lead[2]) - float(follower[2])) >= math.cos(FOLLOW_HEADING)
+            and in_lane_ahead(layout, lead, lead_car, follower))
 
 
 def follow_accel(layout: Layout, follower_car: CarGeometry, follower: np.ndarray, lead_car: CarGeometry,

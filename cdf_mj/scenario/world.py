@@ -26,7 +26,7 @@ from cdf_mj.model.driver import DriverModel, Intent, Mode, obstacle_control, roa
 from cdf_mj.model.geometry import box_gap
 from cdf_mj.scenario.after_merge import AfterMergeOverride
 from cdf_mj.scenario.drivers import WorldDriver, make_driver
-from cdf_mj.scenario.following import follow_accel
+from cdf_mj.scenario.following import follow_accel, in_lane_ahead
 from cdf_mj.sim.checks import SceneWarning
 from cdf_mj.sim.scene import Scene, SimulationDivergedError
 from cdf_mj.sim.visibility import ego_visible
@@ -375,9 +375,5 @@ class World:
     def car_ahead(self) -> bool:
         """Whether the obstacle is ahead of the ego in the ego's lane now (any corner of its
         collision box in the lane, its rear axle further along the ego's route)."""
-        scene, layout = self.scene, self.layout
-        (ex, ey, _, _), (ox, oy, oth, _) = scene.poses().tolist()
-        if not layout.ego_lane.contains_any(layout.obstacle.footprint_one(ox, oy, oth)):
-            return False
-        route = layout.route_ego
-        return bool(route.project_point(ox, oy)[0] > route.project_point(ex, ey)[0])
+        ego, obstacle = self.scene.poses()
+        return in_lane_ahead(self.layout, obstacle, self.layout.obstacle, ego)
