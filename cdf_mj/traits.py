@@ -50,6 +50,8 @@ MAX_LENGTH = 1000.0
 MAX_SPEED = 100.0
 #: Any acceleration, braking or its std: about 10 g [m/s^2].
 MAX_ACCEL = 100.0
+#: Any jerk (rate of change of acceleration): a brake that reaches 1 g in 10 ms [m/s^3].
+MAX_JERK = 1000.0
 
 
 # ------------------------------------------------------------------------------ checks

@@ -119,12 +119,14 @@ def test_a_flat_settings_file_of_version_0_1_reads_as_today_s_settings():
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # stored results read without a word
         old = ScenarioConfig.from_dict(OLD_SCENARIO)
-        assert CDFConfig.from_dict(OLD_CDF) == CDFConfig(likelihood_std=[0.3, 0.3, 0.05, 0.3])
+        # Its rule was the risk rule, stored by name: it stays the run's rule.
+        assert CDFConfig.from_dict(OLD_CDF) == CDFConfig(likelihood_std=[0.3, 0.3, 0.05, 0.3], decision="risk")
     # Read in version 0.1's world: its 8 s, and what it did not have as it was then.
     then = ScenarioConfig().with_values({**VERSION_0_1_WORLD, "timing.duration": 8.0})
     assert old == then
     settings = {"scenario": OLD_SCENARIO, "cdf": OLD_CDF, "seeds": [0, 2]}
-    now = json.loads(json.dumps({"scenario": then.to_dict(), "cdf": CDFConfig().to_dict(), "seeds": [0, 2]}))
+    now = json.loads(json.dumps({"scenario": then.to_dict(), "cdf": CDFConfig(decision="risk").to_dict(),
+                                 "seeds": [0, 2]}))
     assert normalise_settings(settings) == now
     assert normalise_settings({"scenario": {"beta": 7.0}})["scenario"] == {"beta": 7.0}  # kept, to be refused
 

@@ -235,12 +235,15 @@ def test_the_episode_follows_a_rule_that_releases_and_holds_one_that_does_not(sc
 
 
 def test_predictors_compose_with_either_rule() -> None:
-    assert {"cdf", "cdf-threshold", "imm", "imm-risk", "cv", "cv-risk"} <= set(PLANNERS)
-    for name, rule in (("cdf", "risk"), ("cdf-threshold", "threshold"), ("imm", "threshold"),
-                       ("imm-risk", "risk"), ("cv", "threshold"), ("cv-risk", "risk")):
+    assert {"cdf", "cdf-risk", "cdf-threshold", "imm", "imm-risk", "imm-layered", "cv", "cv-risk",
+            "cv-layered"} <= set(PLANNERS)
+    for name, rule in (("cdf", "layered"), ("cdf-risk", "risk"), ("cdf-threshold", "threshold"),
+                       ("imm", "threshold"), ("imm-risk", "risk"), ("imm-layered", "layered"),
+                       ("cv", "threshold"), ("cv-risk", "risk"), ("cv-layered", "layered")):
         planner = make_planner(name)
         assert isinstance(planner, DecidingPlanner) and planner.rule.name == rule, name
-        assert planner.releases_brake == (rule == "risk"), name
+        assert planner.releases_brake == (rule != "threshold"), name
+        assert planner.graded == (rule == "layered"), name
     assert not make_planner("reactive").releases_brake
 
 
@@ -252,7 +255,7 @@ def test_the_risk_rule_avoids_cutoffs_and_releases_after_false_alarms(scene: Sce
     collisions, 0-1 false alarms. The ego without its following controller: every brake is
     the rule's own."""
     config = ScenarioConfig().with_values({"ego.follow": False})
-    planner_runs = [run_episode(config, seed, "cdf", scene, trace=True) for seed in range(40)]
+    planner_runs = [run_episode(config, seed, "cdf-risk", scene, trace=True) for seed in range(40)]
     assert sum(r.label == "Cutoff" for r in planner_runs) >= 10
     cmap = conflict_map(scene.layout(), RiskConfig().margin)
     for r in planner_runs:
@@ -272,7 +275,7 @@ def test_the_rollout_reference_reads_the_same_risk(scene: Scene) -> None:
     """The filter's own model rolled forward and the compiled closed form read the same
     deferred risk within 0.15 on the ticks around seed 1's brake (measured: 0.05-0.11 apart,
     the rollout a little higher: its process noise spreads the particles)."""
-    config, cdf = ScenarioConfig(), CDFConfig(n_particles=300)
+    config, cdf = ScenarioConfig(), CDFConfig(n_particles=300, decision="risk")
     world = World(scene, config)
     world.reset(1)
     planner = CDFPlanner(cdf)
@@ -373,13 +376,15 @@ def test_the_decision_report_runs_end_to_end_and_refuses_bad_parts(tmp_path: Pat
     assert proc.returncode == 0, proc.stderr[-3000:]
     text = doc.read_text()
     records = [json.loads(line) for line in (out / "held-out" / "episodes.jsonl").read_text().splitlines()]
-    planners = ("cdf", "cdf-threshold", "imm-risk", "imm", "cv-risk", "reactive")
+    planners = ("cdf", "cdf-risk", "cdf-threshold", "imm-layered", "imm-risk", "imm", "cv-layered", "reactive")
     assert sorted((r["seed"], r["planner"]) for r in records) == sorted(
         (s, p) for s in (100000, 100001) for p in planners)
-    assert {r["planner_info"].get("rule") for r in records if r["planner"] != "reactive"} == {"risk", "threshold"}
+    assert {r["planner_info"].get("rule") for r in records if r["planner"] != "reactive"} == {
+        "layered", "risk", "threshold"}
     for planner in planners:
         assert f"\n| {planner} | " in text
-    assert "\n| cdf / imm-risk | 2 | " in text and "Targets (default scenario" in text
+    assert "\n| cdf / imm-layered | 2 | " in text and "Targets (default scenario" in text
+    assert "Safety margins over the Cutoff episodes" in text and "TTC at the first hard brake" in text
     assert "## Preset `stop-and-wait`, held-out seeds" in text and "Few seeds" in text
     again = subprocess.run(argv, capture_output=True, text=True, timeout=300)  # resumed: nothing runs
     assert again.returncode == 0 and doc.read_text() == text

@@ -124,11 +124,11 @@ def test_analysis_script_writes_a_stamped_page_and_refuses_bad_parts(tmp_path: P
     text = doc.read_text(encoding="utf-8")
     assert read_stamp(text) == Stamp("python scripts/analysis.py --parts development,sweep-risk --episodes 2",
                                      cdf_mj.__version__)
-    planners = ("cdf", "cdf-threshold", "imm-risk", "imm", "cv-risk", "cv", "reactive")
+    planners = ("cdf", "cdf-threshold", "imm-layered", "imm", "cv-layered", "cv", "reactive")
     assert sorted((r["seed"], r["planner"]) for r in _records(out / "development" / "episodes.jsonl")) == sorted(
         (s, p) for s in (0, 1) for p in planners)
     for needle in ("## In short", "## The planners on seeds 0–1", "### Brier scores of the filters",
-                   "\n| cdf / imm-risk | 2 | ", "## Sweeps", "### risk: "):
+                   "\n| cdf / imm-layered | 2 | ", "## Sweeps", "### risk: "):
         assert needle in text, needle
     assert "## How the baseline parameters were chosen" not in text  # a part not asked for
     again = _run("scripts/analysis.py", *argv)  # resumed: nothing runs, the same page

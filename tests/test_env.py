@@ -23,6 +23,7 @@ from cdf_mj.extras import install_hint  # noqa: E402
 from cdf_mj.model.driver import ego_control  # noqa: E402
 from cdf_mj.records import Label  # noqa: E402
 from cdf_mj.scenario.episode import run_episode  # noqa: E402
+from cdf_mj.scenario.sensing import JerkLimiter  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 ORIGINAL_MUJOCO_GL = os.environ.get("MUJOCO_GL")  # the user's; render.gl_backend may set it later
@@ -87,19 +88,24 @@ def test_reset_seed_is_reproducible_and_is_run_episodes_world(scene):
 def test_env_with_the_planners_policy_replays_run_episode(scene, planner):
     """One implementation of the world: driving the env as the planner would gives
     run_episode's record (seed 1 is a cut-off). The env's agent is the ego's whole
-    controller; here it is run_episode's nominal one without following (ego.follow off in
-    both)."""
+    controller; here it is run_episode's: the CDF rule's graded command on the nominal speed
+    hold (``info["accel"]``, read from the observation too), through the ego's actuator (its
+    jerk limit), without following (ego.follow off in both)."""
     config = ScenarioConfig().with_values({"ego.follow": False})
     rec = run_episode(config, seed=1, planner=planner, scene=scene)
     assert rec.label == Label.CUTOFF
-    env = gym.make(cdf_mj.ENV_ID, scene=scene, config=config).unwrapped
+    env = gym.make(cdf_mj.ENV_ID, scene=scene, config=config, command_in_observation=True).unwrapped
     obs, info = env.reset(seed=1)
+    assert obs.shape == (9,) and obs[8] == info["accel"]
+    actuator = JerkLimiter(config.ego.jerk_limit, config.timing.dt)
     brake_time, done, ret = None, False, 0.0
     while not done:
-        brake = planner == "cdf" and info["brake"]  # the rule of this tick (it may release)
-        if brake and brake_time is None:
+        if planner == "cdf" and info["brake"] and brake_time is None:  # a hard brake of this tick's rule
             brake_time = info["t"]
-        action = ego_control(env.world.driver, env.world.layout.ego, obs[:4], brake)
+        action = ego_control(env.world.driver, env.world.layout.ego, obs[:4], False)
+        if planner == "cdf":
+            action[0] = info["accel"]
+        action[0] = actuator(float(action[0]))
         obs, reward, terminated, truncated, info = env.step(action)
         ret += reward
         done = terminated or truncated

@@ -251,22 +251,27 @@ def test_bad_cdf_config_is_refused_naming_the_field(field, changes):
 # --------------------------------------------------------------------------- planner
 def test_cdf_planner_brakes_before_a_cutoff_and_not_for_a_right_turner(cdf_records):
     """Every Cutoff episode of seeds 0-49: the filter warns (P(cutoff) >= tau) before the
-    obstacle enters the ego lane, the CDF planner's risk rule brakes, predicts "Cutoff"
-    and the ego does not touch the obstacle; every Right episode: it never brakes and
+    obstacle enters the ego lane, the CDF planner's layered rule acts on it (brakes hard,
+    or was slowing the ego when the obstacle entered its lane), predicts "Cutoff" and the
+    ego does not touch the obstacle; where it braked hard, its emergency risk or its
+    following distance asked for it; every Right episode: it never brakes hard and
     predicts "Right". Measured with N = 300: 20/20 and 18/18; warnings at 0.9-1.0 s,
-    entries at 1.9-2.0 s, brakes at the last safe moment (after the entry for far egos)."""
+    entries at 1.9-2.0 s."""
     cutoffs = [r for r in cdf_records if r.label == Label.CUTOFF]
     rights = [r for r in cdf_records if r.label == Label.RIGHT]
     assert len(cutoffs) >= 5 and len(rights) >= 5
     for r in cutoffs:
         info = r.planner_info
-        assert r.brake_time is not None and r.collision_with != "obstacle", r.seed
+        assert info["prediction"] == "Cutoff" and r.collision_with != "obstacle", r.seed
+        assert r.brake_time is not None or info["anticipated"], r.seed
         warned = decision_time(r, CDFConfig().tau)
         assert warned is not None and (r.entered_lane_time is None or warned < r.entered_lane_time), \
             (r.seed, warned, r.entered_lane_time)
-        assert info["prediction"] == "Cutoff" and info["decision_time"] == r.brake_time
-        k = _tick(r, r.brake_time)
-        assert info["history"]["risk"][k] >= RiskConfig().brake - 1e-5
+        assert info["decision_time"] == r.brake_time
+        if r.brake_time is not None:  # the emergency layer's risk, or a car ahead closer than RSS
+            k = _tick(r, r.brake_time)
+            assert info["history"]["risk"][k] >= RiskConfig().brake - 1e-5 or (
+                r.entered_lane_time is not None and r.brake_time >= r.entered_lane_time), r.seed
     for r in rights:
         assert r.brake_time is None, (r.seed, r.brake_time)
         assert r.planner_info["prediction"] == "Right" and r.planner_info["decision_time"] is None

@@ -177,7 +177,7 @@ def test_trace_round_trip_and_damaged_files(tmp_path: Path):
     np.testing.assert_allclose(trace.poses[3], [monitor.trace[3]["ego"], monitor.trace[3]["obstacle"]])
     assert trace.brake_time == monitor.brake_time and trace.tau == monitor.cdf.tau
     assert trace.ego.wheelbase == 2.7 and trace.posterior["p_cutoff"][-1] == monitor.trace[-1]["posterior"]["p_cutoff"]
-    assert trace.rule == "risk" and trace.threshold == monitor.cdf.risk.brake
+    assert trace.rule == "layered" and trace.threshold == monitor.cdf.risk.brake
     np.testing.assert_allclose(trace.posterior["risk"], monitor.planner.history["risk"], atol=1e-5)  # 5 decimals
     np.testing.assert_array_equal(trace.brake, [row["brake"] for row in monitor.trace])
     lines = path.read_text().splitlines()

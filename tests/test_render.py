@@ -187,12 +187,12 @@ def test_a_failed_render_leaves_the_earlier_file(backend, scene, tmp_path, monke
 
 
 # ----------------------------------------------------------------- defaults, --frame, layouts
-def test_the_default_seed_is_a_cut_off_the_cdf_brakes_for(scene) -> None:
+def test_the_default_seed_is_a_cut_off_the_cdf_acts_on(scene) -> None:
     """The reason render's default seed differs from episode's (seed 0, reactive)."""
     from cdf_mj.scenario.episode import run_episode
 
     rec = run_episode(ScenarioConfig(), DEFAULT_SEED, "cdf", scene)
-    assert rec.label == "Cutoff" and rec.brake_time is not None and not rec.collision
+    assert rec.label == "Cutoff" and rec.planner_info["prediction"] == "Cutoff" and not rec.collision
     args = cli_parser().parse_args(["render", "--out", "x.mp4"])
     assert args.seed is None and args.planner is None  # resolved to DEFAULT_SEED and cdf
 

@@ -39,10 +39,10 @@ def test_fourway_differs_in_geometry(fourway: Scene, scene: Scene):
     assert "building_kiosk" in names
 
 
-def test_cdf_brakes_for_a_cutoff_on_the_fourway(fourway: Scene):
+def test_cdf_acts_on_a_cutoff_on_the_fourway(fourway: Scene):
     """Seeds 0-11 hold cut-offs on this scene (measured: 97 of seeds 0-199); on each one the
     CDF's filter warns (P(cutoff) >= tau) before the obstacle enters the ego lane, its rule
-    brakes, and the ego avoids it."""
+    brakes hard or was slowing the ego as the obstacle entered, and the ego avoids it."""
     cfg = ScenarioConfig()
     cutoffs = 0
     for seed in range(12):
@@ -55,7 +55,7 @@ def test_cdf_brakes_for_a_cutoff_on_the_fourway(fourway: Scene):
             continue
         cutoffs += 1
         assert rec.planner_info["prediction"] == "Cutoff"
-        assert rec.brake_time is not None and rec.entered_lane_time is not None
+        assert (rec.brake_time is not None or rec.planner_info["anticipated"]) and rec.entered_lane_time is not None
         warned = decision_time(rec, CDFConfig().tau)
         assert warned is not None and warned < rec.entered_lane_time
         assert rec.collision_with != "obstacle"

@@ -41,6 +41,10 @@ KINDS: dict[str, tuple[set[str], dict[str, object]]] = {
     "stress-brake-latency-2": ({"sensing.brake_latency"}, {"sensing.brake_latency": 2}),
     "stress-latency-2": ({"sensing.latency"}, {"sensing.latency": 2}),
     "stress-dropout": ({"sensing.dropout"}, {"sensing.dropout": 0.2}),
+    "stress-noise-told": (SENSING_NOISE | {"sensing.told"}, {"sensing.pos": 0.3, "sensing.told": True}),
+    "stress-latency-2-told": ({"sensing.latency", "sensing.told"}, {"sensing.latency": 2, "sensing.told": True}),
+    "stress-brake-latency-2-told": ({"sensing.brake_latency", "sensing.told"},
+                                    {"sensing.brake_latency": 2, "sensing.told": True}),
     "stress-combined": ({"obstacle.family", "sensing.brake_latency"} | AFTER_MERGE | SENSING_NOISE,
                         {"obstacle.family": "aggressive", "after_merge.behaviour": "brake",
                          "sensing.pos": 0.3, "sensing.brake_latency": 1}),
@@ -100,7 +104,7 @@ def test_the_suite_writes_its_page_and_resumes(tmp_path, capsys):
         section = text.split(f"## `{name}`\n", 1)[1].split("\n## ", 1)[0]
         assert read_preset(name).description in section
         assert "| planner | episodes | collisions with the obstacle, any label (95 % CI) |" in section
-        assert "TTC at brake onset [s], median [min] (n)" in section or "No Cutoff episode" in section
+        assert "TTC at the first hard brake [s], median [min] (n)" in section or "No Cutoff episode" in section
         for planner in planners:
             assert f"\n| {planner} | 2 | " in section
         assert "| pair | seeds | collision only cdf | only the other | McNemar p |" in section

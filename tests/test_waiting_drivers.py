@@ -58,8 +58,9 @@ def _departure(rec) -> float:
 def test_cutoff_after_a_wait_is_warned_before_the_lane_and_a_turn_away_is_not(scenes, name):
     """For waits of 0, 1 and 2 s and two seeds each: a left-turner that waited is warned
     of (the filter's P(cutoff) >= tau) before it enters the ego's lane and not while it
-    still stands, and the CDF (risk rule) brakes and the ego does not touch it; for a
-    right-turner that waited the CDF never brakes."""
+    still stands, and the CDF (layered rule) acts on it (brakes hard, or slows the ego as
+    it enters the lane) and the ego does not touch it; for a right-turner that waited the
+    CDF never brakes hard."""
     scene = scenes[name]
     tau = CDFConfig().tau
     for dwell in (0.0, 1.0, 2.0):
@@ -71,7 +72,7 @@ def test_cutoff_after_a_wait_is_warned_before_the_lane_and_a_turn_away_is_not(sc
             assert warned is not None and warned < rec.entered_lane_time, \
                 (name, dwell, seed, warned, rec.entered_lane_time)
             assert warned >= _departure(rec), (name, dwell, seed, warned)
-            assert rec.brake_time is not None and rec.collision_with != "obstacle", \
+            assert rec.planner_info["prediction"] == "Cutoff" and rec.collision_with != "obstacle", \
                 (name, dwell, seed, rec.brake_time, rec.collision_time)
             rec = run_episode(_waiting(dwell, 0.0), seed, CDFPlanner(CDFConfig()),
                               scene, label=False)

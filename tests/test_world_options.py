@@ -117,14 +117,15 @@ def test_until_clear_waits_while_a_car_is_ahead_in_the_lane(scene):
 
 def test_the_following_ego_does_not_drive_into_a_car_that_slows_ahead(scene):
     """Behind a merged car that slows (at 1.5-2.5 m/s^2, 10 m into the lane), the paper's
-    ego (back to its speed whenever the risk rule releases) hits it in every cut-off; the
+    ego (back to its speed whenever version 0.2's risk rule, ``cdf-risk``, releases) hits it
+    in every cut-off; the
     ego that follows the car ahead (braking at most at an ACC's 3.5 m/s^2) in none. Harder
     braking ahead is the planner's to answer (measured: 3 of 7 still collide when the car
     ahead brakes at 3.5-5 m/s^2)."""
     values = {"after_merge.behaviour": "slow", "after_merge.at": (10.0, 10.0)}
     seeds = range(100000, 100012)
-    holding = [_run(scene, {**values, "ego.follow": False}, planner="cdf", seed=s) for s in seeds]
-    following = [_run(scene, values, planner="cdf", seed=s) for s in seeds]
+    holding = [_run(scene, {**values, "ego.follow": False}, planner="cdf-risk", seed=s) for s in seeds]
+    following = [_run(scene, values, planner="cdf-risk", seed=s) for s in seeds]
     assert [r.label for r in holding] == [r.label for r in following]  # the label's ego holds its speed
     cutoffs = [i for i, r in enumerate(holding) if r.label == "Cutoff"]
     hits = [sum(runs[i].collision_with == "obstacle" for i in cutoffs) for runs in (holding, following)]

@@ -264,7 +264,7 @@ class PlannerMetrics:
     brier_left: float | None  # Brier score of P(left) over all ticks (filters only)
     brier_seen: float | None  # Brier score of P(seen) over all ticks (filters that model belief)
     # The counts of the decision rule's report (docs/DECISION.md), each by a rule of records:
-    recall: Rate = Rate(0, 0)  # Cutoff episodes in which it braked, of the Cutoff ones
+    recall: Rate = Rate(0, 0)  # Cutoff episodes it predicted (braked; or a graded rule slowed for), of them
     false_alarms_yield: Rate = Rate(0, 0)  # Yield episodes in which it braked, of the Yield ones
     false_discovery: Rate = Rate(0, 0)  # episodes not labelled Cutoff, of those in which it braked
     collisions_yield: int = 0  # Yield episodes with a collision with the obstacle
@@ -320,7 +320,7 @@ def planner_metrics(records: Iterable[RecordLike]) -> dict[str, PlannerMetrics]:
             lead_time=_median(leads), min_gap=_median([record_field(r, "min_gap") for r in recs]),
             time_lost=float(statistics.fmean(intact)) if intact else math.nan,
             brier_left=brier["p_left"], brier_seen=brier["p_seen"],
-            recall=Rate(sum(braked(r) for r in recs if is_imminent(r)), sum(map(is_imminent, recs))),
+            recall=cutoff_recall(recs),
             false_alarms_yield=Rate(sum(map(is_false_alarm, by_label[Label.YIELD])), len(by_label[Label.YIELD])),
             false_discovery=Rate(sum(map(is_false_alarm, recs)), sum(map(braked, recs))),
             collisions_yield=sum(map(hit_obstacle, by_label[Label.YIELD])),

@@ -45,6 +45,7 @@ import numpy as np
 
 from cdf_mj.analysis.metrics import Rate
 from cdf_mj.config import MAX_BRAKE
+from cdf_mj.model import following
 from cdf_mj.model.geometry import OrientedBox, Polyline, box_gap
 from cdf_mj.model.layout import Layout
 from cdf_mj.model.vehicle import CarGeometry
@@ -107,11 +108,7 @@ def rss_distance(v_r: float, v_f: float, params: SafetyParams) -> float:
     ``[v_r rho + a_acc rho^2 / 2 + (v_r + rho a_acc)^2 / (2 b_min) - v_f^2 / (2 b_max)]^+``
     with ``v_r`` the rear (ego) car's speed and ``v_f`` the front car's speed along the
     ego's direction [m/s], each taken as 0 where negative."""
-    v_r, v_f = max(v_r, 0.0), max(v_f, 0.0)
-    p = params
-    d = v_r * p.rho + 0.5 * p.a_acc * p.rho ** 2 + (v_r + p.rho * p.a_acc) ** 2 / (2.0 * p.b_min) \
-        - v_f ** 2 / (2.0 * p.b_max)
-    return max(d, 0.0)
+    return following.rss_distance(v_r, v_f, params.rho, params.a_acc, params.b_min, params.b_max)
 
 
 def _moved(car: CarGeometry, pose: list[float], dt: float) -> list[tuple[float, float]]:

@@ -32,10 +32,11 @@ from cdf_mj.analysis.metrics import (
     planner_metrics,
     prior_brier,
 )
-from cdf_mj.records import LABELS, Label, RecordLike, completed, paper_avoided, record_field
+from cdf_mj.analysis.safety import SafetyParams, safety_summary
+from cdf_mj.records import LABELS, Label, RecordLike, completed, is_imminent, paper_avoided, record_field
 
 __all__ = ["PAPER_CONFUSION", "PAPER_PLANNERS", "TableFormat", "experiment_tables", "filter_table",
-           "format_number", "format_rate", "format_scenario_summary", "paired_table", "planner_table"]
+           "format_number", "format_rate", "format_scenario_summary", "margin_table", "paired_table", "planner_table"]
 
 #: The paper's Figure "Simulation results using the CDF", 1000 episodes: scenario label ->
 #: episodes predicted Cutoff, Yield, Right.
@@ -258,3 +259,48 @@ def filter_table(records: Iterable[RecordLike], times: Sequence[float] = (0.5, 1
                              format_number(c.reference_overall, 3), *_cells_at(c.times, c.reference, times)])
                 break
     return _table(header, rows, "markdown")
+
+
+def _stat(entry: dict[str, object], extreme: str | None = None, digits: int = 2) -> str:
+    """A :func:`~cdf_mj.analysis.safety.safety_summary` entry: its median, ``[min]`` or
+    ``[max]`` if asked, and in how many episodes it happened; ``-`` if in none."""
+    if not entry["n"]:
+        return "-"
+    text = format_number(entry["median"], digits)  # type: ignore[arg-type]
+    if extreme:
+        text += f" [{format_number(entry[extreme], digits)}]"  # type: ignore[arg-type]
+    return f"{text} ({entry['n']})"
+
+
+def margin_table(records: Iterable[RecordLike], planners: Sequence[str]) -> list[str]:
+    """Markdown lines: per planner, the safety margins over its Cutoff episodes (records
+    that carry ``safety``, docs/SAFETY.md): how many needed no hard brake, the time to
+    collision at the first hard brake (median [least]) and the share of those onsets
+    below ``SafetyParams.ttc_critical``, the least TTC, headway and gap, the following
+    ticks under the RSS distance, brake switches, peak deceleration and the comfort jerk.
+    ``["No Cutoff episode: no margins."]`` when there is none."""
+    critical = SafetyParams().ttc_critical
+    done = completed(records)
+    rows = []
+    for name in planners:
+        cutoffs = [r for r in done if record_field(r, "planner") == name and is_imminent(r)]
+        if not cutoffs:
+            continue
+        s = safety_summary(cutoffs)
+        rss = s["rss_ticks"]
+        rss_text = "-" if not rss["n"] else (f"{100 * rss['value']:.1f} % of {rss['n']} ticks; "
+                                             f"{s['rss_episodes']['k']}/{s['rss_episodes']['n']} episodes")
+        no_brake = sum(1 for r in cutoffs if record_field(r, "brake_time") is None)
+        rows.append([name, str(s["episodes"]), str(no_brake), _stat(s["ttc_at_brake"], "min"),
+                     format_rate(Rate(s["late_brake"]["k"], s["late_brake"]["n"])), _stat(s["min_ttc"]),
+                     _stat(s["min_headway"]), _stat(s["min_gap"]), rss_text, _stat(s["brake_switches"], digits=0),
+                     _stat(s["peak_decel"], "max"), _stat(s["peak_jerk_comfort"], "max", digits=1)])
+    if not rows:
+        return ["No Cutoff episode: no margins."]
+    return _table(["planner", "Cutoff episodes", "of them without a hard brake",
+                   "TTC at the first hard brake [s], median [min] (n)",
+                   f"onsets with TTC < {critical:g} s (95 % CI)", "minimum TTC [s], median (n)",
+                   "minimum headway [s], median (n)", "minimum gap [m], median (n)",
+                   "following ticks under the RSS distance", "brake switches, median (n)",
+                   "peak deceleration [m/s²], median [max] (n)",
+                   "peak jerk outside hard braking [m/s³], median [max] (n)"], rows, "markdown").split("\n")

@@ -17,7 +17,7 @@ import json
 from collections.abc import Mapping
 from typing import Any
 
-from cdf_mj.config.cdf import CDFConfig, DriverPrior, RiskConfig
+from cdf_mj.config.cdf import CDFConfig, DriverPrior, LayeredConfig, RiskConfig
 from cdf_mj.config.scale import scaled, unit_of
 from cdf_mj.config.scenario import (
     AFTER_MERGE,
@@ -69,6 +69,7 @@ __all__ = [
     "CDFConfig",
     "DriverPrior",
     "Ego",
+    "LayeredConfig",
     "Observation",
     "ObstacleDriver",
     "ProcessNoise",

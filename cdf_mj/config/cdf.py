@@ -1,6 +1,7 @@
 """The CDF filter's and decision rule's configuration: its own model of the other driver
-(:class:`DriverPrior`), the risk rule (:class:`RiskConfig`) and the filter
-(:class:`CDFConfig`). Re-exported by :mod:`cdf_mj.config`."""
+(:class:`DriverPrior`), the risk rule (:class:`RiskConfig`), the layered rule's layers
+(:class:`LayeredConfig`) and the filter (:class:`CDFConfig`). Re-exported by
+:mod:`cdf_mj.config`."""
 
 from __future__ import annotations
 
@@ -13,11 +14,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from cdf_mj.config.scenario import MAX_PARTICLES, Observation, ProcessNoise, Pursuit
-from cdf_mj.traits import MAX_ACCEL, MAX_LENGTH, bounded, validate, with_traits
+from cdf_mj.traits import MAX_ACCEL, MAX_DURATION, MAX_JERK, MAX_LENGTH, bounded, validate, with_traits
 from cdf_mj.traits import check as _check
 from cdf_mj.traits import within as _within
 
-__all__ = ["CDFConfig", "DriverPrior", "RiskConfig"]
+__all__ = ["CDFConfig", "DriverPrior", "LayeredConfig", "RiskConfig"]
+
+#: The CDF's decision rules (``CDFConfig.decision``).
+DECISIONS = ("layered", "risk", "threshold")
 
 @dataclass(frozen=True)
 @with_traits("prior")
@@ -114,6 +118,73 @@ class RiskConfig:
 
 
 @dataclass(frozen=True)
+class LayeredConfig:
+    """The layers of the graded rule (:class:`cdf_mj.planners.decision.LayeredRule`) on top
+    of the emergency layer's :class:`RiskConfig` (its thresholds, latency margin, horizon
+    and box margin). Every acceleration is in m/s^2 and scales with the testbed
+    (:func:`cdf_mj.config.scaled`); docs/DECISION.md explains each layer.
+
+    - *anticipate*: slow down at ``comfort_brake`` once the probability of a collision if
+      the ego goes on at its nominal speed reaches ``anticipate``; stop slowing once it is
+      below ``anticipate_release``. Chosen on seeds 0-199 per predictor by one rule fixed
+      beforehand (scripts/tune_layers.py).
+    - *emergency*: brake at the car's maximum once the probability of a collision that
+      deferring the full brake by one tick plus ``RiskConfig.latency`` plus
+      ``emergency_margin`` (plus the latency and noise the ego is told,
+      :class:`~cdf_mj.planners.base.PlannerContext`) would leave unavoidable reaches
+      ``RiskConfig.brake`` (release below ``RiskConfig.release``).
+    - *follow*: behind a car ahead in the ego's lane heading at most 90 degrees off the ego's
+      way (one still turning in, or standing across the lane, counts), the intelligent
+      driver model with ``time_gap`` and ``min_gap``, braking at most ``comfort_brake`` by
+      itself; the full brake whenever the gap is below the RSS safe distance (response time
+      one tick plus the latencies, the car ahead braking at its car's maximum, the ego at
+      its own).
+    - ``dwell``: a hard brake, and a slow-down, is held at least this long.
+    - *anticipate* also stops slowing (after the dwell) once slowing is riskier than going
+      on: an ego that slows into the conflict it meant to let pass goes on instead.
+    - ``comfort_jerk``: every command outside the full brake changes by at most this much
+      per second (the ego's comfort); the full brake comes at once.
+    - ``standoff``: when the ego and the other car have both stood still this long (the
+      other not in the ego's lane), the other is taken to wait for the ego: hypotheses of it
+      pulling away later are left out until it moves (no deadlock). "Standing" is below
+      ``stand_speed``.
+    - ``hard_brake``: commands at or beyond this deceleration are a brake (``Decision.brake``,
+      records' ``brake_time``, the false alarms); 0.3 g, the naturalistic-driving threshold.
+
+    ValueError naming the field for a value out of its range, ``anticipate_release >
+    anticipate``, or ``comfort_brake >= hard_brake`` (slowing would count as braking).
+    """
+
+    # The CDF's, chosen on seeds 0-199 by scripts/tune_layers.py (docs/DECISION.md).
+    anticipate: float = bounded(0.1, 0.0, 1.0, "1", open_low=True)
+    anticipate_release: float = bounded(0.05, 0.0, 1.0, "1", open_low=True)
+    comfort_brake: float = bounded(2.5, 0.0, MAX_ACCEL, "m/s^2", open_low=True)
+    comfort_jerk: float = bounded(5.0, 0.0, MAX_JERK, "m/s^3", open_low=True)
+    emergency_margin: float = bounded(0.3, 0.0, 10.0, "s")
+    time_gap: float = bounded(1.5, 0.0, MAX_DURATION, "s", open_low=True)
+    min_gap: float = bounded(2.0, 0.0, MAX_LENGTH, "m")
+    dwell: float = bounded(0.5, 0.0, MAX_DURATION, "s")
+    standoff: float = bounded(2.0, 0.0, MAX_DURATION, "s", open_low=True)
+    stand_speed: float = bounded(0.5, 0.0, 10.0, "m/s", open_low=True)
+    hard_brake: float = bounded(3.0, 0.0, MAX_ACCEL, "m/s^2", open_low=True)
+
+    def __post_init__(self) -> None:
+        validate(self, "layered.")
+        _check(self.anticipate_release <= self.anticipate, "layered.anticipate_release", self.anticipate_release,
+               f"at most layered.anticipate = {self.anticipate} (hysteresis)")
+        _check(self.comfort_brake < self.hard_brake, "layered.comfort_brake", self.comfort_brake,
+               f"below layered.hard_brake = {self.hard_brake} m/s^2 (slowing is not braking hard)")
+
+    def replace(self, **changes: Any) -> LayeredConfig:
+        """A copy with some fields changed (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict:
+        """JSON-serialisable view."""
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True)
 class CDFConfig:
     """Parameters of the CDF particle filter and planner (chosen on seeds 0-199 only).
 
@@ -172,17 +243,20 @@ class CDFConfig:
     # here a decision brakes within the same 0.1 s tick.
     ego_brake: float | None = None
     ego_latency: float = 0.0
-    # When to brake. "risk" (default): RiskConfig's rule on the particles rolled forward,
-    # released when the risk falls. "threshold": the paper's rule, brake once P(cutoff) >= tau
-    # and hold it to the end.
-    decision: str = "risk"
+    # When to brake. "layered" (default): LayeredConfig's graded rule (anticipate, emergency
+    # with RiskConfig, follow) on the particles rolled forward. "risk": version 0.2's rule,
+    # the full brake at the last safe moment, released when the risk falls. "threshold":
+    # the paper's rule, brake once P(cutoff) >= tau and hold it to the end.
+    decision: str = "layered"
     risk: RiskConfig = field(default_factory=lambda: RiskConfig())
+    layered: LayeredConfig = field(default_factory=lambda: LayeredConfig())
 
     def __post_init__(self) -> None:
         # read back from JSON (settings.json)
-        _groups_of_mappings(self, {"prior": DriverPrior, "risk": RiskConfig, "process_noise": ProcessNoise})
-        _check(isinstance(self.decision, str) and self.decision in ("risk", "threshold"), "decision",
-               self.decision, "'risk' or 'threshold' (the paper's)")
+        _groups_of_mappings(self, {"prior": DriverPrior, "risk": RiskConfig, "process_noise": ProcessNoise,
+                                   "layered": LayeredConfig})
+        _check(isinstance(self.decision, str) and self.decision in DECISIONS, "decision",
+               self.decision, "'layered', 'risk' or 'threshold' (the paper's)")
         _check(_within(self.mode_jump, 0.0, 0.5), "mode_jump", self.mode_jump, "in [0, 0.5] [1/tick]")
         _check(_within(self.intent_floor, 0.0, 1.0), "intent_floor", self.intent_floor, "in [0, 1]")
         _check(isinstance(self.reinit_redraw, bool), "reinit_redraw", self.reinit_redraw,

@@ -19,7 +19,7 @@ __all__ = ["scaled", "unit_of"]
 C = TypeVar("C")
 #: Exponent of the length scale by unit under :func:`scaled`'s law (kinematic similarity).
 KINEMATIC_SCALING: Mapping[str, int] = MappingProxyType(
-    {"m": 1, "m/s": 1, "m/s^2": 1, "s": 0, "1/s": 0, "1/tick": 0, "tick": 0, "rad": 0, "1": 0})
+    {"m": 1, "m/s": 1, "m/s^2": 1, "m/s^3": 1, "s": 0, "1/s": 0, "1/tick": 0, "tick": 0, "rad": 0, "1": 0})
 _POSE_UNITS = ("m", "m", "rad", "m/s")  # [x, y, theta, v]
 #: Units of the numbers of configurations whose fields declare none (:func:`cdf_mj.traits.bounded`
 #: does): ``Class.field`` -> unit, per component for a pose (or its covariance's rows and columns).

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any, ClassVar, TypeVar
 
-from cdf_mj.traits import MAX_ACCEL, MAX_DURATION, MAX_LENGTH, MAX_SPEED, bounded, validate, with_traits
+from cdf_mj.traits import MAX_ACCEL, MAX_DURATION, MAX_JERK, MAX_LENGTH, MAX_SPEED, bounded, validate, with_traits
 from cdf_mj.traits import check as _check
 from cdf_mj.traits import within as _within
 
@@ -181,6 +181,10 @@ class Ego(_Group):
     # The most the nominal controller brakes for a car ahead: an adaptive cruise control's
     # limit (ISO 15622 allows 3.5 m/s^2); harder braking is the planner's (emergency) call.
     follow_brake: float = bounded(3.5, 0.0, MAX_ACCEL, "m/s^2", open_low=True)
+    # The ego's actuator: its acceleration changes by at most this per second, whatever is
+    # commanded (50: the full brake, 4.877 m/s^2, builds within one 0.1 s tick, as the
+    # paper's brake did; a planner may state a lower limit for its own commands).
+    jerk_limit: float = bounded(50.0, 0.0, MAX_JERK, "m/s^3", open_low=True)
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -269,7 +273,7 @@ class AfterMerge(_Group):
     brake: tuple[float, float] = bounded((3.5, 5.0), 0.0, MAX_ACCEL, "m/s^2", open_low=True)  # to a stop
     at: tuple[float, float] = bounded((5.0, 25.0), 0.0, MAX_LENGTH, "m")  # in the lane before slowing, braking
     # Once in the ego's lane behind the ego, the obstacle keeps a following distance to it
-    # (the ego's IDM parameters: cdf_mj.scenario.following), as any driver would; without
+    # (the ego's IDM parameters: cdf_mj.model.following), as any driver would; without
     # it the obstacle's driver drives into an ego that brakes in front of it.
     follows: bool = True
 
@@ -298,9 +302,14 @@ class Sensing(_Group):
     dropout: float = bounded(0.0, 0.0, 1.0, "1")  # P(no measurement of the obstacle) per tick
     latency: int = bounded(0, 0, 100, "tick")  # ticks by which the obstacle's measurement is late
     brake_latency: int = bounded(0, 0, 100, "tick")  # ticks between a brake decision and the actuator
+    # Whether the ego's planner is told these figures (its own sensors' latency and position
+    # noise, and its brake's latency: PlannerContext), as a real ego knows its own hardware;
+    # by default it is not (the stress suite's untold cases).
+    told: bool = False
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        _check(isinstance(self.told, bool), "sensing.told", self.told, "true or false")
         for name in ("latency", "brake_latency"):
             v = getattr(self, name)
             _check(isinstance(v, int) and not isinstance(v, bool), f"sensing.{name}", v,

@@ -78,7 +78,8 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
     process noise (``noise_accel``, ``noise_steer``) is added to the action, as to the
     obstacle's controls; the speed cannot go below 0 (no reverse).
 
-    **Observation** ``Box(8,)`` float64, or ``Box(11,)`` with ``posterior_in_observation``.
+    **Observation** ``Box(8,)`` float64; ``Box(11,)`` with ``posterior_in_observation``; one
+    more entry, last, with ``command_in_observation``.
     Position bounds enclose everything a car can reach in ``duration`` at its top speed;
     speed bounds are [-1, top speed + 1] m/s; values are clipped to the box (a guard):
 
@@ -90,6 +91,9 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
     8      CDF posterior P(obstacle intends to turn left)         1
     9      CDF posterior P(obstacle has seen the ego)             1
     10     CDF posterior P(cut-off)                               1
+    last   the CDF rule's acceleration ``Decision.accel`` (its    m/s^2
+           graded command on the ego's speed hold; negative
+           when braking), within the ego car's limits
     =====  =====================================================  ==========
 
     **Reward** per step, the sum of:
@@ -116,7 +120,9 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
     **info** (after reset and every step): ``posterior`` (dict ``p_left``, ``p_right``,
     ``p_seen``, ``p_cutoff``, ``ess`` of the CDF filter watching the episode, or None with
     ``run_filter=False``; on a collision step it is the one of the previous step),
-    ``brake`` (the CDF would brake now, by its decision rule: ``CDFConfig.decision``), ``collision``
+    ``brake`` (the CDF would brake hard now, by its decision rule: ``CDFConfig.decision``),
+    ``accel`` (the acceleration the CDF's rule commands now [m/s^2], ``Decision.accel``; None
+    with ``run_filter=False``), ``collision``
     (None, ``"obstacle"`` or ``"building"``), ``label`` (``Cutoff``/``Yield``/``Right``
     from the constant-speed counterfactual of the same seed, None with ``label=False``),
     ``intent`` (``left``/``right``), ``t`` [s], ``obstacle_in_lane``, ``gap`` [m] between
@@ -135,6 +141,7 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         config: scenario parameters (default :class:`ScenarioConfig`).
         cdf: CDF filter parameters (default :class:`CDFConfig`).
         posterior_in_observation: append P(left), P(seen), P(cut-off) to the observation.
+        command_in_observation: append the CDF rule's acceleration [m/s^2] to the observation.
         run_filter: run the CDF filter (for ``info`` and the observation); about 0.5 ms
             per step at N = 1000.
         label: compute ``info["label"]`` at reset (one counterfactual run, ~15 ms).
@@ -162,11 +169,13 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
                  posterior_in_observation: bool = False, run_filter: bool = True,
                  label: bool = True, collision_penalty: float = 100.0, camera: str | None = None,
                  width: int = 640, height: int = 480, names: SceneNames | None = None,
-                 normalized_actions: bool = False) -> None:
+                 normalized_actions: bool = False, command_in_observation: bool = False) -> None:
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise ValueError(f"render_mode={render_mode!r}: choose None or 'rgb_array'")
         if posterior_in_observation and not run_filter:
             raise ValueError("posterior_in_observation=True needs run_filter=True")
+        if command_in_observation and not run_filter:
+            raise ValueError("command_in_observation=True needs run_filter=True")
         try:
             penalty = float(collision_penalty) if isinstance(collision_penalty, numbers.Real) else math.nan
         except OverflowError:  # an integer too large for a float
@@ -186,6 +195,7 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         fps = 1.0 / self.config.timing.dt
         self.metadata = {**self.metadata, "render_fps": round(fps) if abs(fps - round(fps)) < 1e-9 else fps}
         self.posterior_in_observation = posterior_in_observation
+        self.command_in_observation = command_in_observation
         self.run_filter = run_filter
         self.label = label
         self.collision_penalty = penalty
@@ -335,6 +345,9 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         low, high = np.tile(car_lo, 2), np.tile(car_hi, 2)
         if self.posterior_in_observation:
             low, high = np.r_[low, 0.0, 0.0, 0.0], np.r_[high, 1.0, 1.0, 1.0]
+        if self.command_in_observation:
+            ego = self.world.layout.ego
+            low, high = np.r_[low, -ego.max_brake], np.r_[high, ego.max_accel]
         return spaces.Box(low=low, high=high, dtype=np.float64)
 
     def _progress(self, ego_pose: np.ndarray) -> float:
@@ -342,12 +355,15 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def _observation(self, poses: np.ndarray) -> np.ndarray:
         obs = poses.reshape(8)
-        if self.posterior_in_observation:
+        if self.posterior_in_observation or self.command_in_observation:
             decision = self._monitor.decision if self._monitor is not None else None
             if decision is None:
                 raise RuntimeError("the CDF monitor has not run: call reset() first")
-            p = decision.posterior
-            obs = np.r_[obs, p.p_left, p.p_seen, p.p_cutoff]
+            if self.posterior_in_observation:
+                p = decision.posterior
+                obs = np.r_[obs, p.p_left, p.p_seen, p.p_cutoff]
+            if self.command_in_observation:
+                obs = np.r_[obs, decision.accel]
         # Clipping is a guard (a contact can kick a speed past its bound for one step).
         clipped: np.ndarray = np.clip(obs, self._obs_box.low, self._obs_box.high)
         return clipped
@@ -357,6 +373,7 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         d = self._monitor.decision if self._monitor is not None else None
         return {"posterior": d.posterior.to_dict() if d is not None else None,
                 "brake": bool(d.brake) if d is not None else False,
+                "accel": float(d.accel) if d is not None else None,
                 "collision": collision, "label": self._label,
                 "intent": Intent(w.intent).name.lower(), "t": w.end_time,
                 "obstacle_in_lane": bool(in_lane), "gap": gap,

@@ -33,6 +33,7 @@ imm-risk       intent-only IMM with the risk rule              :mod:`cdf_mj.plan
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -46,8 +47,8 @@ from cdf_mj.model.layout import Layout
 if TYPE_CHECKING:  # annotations only: registering a planner imports no compiled kernel
     from cdf_mj.model.conflict import Futures
 
-__all__ = ["DecidingPlanner", "DecisionRule", "Planner", "PlannerContext", "PlannerInput", "Predictor",
-           "ThresholdRule", "as_config", "predicted_label"]
+__all__ = ["HARD_BRAKE_SHARE", "DecidingPlanner", "DecisionRule", "Planner", "PlannerContext", "PlannerInput",
+           "Predictor", "ThresholdRule", "as_config", "hard_brake_of", "predicted_label"]
 
 #: Names that moved to :mod:`cdf_mj.planners.registry`, still read from here (PEP 562).
 _REGISTRY_NAMES = frozenset(("PLANNERS", "LazyPlanner", "PlannerSpec", "bind_planner", "make_planner",
@@ -75,24 +76,43 @@ class PlannerContext:
     """
 
     layout: Layout  # the junction's map (routes, lanes, buildings) and both cars' dimensions
-    dt: float  # [s] the planner tick: brake() is called every dt of simulated time
+    dt: float  # [s] the planner tick: command() is called every dt of simulated time
     nominal_speed: float  # [m/s] the speed the ego's own controller holds when not braking
     speed_gain: float = 1.0  # [1/s] that controller's proportional speed hold
+    # What the ego knows of its own hardware (0: nothing known; a rule then keeps only its
+    # own margins): the latency [s] of its measurement of the other car plus that of its
+    # brake, and the std of its measured pose of the other car [x m, y m, theta rad, v m/s].
+    latency: float = 0.0
+    measurement_std: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
         if not isinstance(self.layout, Layout):
             raise TypeError(f"PlannerContext.layout must be a Layout, got {type(self.layout).__name__}")
-        for name, high, unit in (("dt", 1.0, "s"), ("nominal_speed", MAX_SPEED, "m/s"),
-                                 ("speed_gain", 1000.0, "1/s")):
+        std = self.measurement_std
+        if not (isinstance(std, tuple) and len(std) == 4 and all(
+                not isinstance(v, bool) and isinstance(v, (int, float, np.floating)) and 0 <= v <= 100 for v in std)):
+            raise ValueError(f"PlannerContext.measurement_std={std!r} is out of range: must be 4 stds in "
+                             "[0, 100] [m, m, rad, m/s]")
+        for name, low, high, unit in (("dt", 0, 1.0, "s"), ("nominal_speed", 0, MAX_SPEED, "m/s"),
+                                      ("speed_gain", 0, 1000.0, "1/s"), ("latency", None, 10.0, "s")):
             v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.floating)) or not 0 < v <= high:
-                raise ValueError(f"PlannerContext.{name}={v!r} is out of range: must be in (0, {high:g}] [{unit}]")
+            ok = not isinstance(v, bool) and isinstance(v, (int, float, np.floating)) and v <= high and (
+                v > low if low is not None else v >= 0)
+            if not ok:
+                span = f"(0, {high:g}]" if low is not None else f"[0, {high:g}]"
+                raise ValueError(f"PlannerContext.{name}={v!r} is out of range: must be in {span} [{unit}]")
 
     @classmethod
     def of(cls, layout: Layout, config: ScenarioConfig) -> PlannerContext:
-        """The ego's knowledge in a world of ``config``: its tick and its own nominal
-        controller (speed and gain); nothing of the obstacle driver is read."""
-        return cls(layout=layout, dt=config.timing.dt, nominal_speed=config.ego.speed, speed_gain=config.ego.speed_gain)
+        """The ego's knowledge in a world of ``config``: its tick, its own nominal controller
+        (speed and gain) and, where ``config.sensing.told``, its sensing's latency and noise
+        and its brake's latency; nothing of the obstacle driver is read."""
+        sensing, dt = config.sensing, config.timing.dt
+        context = cls(layout=layout, dt=dt, nominal_speed=config.ego.speed, speed_gain=config.ego.speed_gain)
+        if not sensing.told:
+            return context
+        return dataclasses.replace(context, latency=(sensing.latency + sensing.brake_latency) * dt,
+                                   measurement_std=(sensing.pos, sensing.pos, sensing.heading, sensing.speed))
 
 
 @dataclass(frozen=True)
@@ -104,10 +124,34 @@ class PlannerInput:
     obstacle_in_lane: bool  # any corner of the obstacle's hull inside the ego lane
 
 
+#: Share of the ego car's maximum braking beyond which a graded command counts as a brake
+#: where a planner states no threshold of its own (0.6 of 4.877 m/s^2 = 2.9 m/s^2, 0.3 g).
+HARD_BRAKE_SHARE = 0.6
+
+
+def hard_brake_of(car_max_brake: float) -> float:
+    """[m/s^2] The deceleration from which a command is a brake, for an ego car braking at
+    most ``car_max_brake`` [m/s^2] (:data:`HARD_BRAKE_SHARE` of it)."""
+    return HARD_BRAKE_SHARE * car_max_brake
+
+
 class Planner:
-    """Base class. Subclasses set ``name`` and implement :meth:`brake`."""
+    """Base class. Subclasses set ``name`` and implement :meth:`brake` (a yes/no planner)
+    or :meth:`command` (a graded one; then ``graded`` is True and :meth:`brake` reads it).
+
+    The command is the most the ego may accelerate over the next tick [m/s^2]: ``inf``
+    leaves the ego's own controller (its speed hold, its car following) alone, a finite
+    value caps it (negative: decelerate at least that much), ``-inf`` is the car's full
+    brake. The world applies the least of the command and its own controller, within the
+    car's limits and the actuator's jerk limit (``ego.jerk_limit``).
+    """
 
     name: str = "base"
+
+    @property
+    def graded(self) -> bool:
+        """Whether :meth:`command` is the planner's own (graded); else it is :meth:`brake`'s yes/no."""
+        return False
 
     def reset(self, context: PlannerContext, rng: np.random.Generator) -> None:
         """Called at the start of every episode with what the ego knows (the junction's
@@ -124,6 +168,11 @@ class Planner:
         """Whether the planner wants to brake now (the first yes is held to the end unless
         ``releases_brake``)."""
         raise NotImplementedError
+
+    def command(self, obs: PlannerInput) -> float:
+        """The most the ego may accelerate over this tick [m/s^2] (see the class): for a
+        yes/no planner ``-inf`` (the full brake) on :meth:`brake`'s yes, else ``inf``."""
+        return -math.inf if self.brake(obs) else math.inf
 
     def summary(self) -> dict[str, Any]:
         """JSON-serialisable details for the episode record (posterior history, ...)."""
@@ -225,6 +274,10 @@ class DecidingPlanner(Planner):
         self.decision_time: float | None = None
         self.brakes: list[list[float | None]] = []  # [start, end] [s] of each brake; end None while braking
         self.braking = False
+        # A graded rule's reading of the cut-off: it was slowing the ego (a negative command)
+        # on the first tick the obstacle was measured in the ego's lane.
+        self.anticipated = False
+        self._lane_seen = False
         self.rule.reset(context)
         self.history: dict[str, list[float]] = {
             key: [] for key in ("t", *self.history_keys, *self.rule.history_keys)}
@@ -246,23 +299,52 @@ class DecidingPlanner(Planner):
         raise NotImplementedError(f"planner {self.name!r} gives no futures: it runs with the "
                                   "threshold rule only")
 
+    @property
+    def graded(self) -> bool:
+        """Whether the rule gives a graded command (:class:`~cdf_mj.planners.decision.LayeredRule`)."""
+        return bool(getattr(self.rule, "graded", False))
+
+    @property
+    def hard_brake(self) -> float | None:
+        """[m/s^2] A graded rule's threshold of a brake; None for a yes/no rule."""
+        return float(self.rule.hard_brake) if self.graded else None  # type: ignore[attr-defined]
+
     def brake(self, obs: PlannerInput) -> bool:
-        """:meth:`observe`, then the rule's decision (held from the first yes, unless the rule
-        releases)."""
+        """:meth:`command`, read as yes/no: whether it brakes (hard, for a graded rule)."""
+        self.command(obs)
+        return self.braking
+
+    def command(self, obs: PlannerInput) -> float:
+        """:meth:`observe`, then the rule's command [m/s^2]: a graded rule's own, or the full
+        brake (``-inf``) on a yes/no rule's yes (held from the first yes, unless the rule
+        releases) and ``inf`` otherwise. ``brakes`` and ``decision_time`` count the hard
+        brakes (a graded command at or beyond ``hard_brake``)."""
         self.observe(obs)
-        wants = self.rule.decide(self, obs.poses[0], self.braking)
+        if self.graded:
+            accel = float(self.rule.command(self, obs))  # type: ignore[attr-defined]
+            wants = accel <= -self.rule.hard_brake  # type: ignore[attr-defined]
+        else:
+            wants = self.rule.decide(self, obs.poses[0], self.braking)
+            if not self.rule.releases:
+                wants = wants or self.braking
+            accel = -math.inf if wants else math.inf
         for key, value in self.rule.values().items():
             self.history[key].append(round(float(value), 5))
-        if not self.rule.releases:
-            wants = wants or self.braking
+        if obs.obstacle_in_lane and not self._lane_seen:
+            self._lane_seen = True
+            self.anticipated = self.graded and accel < 0.0
+        self._track(obs.t, wants)
+        return accel
+
+    def _track(self, t: float, wants: bool) -> None:
+        """Keep the decision time and the brakes' starts and ends."""
         if wants and self.decision_time is None:
-            self.decision_time = obs.t
+            self.decision_time = t
         if wants and not self.braking:
-            self.brakes.append([obs.t, None])
+            self.brakes.append([t, None])
         elif self.braking and not wants:
-            self.brakes[-1][1] = obs.t
-        self.braking = wants
-        return wants
+            self.brakes[-1][1] = t
+        self.braking = bool(wants)
 
     @property
     def release_time(self) -> float | None:
@@ -277,17 +359,21 @@ class DecidingPlanner(Planner):
             self.history[key].append(round(float(values[key]), 5))
 
     def summary(self) -> dict[str, Any]:
-        """The prediction (:func:`predicted_label` from the recorded ``p_left``), the decision
+        """The prediction (:func:`predicted_label` from the recorded ``p_left``), whether a graded
+        rule ``anticipated`` the obstacle's entry into the lane, the decision
         rule, the decision and (last) release times, the brakes and the history."""
-        return {"prediction": predicted_label(self.decision_time, self.history.get("p_left", [])),
+        return {"prediction": predicted_label(self.decision_time, self.history.get("p_left", []), self.anticipated),
+                "anticipated": self.anticipated,
                 "rule": self.rule.name, "decision_time": self.decision_time,
                 "release_time": self.release_time, "brakes": self.brakes, "history": self.history}
 
 
-def predicted_label(decision_time: float | None, p_left: Sequence[float]) -> str:
-    """A predicting planner's label for its episode: ``Cutoff`` if it decided to brake,
-    else ``Yield`` or ``Right`` by its last P(left) (``p_left`` over ticks; ``Right`` if empty)."""
-    if decision_time is not None:
+def predicted_label(decision_time: float | None, p_left: Sequence[float], anticipated: bool = False) -> str:
+    """A predicting planner's label for its episode: ``Cutoff`` if it decided to brake (hard),
+    or if its graded rule was slowing the ego when the obstacle entered the ego's lane
+    (``anticipated``); else ``Yield`` or ``Right`` by its last P(left) (``p_left`` over
+    ticks; ``Right`` if empty)."""
+    if decision_time is not None or anticipated:
         return "Cutoff"
     return "Yield" if p_left and p_left[-1] >= 0.5 else "Right"
 

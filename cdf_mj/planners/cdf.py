@@ -1,7 +1,7 @@
 """The Cognitive Driving Framework's planner: the particle filter of
 :mod:`cdf_mj.inference.particle_filter` with a decision rule (:class:`CDFPlanner`,
-registered as ``cdf`` with the risk rule and as ``cdf-threshold`` with the paper's rule,
-brake once P(cutoff) >= tau)."""
+registered as ``cdf`` with the layered rule, as ``cdf-risk`` with version 0.2's risk rule
+and as ``cdf-threshold`` with the paper's rule, brake once P(cutoff) >= tau)."""
 
 from __future__ import annotations
 
@@ -14,9 +14,9 @@ from cdf_mj.config import CDFConfig
 from cdf_mj.inference.particle_filter import ParticleFilter, Posterior
 from cdf_mj.model.conflict import Futures
 from cdf_mj.planners.base import DecidingPlanner, PlannerContext, PlannerInput, as_config
-from cdf_mj.planners.decision import RiskRule, ThresholdRule
+from cdf_mj.planners.decision import LayeredRule, RiskRule, ThresholdRule
 
-__all__ = ["CDFPlanner", "ThresholdCDFPlanner", "WeightedParticles"]
+__all__ = ["CDFPlanner", "RiskCDFPlanner", "ThresholdCDFPlanner", "WeightedParticles"]
 
 
 class WeightedParticles(NamedTuple):
@@ -32,10 +32,12 @@ class WeightedParticles(NamedTuple):
 class CDFPlanner(DecidingPlanner):
     """The Cognitive Driving Framework: the particle filter and ``cdf.decision``'s rule.
 
-    ``"risk"`` (default): :class:`~cdf_mj.planners.decision.RiskRule` with ``cdf.risk`` on
-    the filter's :meth:`~cdf_mj.inference.particle_filter.ParticleFilter.futures`, braking
-    at ``cdf.ego_brake`` (default: the ego car's). ``"threshold"``: the paper's rule, brake
-    once P(cutoff) >= ``cdf.tau`` and hold it.
+    ``"layered"`` (default): :class:`~cdf_mj.planners.decision.LayeredRule` with
+    ``cdf.layered`` and ``cdf.risk`` on the filter's
+    :meth:`~cdf_mj.inference.particle_filter.ParticleFilter.futures`, a graded command.
+    ``"risk"``: :class:`~cdf_mj.planners.decision.RiskRule` with ``cdf.risk`` (the full
+    brake at the last safe moment, at ``cdf.ego_brake``, default the ego car's).
+    ``"threshold"``: the paper's rule, brake once P(cutoff) >= ``cdf.tau`` and hold it.
 
     Its prediction for the episode (README, "Planners"): ``Cutoff`` if it braked, else its
     most probable intent at the end (left -> ``Yield``, right -> ``Right``). ``summary()``
@@ -52,14 +54,20 @@ class CDFPlanner(DecidingPlanner):
 
     def __init__(self, cdf: CDFConfig | Mapping[str, Any] | None = None) -> None:
         self.cdf = cdf = as_config(cdf, CDFConfig, "cdf")
-        self.rule = (RiskRule(cdf.risk, cdf.ego_brake) if cdf.decision == "risk"
+        self.rule = (LayeredRule(cdf.layered, cdf.risk, cdf.ego_brake) if cdf.decision == "layered"
+                     else RiskRule(cdf.risk, cdf.ego_brake) if cdf.decision == "risk"
                      else ThresholdRule(cdf.tau))
 
     def reset(self, context: PlannerContext, rng: np.random.Generator) -> None:
-        """A new filter for this junction and tick, drawing from the episode's planner ``rng``."""
+        """A new filter for this junction and tick, drawing from the episode's planner ``rng``;
+        its likelihood's covariance widened by the measurement noise the ego is told
+        (``context.measurement_std``, variances added)."""
         super().reset(context, rng)
-        # TODO(schema part): the filter's own model replaces the stand-in world config.
-        self.filter = ParticleFilter.from_layout(context.layout, self.cdf, rng, context.dt)
+        cdf = self.cdf
+        if any(context.measurement_std):  # told noise of its own sensing: the likelihood is wider by it
+            cov = cdf.covariance + np.diag(np.square(np.asarray(context.measurement_std, dtype=float)))
+            cdf = cdf.replace(likelihood_cov=tuple(tuple(float(v) for v in row) for row in cov))
+        self.filter = ParticleFilter.from_layout(context.layout, cdf, rng, context.dt)
         self._started = False
         self._post: Posterior | None = None
 
@@ -135,3 +143,13 @@ class ThresholdCDFPlanner(CDFPlanner):
 
     def __init__(self, cdf: CDFConfig | Mapping[str, Any] | None = None) -> None:
         super().__init__(as_config(cdf, CDFConfig, "cdf").replace(decision="threshold"))
+
+
+class RiskCDFPlanner(CDFPlanner):
+    """:class:`CDFPlanner` with version 0.2's risk rule (``cdf.decision = "risk"``: the full
+    brake at the last safe moment, released when the risk falls), registered as ``cdf-risk``."""
+
+    name = "cdf-risk"
+
+    def __init__(self, cdf: CDFConfig | Mapping[str, Any] | None = None) -> None:
+        super().__init__(as_config(cdf, CDFConfig, "cdf").replace(decision="risk"))

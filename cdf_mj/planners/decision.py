@@ -8,6 +8,11 @@ braking or not:
 ThresholdRule     the paper's rule: brake once the predictor's own alarm probability
                   (the CDF's P(cutoff), the IMM's P(conflict), the CV's predicted conflict)
                   reaches a threshold, and hold the brake to the end
+LayeredRule       the graded rule (the default ``cdf``): *anticipate* (slow down gently when a
+                  cut-off becomes likely), *emergency* (the full brake when deferring it
+                  would leave a collision unavoidable, with a time margin), *follow* (a
+                  time gap behind a merged car, the full brake below the RSS distance),
+                  with a dwell, a jerk limit and no deadlock (docs/DECISION.md)
 RiskRule          brake at the last safe moment: when the probability of a collision that
                   deferring the brake by one more decision interval (plus a latency
                   margin) would make unavoidable reaches ``RiskConfig.brake`` and braking
@@ -33,12 +38,13 @@ Frames and units: world frame, metres, seconds; probabilities in [0, 1].
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
-from cdf_mj.config import RiskConfig
+from cdf_mj.config import LayeredConfig, RiskConfig
 from cdf_mj.inference.particle_filter import ParticleFilter
 from cdf_mj.model.conflict import (
     BRAKE,
@@ -52,9 +58,10 @@ from cdf_mj.model.conflict import (
     route_poses,
     widened,
 )
-from cdf_mj.model.geometry import boxes_overlap
+from cdf_mj.model.following import idm_interaction, in_lane_ahead, rss_distance
+from cdf_mj.model.geometry import box_gap, boxes_overlap
 from cdf_mj.model.vehicle import CarGeometry
-from cdf_mj.planners.base import DecisionRule, PlannerContext, Predictor, ThresholdRule
+from cdf_mj.planners.base import DecisionRule, PlannerContext, PlannerInput, Predictor, ThresholdRule
 
 #: Bit masks of :func:`collision_masses`' index: the masses that collide going on and when
 #: deferring (unavoidable if deferred), when braking now, and going on.
@@ -68,7 +75,8 @@ def _unit(total: float) -> float:
     return min(max(float(total), 0.0), 1.0)
 
 
-__all__ = ["Assessment", "DecisionRule", "GivenFutures", "Predictor", "RiskRule", "ThresholdRule", "rollout_assessment"]
+__all__ = ["Assessment", "DecisionRule", "GivenFutures", "LayeredRule", "Layers", "Predictor", "RiskRule",
+           "ThresholdRule", "rollout_assessment"]
 
 
 @dataclass(frozen=True)
@@ -109,7 +117,7 @@ class RiskRule:
 
     name = "risk"
     releases = True
-    history_keys = ("risk",)
+    history_keys: tuple[str, ...] = ("risk",)
 
     def __init__(self, config: RiskConfig | None = None, ego_brake: float | None = None) -> None:
         self.config = config or RiskConfig()
@@ -208,6 +216,229 @@ class RiskRule:
         """``risk``: this tick's probability of a collision made unavoidable by deferring."""
         return {"risk": self.last.deferred if self.last is not None else 0.0}
 
+
+
+#: The layered rule's fourth plan (after GO, DEFER, BRAKE): the comfortable brake from now on.
+SLOW = 3
+#: Its reading of the masses of :func:`collision_masses` over the four plans: columns
+#: deferred (collides going on and deferring the full brake), braking fully now, going on,
+#: slowing; ``masses @ _READ`` gives the four probabilities in one product.
+_INDEX4 = np.arange(1 << 4)
+_READ = np.stack([(_INDEX4 & ((1 << GO) | (1 << DEFER))) == ((1 << GO) | (1 << DEFER)),
+                  (_INDEX4 & (1 << BRAKE)) != 0, (_INDEX4 & (1 << GO)) != 0, (_INDEX4 & (1 << SLOW)) != 0],
+                 axis=1).astype(float)
+#: The follow layer follows a car ahead in the ego's lane heading at most 90 degrees off
+#: the ego's way: one still turning in, or standing across the lane, already counts (its
+#: speed along the ego's way is its speed times the cosine); one coming the other way does not.
+_FOLLOW_COS = 0.0
+
+
+@dataclass(frozen=True)
+class Layers:
+    """The layered rule's reading of one tick (what ``values()`` keeps per tick)."""
+
+    emergency: float  # P(collision unavoidable if the full brake is deferred), the emergency layer's risk
+    emergency_now: float  # P(collision when the full brake starts now)
+    go: float  # P(collision if the ego goes on at its nominal speed), the anticipation layer's risk
+    slow: float  # P(collision if the ego slows at its comfortable brake from now on)
+    inside: bool  # the ego is inside the conflict zone
+    gap: float  # [m] to a merged car ahead in the ego's lane (inf: none)
+    rss: float  # [m] the RSS safe distance behind it (0: none)
+    standoff: bool  # both cars stand: hypotheses of the other pulling away later are left out
+
+
+def _moving(futures: Futures | np.ndarray, stand_speed: float) -> Futures | np.ndarray:
+    """Only the hypotheses of a car that moves now (speed above ``stand_speed`` [m/s] and no
+    wait ahead of it): a predicted path is kept as it is (it moves as measured)."""
+    if not isinstance(futures, Futures):
+        return futures
+    keep = (futures.v > stand_speed) & (futures.delay <= 0.0)
+    return Futures(*(np.ascontiguousarray(getattr(futures, f.name)[keep]) for f in dataclasses.fields(Futures)))
+
+
+class LayeredRule(RiskRule):
+    """The graded rule: anticipate, emergency, follow (:class:`LayeredConfig`,
+    docs/DECISION.md). Each tick it returns a command (:meth:`command`): the most the ego
+    may accelerate [m/s^2], ``-inf`` for the car's full brake, ``inf`` for none.
+
+    One roll of the predictor's hypotheses against three plans of the ego (going on;
+    going on for the deferral, then the full brake; the full brake now) gives both
+    predictive layers their probabilities: the anticipation layer reads the probability of
+    a collision going on, the emergency layer :class:`RiskRule`'s deferred risk with a
+    longer deferral (one tick, the latency margin ``risk.latency``,
+    ``layers.emergency_margin``, the latency the ego is told and its told position noise
+    as time at its nominal speed, twice the std). The follow layer reads the measured
+    pose of a car ahead in the ego's lane.
+
+    Args:
+        layers: the layers' parameters (default :class:`LayeredConfig`).
+        risk: the emergency layer's thresholds, latency margin, horizon and box margin
+            (default :class:`RiskConfig`).
+        ego_brake: [m/s^2] the full brake in the plans (default: the ego car's maximum).
+    """
+
+    name = "layered"
+    releases = True
+    graded = True
+    history_keys: tuple[str, ...] = ("risk", "anticipate", "accel")
+
+    def __init__(self, layers: LayeredConfig | None = None, risk: RiskConfig | None = None,
+                 ego_brake: float | None = None) -> None:
+        super().__init__(risk, ego_brake)
+        self.layers = layers or LayeredConfig()
+        if not isinstance(self.layers, LayeredConfig):
+            raise TypeError(f"layers must be a LayeredConfig, got {type(self.layers).__name__}")
+
+    @property
+    def hard_brake(self) -> float:
+        """[m/s^2] The deceleration from which a command is a brake (``layers.hard_brake``)."""
+        return self.layers.hard_brake
+
+    def reset(self, context: PlannerContext) -> None:
+        """The risk rule's map and plans, the emergency layer's deferral, the follow layer's
+        limits; no command yet. ValueError for a horizon too short for the deferral or a
+        comfortable brake not below the car's full brake."""
+        lay, cfg = self.layers, self.config
+        noise_time = 2.0 * context.measurement_std[0] / context.nominal_speed  # [s] along-track error, 2 std
+        told = context.latency + noise_time
+        super().reset(context)  # the emergency deferral is set below, after the horizon check
+        dt = context.dt
+        self._defer = 1 + math.ceil((cfg.latency + told + lay.emergency_margin) / dt - 1e-9)
+        speed, brake = context.nominal_speed, self._nominal[3]
+        if cfg.horizon < self._defer * dt + speed / brake:
+            raise ValueError(f"RiskConfig.horizon={cfg.horizon:g} s is shorter than the "
+                             f"{self._defer * dt + speed / brake:.2f} s the ego needs to defer the full brake "
+                             f"({self._defer} ticks with the margins) and then stop from {speed:g} m/s: give a "
+                             "longer horizon or smaller margins")
+        car = context.layout.ego
+        self._max_brake = self.ego_brake if self.ego_brake is not None else car.max_brake
+        self._max_accel = car.max_accel
+        self._rho = dt + cfg.latency + context.latency  # [s] the ego's response time in the RSS distance
+        self._cars = (context.layout.ego, context.layout.obstacle)
+        if lay.comfort_brake >= self._max_brake:
+            raise ValueError(f"LayeredConfig.comfort_brake={lay.comfort_brake:g} m/s^2 is not below the ego car's "
+                             f"full brake {self._max_brake:g} m/s^2; for a testbed at another scale, scale the "
+                             "configs with the cars (cdf_mj.scaled)")
+        self._cap = math.inf  # [m/s^2] the command now (its ramp is limited by comfort_jerk)
+        self._hard = False  # the full brake is on
+        self._hard_since = -math.inf
+        self._slowing = False  # the anticipation layer slows the ego
+        self._slow_since = -math.inf
+        self._stand_since: float | None = None
+        self._v_last: float | None = None
+        self.last_layers: Layers | None = None
+        self.last_command = math.inf
+
+    def plans(self, ego_pose: np.ndarray, q: float | None = None) -> np.ndarray:
+        """The ego's arc lengths [m] ``(4, K)`` at ticks ``1..K`` under GO, DEFER (the full
+        brake after the emergency layer's deferral), BRAKE (the full brake now) and
+        :data:`SLOW` (the comfortable brake now, to a stop)."""
+        v_nom, gain, a_max, b = self._nominal
+        q0 = self.map.ego_arc(ego_pose) if q is None else q
+        v0 = max(float(ego_pose[3]), 0.0)
+        hard = ego_plans(q0, v0, v_nom, gain, a_max, b, self._defer, self._steps, self._dt)
+        soft = ego_plans(q0, v0, v_nom, gain, a_max, self.layers.comfort_brake, 1, self._steps, self._dt)
+        return np.concatenate([hard, soft[BRAKE:]])
+
+    def layers_of(self, ego_pose: np.ndarray,
+                  futures: Futures | np.ndarray) -> tuple[float, float, float, float, bool]:
+        """``(emergency, emergency_now, go, slow, inside)``: the probabilities of a collision
+        that deferring the full brake would leave unavoidable, of one when braking fully
+        now, of one going on and of one slowing at the comfortable brake, for the
+        predictor's hypotheses; and whether the ego is in the conflict zone."""
+        q = self.map.ego_arc(ego_pose)
+        plans = self.plans(ego_pose, q)
+        if isinstance(futures, Futures):
+            m = collision_masses(futures.weight, futures.s, futures.v, futures.accel, futures.v_max,
+                                 futures.delay, plans, self._dt, self.map.ds, self.map.q_lo, self.map.q_hi,
+                                 self.map.q_lo_ahead, -1, -1)
+        else:
+            m = self._path_masses(plans, np.asarray(futures, dtype=float))
+        deferred, now, go, slow = (min(max(float(v), 0.0), 1.0) for v in m @ _READ)
+        return deferred, now, go, slow, self.map.inside(q)
+
+    def _follow(self, poses: np.ndarray) -> tuple[float, float, float]:
+        """``(accel, gap, rss)``: the follow layer's command [m/s^2] behind a merged car ahead
+        in the ego's lane (``inf``: none), the gap to it [m] and its RSS distance [m]."""
+        ego, lead = poses[0], poses[1]
+        ego_car, lead_car = self._cars
+        if not (np.isfinite(lead).all() and math.cos(float(lead[2]) - float(ego[2])) >= _FOLLOW_COS
+                and in_lane_ahead(self._layout, lead, lead_car, ego)):
+            return math.inf, math.inf, 0.0
+        ex, ey, eth, ev = (float(v) for v in ego)
+        lx, ly, lth, lv = (float(v) for v in lead)
+        gap = box_gap(ego_car.footprint_one(ex, ey, eth), lead_car.footprint_one(lx, ly, lth))
+        v_lead = lv * math.cos(lth - eth)
+        lay = self.layers
+        rss = rss_distance(ev, v_lead, self._rho, self._max_accel, self._max_brake, lead_car.max_brake)
+        idm = idm_interaction(gap, ev, v_lead, self._max_accel, lay.comfort_brake, lay.time_gap, lay.min_gap,
+                              lay.comfort_brake)
+        return idm, gap, rss
+
+    def command(self, predictor: Predictor, obs: PlannerInput) -> float:
+        """This tick's command [m/s^2] (``-inf``: the full brake; ``inf``: none)."""
+        lay, dt, t = self.layers, self._dt, obs.t
+        ego = obs.poses[0]
+        v = max(float(ego[3]), 0.0)
+        # Standoff: both stand (the other not in the ego's lane) for layers.standoff.
+        other_v = float(obs.poses[1, 3]) if np.isfinite(obs.poses[1]).all() else math.inf
+        standing = v < lay.stand_speed and abs(other_v) < lay.stand_speed and not obs.obstacle_in_lane
+        if not standing:
+            self._stand_since = None
+        elif self._stand_since is None:
+            self._stand_since = t
+        standoff = standing and self._stand_since is not None and t - self._stand_since >= lay.standoff - 1e-9
+        futures = predictor.futures(self._defer)
+        if standoff:
+            futures = _moving(futures, lay.stand_speed)
+        emergency, now, go, slow, inside = self.layers_of(ego, futures)
+        follow, gap, rss = self._follow(obs.poses)
+        cfg = self.config
+        # Emergency (the full brake), held at least layers.dwell.
+        if self._hard:
+            release = emergency < cfg.release or (inside and emergency < now)
+            if release and gap >= rss and t - self._hard_since >= lay.dwell - 1e-9:
+                self._hard = False
+        elif (emergency >= cfg.brake and now <= emergency) or gap < rss:
+            self._hard, self._hard_since = True, t
+        # Anticipation (the comfortable brake), with hysteresis and the same dwell, and only
+        # while slowing is the safer of the two: an ego that slows into the conflict it
+        # meant to let pass (a slow driver pulling out as it arrives later) goes on instead.
+        if self._slowing:
+            if (go < lay.anticipate_release or slow > go) and t - self._slow_since >= lay.dwell - 1e-9:
+                self._slowing = False
+        elif go >= lay.anticipate and slow < go:
+            self._slowing, self._slow_since = True, t
+        # The command: the full brake at once; any other ramps at comfort_jerk.
+        a_now = (v - self._v_last) / dt if self._v_last is not None else 0.0  # [m/s^2] the ego's, last tick
+        self._v_last = v
+        if self._hard:
+            self._cap = -self._max_brake
+            command = -math.inf
+        else:
+            target = min(-lay.comfort_brake if self._slowing else math.inf, max(follow, -lay.comfort_brake))
+            step = lay.comfort_jerk * dt
+            cap = min(self._cap, max(a_now, -lay.comfort_brake) + step)  # a cap above the ego's use does not bind
+            cap = max(cap - step, min(target, cap + step))
+            self._cap = cap = min(cap, self._max_accel)
+            command = math.inf if cap >= self._max_accel else cap
+        self.last = Assessment(deferred=emergency, brake=now, inside=inside, go=go)
+        self.last_layers = Layers(emergency=emergency, emergency_now=now, go=go, slow=slow,
+                                  inside=inside, gap=gap, rss=rss, standoff=standoff)
+        self.last_command = command
+        return command
+
+    def decide(self, predictor: Predictor, ego_pose: np.ndarray, braking: bool) -> bool:
+        """Not used: this rule commands (:meth:`command`); TypeError."""
+        raise TypeError("LayeredRule gives a graded command: call command(predictor, obs)")
+
+    def values(self) -> dict[str, float]:
+        """``risk`` (the emergency layer's), ``anticipate`` (the anticipation's: P(collision
+        going on)) and ``accel``
+        (the command within the car's limits [m/s^2]) of this tick."""
+        ly = self.last_layers
+        accel = min(max(self.last_command, -self._max_brake), self._max_accel) if ly is not None else 0.0
+        return {"risk": ly.emergency if ly else 0.0, "anticipate": ly.go if ly else 0.0, "accel": accel}
 
 
 def rollout_assessment(pf: ParticleFilter, rule: RiskRule, ego_pose: np.ndarray,

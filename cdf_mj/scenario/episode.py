@@ -45,11 +45,11 @@ import numpy as np
 from cdf_mj.analysis.safety import SafetyRecorder
 from cdf_mj.config import ScenarioConfig, check_seed
 from cdf_mj.model.driver import Intent, ego_control
-from cdf_mj.planners.base import Planner, PlannerContext, PlannerInput
+from cdf_mj.model.following import follow_accel
+from cdf_mj.planners.base import Planner, PlannerContext, PlannerInput, hard_brake_of
 from cdf_mj.planners.registry import make_planner
 from cdf_mj.records import EpisodeRecord, Label
-from cdf_mj.scenario.following import follow_accel
-from cdf_mj.scenario.sensing import BrakeActuator, Sensor
+from cdf_mj.scenario.sensing import CommandDelay, JerkLimiter, Sensor
 from cdf_mj.scenario.world import Measurement, Tick, World
 from cdf_mj.sim.scene import Scene
 
@@ -62,10 +62,11 @@ class EpisodeTick:
     """One tick of an episode as an observer sees it, after the world has stepped."""
 
     measurement: Measurement  # what the planner was given (time t [s], system pose, lane flag)
-    braking: bool  # whether the ego's brake acted over this tick (its decision, sensing.brake_latency late)
+    braking: bool  # whether the ego braked hard over this tick (its decision, sensing.brake_latency late)
     tick: Tick  # the world's tick: the poses after it, the obstacle's mode, look and belief
     planner: Planner  # the planner after its tick (a filter's particles of time t, ...)
     world: World  # the world after the tick (read only)
+    command: float = math.nan  # [m/s^2] the acceleration the ego's actuator applied over the tick
 
 
 #: Called after every tick of an episode with its :class:`EpisodeTick`.
@@ -120,6 +121,17 @@ def _answer(planner: Planner, wants: object) -> bool:
     return bool(wants)
 
 
+def _command(planner: Planner, command: object) -> float:
+    """A graded planner's command: a real number or +-inf (not NaN), else TypeError naming
+    the planner and what it returned."""
+    if isinstance(command, bool) or not isinstance(command, (int, float, np.floating, np.integer)) \
+            or math.isnan(command):
+        name = getattr(planner, "name", None) or type(planner).__name__
+        raise TypeError(f"planner {name!r} ({type(planner).__name__}.command) returned {command!r}: it must "
+                        "return an acceleration cap [m/s^2] (-inf: the full brake, inf: none)")
+    return float(command)
+
+
 def _simulate(scene: Scene, config: ScenarioConfig, seed: int, planner: Planner,
               observers: Sequence[Observer] = (), *, holds_speed: bool = False) -> _Run:
     """One run. ``holds_speed``: the label's counterfactual, whose ego never follows."""
@@ -129,35 +141,51 @@ def _simulate(scene: Scene, config: ScenarioConfig, seed: int, planner: Planner,
     # The planner is told only what the ego knows: the map, the tick, its own controller.
     planner.reset(PlannerContext.of(layout, config), world.rng["planner"])
     sensor = Sensor(config.sensing, layout, world.rng["sensing"])
-    actuator = BrakeActuator(config.sensing.brake_latency)
+    delay = CommandDelay(config.sensing.brake_latency)
+    actuator = JerkLimiter(config.ego.jerk_limit, config.timing.dt)
     follows = config.ego.follow and not holds_speed
     braking = False
     brake_time: float | None = None
     deviated: float | None = None  # [s] the first tick the ego did not hold its speed
     releases = bool(getattr(planner, "releases_brake", False))
+    graded = bool(getattr(planner, "graded", False))
+    max_brake = layout.ego.max_brake
+    hard = getattr(planner, "hard_brake", None) if graded else None
+    hard = hard_brake_of(max_brake) if hard is None else hard  # [m/s^2] a command from which it is a brake
     while not world.done:
         m = world.measure()
         # What the ego's sensors give it (the truth unless config.sensing says otherwise).
         poses, in_lane = sensor.sense(m.poses, m.obstacle_in_lane)
-        # The ego decides (its first yes to braking is held, unless the planner releases).
-        wants = planner.brake(PlannerInput(t=m.t, poses=poses, obstacle_in_lane=in_lane))
-        wants = _answer(planner, wants)
-        braking = wants if releases else (braking or wants)
-        if braking and brake_time is None:
+        # The ego decides: a graded command [m/s^2], or yes/no to the full brake (its first
+        # yes is held, unless the planner releases).
+        obs = PlannerInput(t=m.t, poses=poses, obstacle_in_lane=in_lane)
+        if graded:
+            command = _command(planner, planner.command(obs))
+            wants = command <= -hard
+        else:
+            wants = _answer(planner, planner.brake(obs))
+            braking = wants = wants if releases else (braking or wants)
+            command = -math.inf if wants else math.inf
+        if wants and brake_time is None:
             brake_time = m.t
-        acting = actuator(braking)  # the brake as it acts, config.sensing.brake_latency ticks on
-        controls = ego_control(world.driver, layout.ego, m.poses[0], acting)
-        if follows and not acting:
+        command = delay(command)  # as it acts, config.sensing.brake_latency ticks on
+        acting = command <= -hard
+        # The ego's own controller (its speed hold, and its car following), capped by the command.
+        controls = ego_control(world.driver, layout.ego, m.poses[0], False)
+        nominal = float(controls[0])
+        accel = min(nominal, command)
+        if follows and command > -max_brake:
             behind = follow_accel(layout, layout.ego, m.poses[0], layout.obstacle, poses[1], config.ego,
                                   max_brake=config.ego.follow_brake)
-            if behind is not None and behind < controls[0]:
-                controls[0] = behind
-                deviated = m.t if deviated is None else deviated
-        if acting and deviated is None:
+            if behind is not None:
+                accel = min(accel, behind)
+        controls[0] = actuator(max(accel, -max_brake))  # within the car's brake and its actuator's jerk limit
+        if controls[0] < nominal - 1e-9 and deviated is None:
             deviated = m.t
         tick = world.step(controls)
         if observers:
-            step = EpisodeTick(measurement=m, braking=acting, tick=tick, planner=planner, world=world)
+            step = EpisodeTick(measurement=m, braking=acting, tick=tick, planner=planner, world=world,
+                               command=float(controls[0]))
             for observe in observers:
                 observe(step)
     # Up to the label's outcome this run was the constant-speed run if its ego held its speed.

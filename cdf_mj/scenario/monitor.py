@@ -12,7 +12,7 @@ world x axis towards y [rad], speed along that heading [m/s]. ::
     monitor = CDFMonitor(layout, ego=CarGeometry.ours(), obstacle=their_car, rng=0)
     for t, ego_pose, obstacle_pose in my_simulation():      # every 0.1 s of simulated time
         decision = monitor.observe(t, ego_pose, obstacle_pose)
-        if decision.brake: ...                              # the CDF's rule says brake now
+        my_ego.set_acceleration(decision.accel)             # [m/s^2]; decision.brake: braking hard
     monitor.save_trace("episode.jsonl")                     # cdf-mj render --trace episode.jsonl
 
 :func:`attach` is the convenience for a MuJoCo model: it reads the layout from the model
@@ -74,9 +74,14 @@ class Decision:
     t: float  # [s] simulated time of the measurement
     poses: np.ndarray  # (2, 4) measured system pose: ego, obstacle [x m, y m, yaw rad, v m/s]
     posterior: Posterior  # P(left), P(right), P(seen), P(cutoff), effective sample size
-    brake: bool  # the CDF's decision rule brakes now (CDFConfig.decision: the risk rule may
-    # release; the paper's threshold rule, P(cutoff) >= tau, holds it from the first yes)
-    brake_time: float | None  # [s] the first step at which it braked
+    brake: bool  # the rule brakes hard now: its command is at or beyond LayeredConfig.hard_brake
+    # (the layered rule), or it brakes fully (the risk rule may release; the paper's threshold
+    # rule, P(cutoff) >= tau, holds it from the first yes)
+    brake_time: float | None  # [s] the first step at which it braked hard
+    accel: float = math.nan  # [m/s^2] the acceleration to apply until the next step, negative when
+    # braking: the ego's speed hold towards its nominal speed (speed_gain (v_nominal - v)),
+    # capped by the rule's command, within the ego car's limits (its full brake when it brakes
+    # with a yes/no rule)
 
 
 class PoseSource(Protocol):
@@ -132,11 +137,11 @@ class CDFMonitor:
             scenario's ego speed, 13.4 m/s (:func:`cdf_mj.config.scaled` scales it for a
             testbed at another scale). Give your ego's cruise speed if it is another.
 
-    The decision rule assumes that its decisions are carried out: the ego brakes at its
-    car's maximum rate when ``Decision.brake`` is true and otherwise holds or regains its
-    nominal speed (``scenario.ego.speed``); its release and its plans reason about that
-    ego. An ego that does not follow them makes the risk estimates of later ticks those of
-    an ego it is not.
+    The decision rule assumes that its decisions are carried out: the ego applies
+    ``Decision.accel`` (its speed hold towards ``nominal_speed`` capped by the rule's
+    command: the layered rule's gentle slowing, its car following, or the full brake) until
+    the next step; its plans reason about that ego. An ego that does not follow them makes
+    the risk estimates of later ticks those of an ego it is not.
 
     :meth:`observe` must be called every ``scenario.timing.dt`` of simulated time (to
     :data:`TIME_TOLERANCE`): the filter's dynamics assume that tick, so a simulation whose
@@ -218,14 +223,18 @@ class CDFMonitor:
         self._check_time(t)
         x, y, th = (float(v) for v in poses[1, :3])
         in_lane = self.layout.ego_lane.contains_any(self.layout.obstacle.footprint_one(x, y, th))
-        brake = self.planner.brake(PlannerInput(t=t, poses=poses, obstacle_in_lane=in_lane))
+        command = self.planner.command(PlannerInput(t=t, poses=poses, obstacle_in_lane=in_lane))
+        brake = self.planner.braking
         self._last_t = t
         post = self.planner.posterior
+        ctx, car = self.context, self.layout.ego
+        hold = ctx.speed_gain * (ctx.nominal_speed - float(poses[0, 3]))  # the ego's speed hold
+        accel = min(max(min(hold, command), -car.max_brake), car.max_accel)
         self.decision = Decision(t=t, poses=poses, posterior=post, brake=brake,
-                                 brake_time=self.brake_time)
+                                 brake_time=self.brake_time, accel=accel)
         if self.record_trace:
             row = {"t": t, "ego": poses[0].tolist(), "obstacle": poses[1].tolist(),
-                   "posterior": post.to_dict(), "brake": self.decision.brake}
+                   "posterior": post.to_dict(), "brake": self.decision.brake, "accel": accel}
             self.trace.append(row | {k: float(v) for k, v in self.planner.rule.values().items()})
         return self.decision
 
@@ -267,7 +276,7 @@ class CDFMonitor:
         return {"format": TRACE_FORMAT, "names": jsonable(self.scenario.names),
                 "scenario": jsonable(self.scenario), "cdf": jsonable(self.cdf),
                 "tau": float(self.cdf.tau), "rule": self.planner.rule.name,
-                "threshold": float(self.cdf.risk.brake if self.cdf.decision == "risk" else self.cdf.tau),
+                "threshold": float(self.cdf.tau if self.cdf.decision == "threshold" else self.cdf.risk.brake),
                 "ego": self.layout.ego.to_dict(),
                 "obstacle": self.layout.obstacle.to_dict()}
 

@@ -4,7 +4,9 @@ to the planner (:class:`cdf_mj.config.Sensing`); records keep the truth.
 :class:`Sensor` turns each tick's true :class:`~cdf_mj.scenario.world.Measurement` into the
 planner's: the obstacle's pose ``latency`` ticks old, plus Gaussian noise, or none at all
 (a dropout: the obstacle's row is NaN and it is not in the lane); the ego's own pose is
-exact. :class:`BrakeActuator` delays the ego's brake decisions by ``brake_latency`` ticks.
+exact. :class:`BrakeActuator` delays the ego's brake decisions (:class:`CommandDelay` its
+graded commands) by ``brake_latency`` ticks; :class:`JerkLimiter` is the ego's actuator,
+whose acceleration changes by at most ``ego.jerk_limit`` per second.
 With perfect sensing (the default) both pass everything through and draw nothing.
 
 Randomness: the sensor draws from its own stream (the world's ``sensing`` stream), so the
@@ -17,6 +19,7 @@ sensing (common random numbers). ::
 
 from __future__ import annotations
 
+import math
 from collections import deque
 
 import numpy as np
@@ -24,7 +27,7 @@ import numpy as np
 from cdf_mj.config import Sensing
 from cdf_mj.model.layout import Layout
 
-__all__ = ["BrakeActuator", "Sensor"]
+__all__ = ["BrakeActuator", "CommandDelay", "JerkLimiter", "Sensor"]
 
 
 class Sensor:
@@ -79,3 +82,32 @@ class BrakeActuator:
         """The brake state that acts on this tick, given this tick's decision."""
         self._queue.append(decided)
         return self._queue[0]
+
+
+class CommandDelay:
+    """The ego's commands [m/s^2] ``latency`` ticks behind its planner; ``initial`` acts
+    before the first one arrives (default ``inf``: no command, the ego's own controller)."""
+
+    def __init__(self, latency: int, initial: float = math.inf) -> None:
+        self._queue: deque[float] = deque([initial] * latency, maxlen=latency + 1)
+
+    def __call__(self, command: float) -> float:
+        """The command that acts on this tick, given this tick's."""
+        self._queue.append(command)
+        return self._queue[0]
+
+
+class JerkLimiter:
+    """The ego's actuator: the applied acceleration [m/s^2] changes by at most
+    ``jerk_limit * dt`` from one tick to the next (``jerk_limit`` [m/s^3], ``dt`` [s])."""
+
+    def __init__(self, jerk_limit: float, dt: float) -> None:
+        self.step = jerk_limit * dt
+        self.last: float | None = None
+
+    def __call__(self, accel: float) -> float:
+        """The acceleration applied over this tick for the one asked for."""
+        if self.last is not None:
+            accel = min(max(accel, self.last - self.step), self.last + self.step)
+        self.last = accel
+        return accel

@@ -148,9 +148,10 @@ def read_trace(path: str | Path) -> MonitorTrace:
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
                 math.isfinite(value) and 0.0 < value <= 1.0):
             raise TraceError(f"{path}:{no}: the header's {key!r} must be in (0, 1], got {header.get(key, value)!r}")
-    if rule not in ("threshold", "risk"):
-        raise TraceError(f"{path}:{no}: the header's 'rule' must be 'threshold' or 'risk', got {rule!r}")
-    keys = (*_POSTERIOR_KEYS, "risk") if rule == "risk" else _POSTERIOR_KEYS
+    if rule not in ("threshold", "risk", "layered"):
+        raise TraceError(f"{path}:{no}: the header's 'rule' must be 'threshold', 'risk' or 'layered', got {rule!r}")
+    risky = rule in ("risk", "layered")  # the emergency layer's risk is the risk rule's
+    keys = (*_POSTERIOR_KEYS, "risk") if risky else _POSTERIOR_KEYS
     if len(rows) < 2:
         raise TraceError(f"{path}:{no}: the trace has no observation after its header")
     times: list[float] = []
@@ -161,7 +162,7 @@ def read_trace(path: str | Path) -> MonitorTrace:
         try:
             t = float(row["t"])
             pose = np.array([row["ego"], row["obstacle"]], dtype=float)
-            p = {**row["posterior"], **({"risk": row["risk"]} if rule == "risk" else {})}
+            p = {**row["posterior"], **({"risk": row["risk"]} if risky else {})}
             values = [float(p[k]) for k in keys]
             b = row["brake"]
         except KeyError as exc:

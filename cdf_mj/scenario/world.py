@@ -23,10 +23,10 @@ import numpy as np
 from cdf_mj.config import ScenarioConfig, check_seed
 from cdf_mj.model.conflict import right_turn_overlap
 from cdf_mj.model.driver import DriverModel, Intent, Mode, obstacle_control, road_clear, update_belief
+from cdf_mj.model.following import follow_accel, in_lane_ahead
 from cdf_mj.model.geometry import box_gap
 from cdf_mj.scenario.after_merge import AfterMergeOverride
 from cdf_mj.scenario.drivers import WorldDriver, make_driver
-from cdf_mj.scenario.following import follow_accel, in_lane_ahead
 from cdf_mj.sim.checks import SceneWarning
 from cdf_mj.sim.scene import Scene, SimulationDivergedError
 from cdf_mj.sim.visibility import ego_visible

@@ -23,7 +23,7 @@ from cdf_mj.model.geometry import box_gap
 from cdf_mj.model.layout import Layout
 from cdf_mj.model.vehicle import CarGeometry
 
-__all__ = ["FOLLOW_HEADING", "ahead_in_lane", "follow_accel", "idm_interaction", "in_lane_ahead"]
+__all__ = ["FOLLOW_HEADING", "ahead_in_lane", "follow_accel", "idm_interaction", "in_lane_ahead", "rss_distance"]
 
 
 def idm_interaction(gap: float, v: float, v_lead: float, a_max: float, b: float, time_gap: float,
@@ -31,6 +31,18 @@ def idm_interaction(gap: float, v: float, v_lead: float, a_max: float, b: float,
     """The IDM's interaction acceleration [m/s^2] (see the module docstring)."""
     desired = min_gap + max(v, 0.0) * time_gap + v * (v - v_lead) / (2.0 * math.sqrt(a_max * b))
     return max(a_max * (1.0 - (max(desired, 0.0) / max(gap, 1e-3)) ** 2), -max_brake)
+
+
+def rss_distance(v_r: float, v_f: float, rho: float, a_acc: float, b_min: float, b_max: float) -> float:
+    """[m] The RSS longitudinal safe distance behind a car ahead (Shalev-Shwartz, Shammah,
+    Shashua 2017): ``[v_r rho + a_acc rho^2 / 2 + (v_r + rho a_acc)^2 / (2 b_min)
+    - v_f^2 / (2 b_max)]^+`` with ``v_r`` the rear car's speed and ``v_f`` the front car's
+    along the rear car's direction [m/s] (each taken as 0 where negative), ``rho`` the rear
+    car's response time [s], ``a_acc`` its largest acceleration during it, ``b_min`` the
+    braking it can count on afterwards and ``b_max`` the front car's largest [m/s^2]."""
+    v_r, v_f = max(v_r, 0.0), max(v_f, 0.0)
+    d = v_r * rho + 0.5 * a_acc * rho ** 2 + (v_r + rho * a_acc) ** 2 / (2.0 * b_min) - v_f ** 2 / (2.0 * b_max)
+    return max(d, 0.0)
 
 
 #: [rad] A car is followed once its heading is within this of the follower's: it has merged.
