@@ -9,17 +9,18 @@ writes the page (default docs/ANALYSIS.md, stamped with this command and the pac
 version, :mod:`cdf_mj.analysis.pages`). Parts:
 
 ==================  ====================================================================
-``development``     the seven planners (cdf, cdf-threshold, imm-risk, imm, cv-risk, cv,
-                    reactive) on seeds 0-999: metrics, the CDF against each planner seed by
-                    seed (exact McNemar tests), Brier scores, brake times by the ego's start
-                    offset, and figures
+``development``     the seven planners (cdf, cdf-threshold, imm-layered, imm, cv-layered,
+                    cv, reactive) on seeds 0-999: metrics, the CDF against each planner seed
+                    by seed (exact McNemar tests), Brier scores, hard-brake times by the
+                    ego's start offset, and figures
 ``held-out``        the same on seeds 100000-100999 (never used to choose anything)
 ``baseline-grid``   the grid on which the ``cv`` and ``imm`` parameters were chosen, run
                     again on seeds 0-199 with the same rule
 ``harder``          a faster ego meeting a slower turning obstacle, seeds 0-199, and the
                     IMM with longer horizons
 ``sweep-tau``,      the sweeps of :mod:`cdf_mj.experiments.sweep` on seeds 0-199 (their
-``sweep-risk``,     figures, but risk's, go to ``--figures``)
+``sweep-risk``,     figures, but risk's, go to ``--figures``); ``sweep-risk`` sweeps
+                    version 0.2's risk rule (``cdf`` runs with it there)
 ``sweep-beta``,
 ``sweep-noise``,
 ``sweep-obs-noise``,
@@ -38,6 +39,12 @@ development: 8 s); baseline-grid 3.5 min (23 runs of 200 seeds); harder 1 min; t
 about 11 min together (beta, noise and obs-noise the longest); about 22 minutes in all.
 Longer episodes cost in proportion. ``--episodes N`` runs N seeds per part instead;
 ``--parts`` some parts only (the page then shows only those).
+
+``cdf``, ``imm-layered`` and ``cv-layered`` decide with the layered rule (a graded command:
+slow gently, brake hard only in an emergency or behind a car too close, release); for them
+a *brake* (false alarms, lead and brake times) is a command of ``LayeredConfig.hard_brake``
+or more of deceleration, and Cutoff recall counts the Cutoff episodes they predicted
+(braked hard, or were slowing the ego when the obstacle entered its lane).
 
 Bad input (an unknown part, a result directory of other settings, figures without
 matplotlib) is one line ``analysis: error: ...`` and exit status 2, before anything runs.
@@ -68,16 +75,20 @@ from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
 from cdf_mj.experiments.sweep import SWEEPS, SweepResult, run_sweep
 from cdf_mj.extras import install_hint
 from cdf_mj.planners.baselines import CVConfig, IMMConfig
-from cdf_mj.planners.registry import planner_spec
+from cdf_mj.planners.registry import bind_planner, planner_spec
 from cdf_mj.records import LABELS, braked, completed, is_imminent, record_field
 
 PROG = "analysis"
 SCRIPT = "scripts/analysis.py"
-PLANNERS = ("cdf", "cdf-threshold", "imm-risk", "imm", "cv-risk", "cv", "reactive")
-HARDER_PLANNERS = ("cdf", "cdf-threshold", "imm-risk", "imm", "cv", "reactive")
+PLANNERS = ("cdf", "cdf-threshold", "imm-layered", "imm", "cv-layered", "cv", "reactive")
+HARDER_PLANNERS = ("cdf", "cdf-threshold", "imm-layered", "imm", "cv", "reactive")
+#: The planners with ``cdf``'s own (layered) rule: against them the comparison isolates the prediction.
+SAME_RULE = ("imm-layered", "cv-layered")
 HARDER = {"ego.speed": 17.9, "ego.start_spread": (-22.0, -6.0), "obstacle.turn_speed": 4.0}
 HARDER_IMM_HORIZONS = (2.0, 2.5, 3.0)  # [s]
-#: Planners of each sweep (a sweep of a CDF setting runs the others once, as references).
+#: Planners of each sweep (a sweep of a CDF setting runs the others once, as references). The
+#: risk sweep is of version 0.2's risk rule: ``cdf`` runs with it there (``decision = "risk"``),
+#: beside the other predictors with that rule.
 SWEEP_PLANNERS: dict[str, tuple[str, ...]] = {
     "tau": ("cdf", "imm", "cv", "reactive"),
     "risk": ("cdf", "imm-risk", "cv-risk", "imm", "reactive"),
@@ -169,7 +180,8 @@ def _failed_note(failed: int) -> str:
 
 # ----------------------------------------------------------------- the planners compared
 def braking_lines(metrics: dict[str, PlannerMetrics], records: Sequence[dict[str, Any]]) -> list[str]:
-    """Recall, false alarms among Yield episodes, false discovery, collisions by label, released brakes."""
+    """Recall (predicted Cutoffs), false alarms among Yield episodes, false discovery (of the
+    episodes with a hard brake), collisions by label, released hard brakes."""
     rows = []
     for m in metrics.values():
         mine = [r for r in _of(records, m.planner) if braked(r)]
@@ -178,9 +190,9 @@ def braking_lines(metrics: dict[str, PlannerMetrics], records: Sequence[dict[str
                      format_rate(m.false_discovery), f"{m.collisions_yield}, {m.collisions_right}",
                      f"{_percent(m.paper_avoided)} ({max(0, m.imminent - m.collisions)}/{m.imminent})",
                      f"{released}/{len(mine)}"])
-    return markdown_table(["planner", "Cutoff recall (braked)", "false alarms / Yield episodes",
-                           "false discovery (of braked)", "collisions in Yield, Right", "paper's formula",
-                           "brake released (of braked)"], rows)
+    return markdown_table(["planner", "Cutoff recall (predicted Cutoff)", "false alarms / Yield episodes",
+                           "false discovery (of braked hard)", "collisions in Yield, Right", "paper's formula",
+                           "brake released (of braked hard)"], rows)
 
 
 def paired_lines(records: Sequence[dict[str, Any]], others: Sequence[str]) -> list[str]:
@@ -199,7 +211,7 @@ def paired_lines(records: Sequence[dict[str, Any]], others: Sequence[str]) -> li
 
 
 def offset_lines(records: Sequence[dict[str, Any]], planners: Sequence[str]) -> list[str]:
-    """Median brake time of braking Cutoff episodes by the ego's start offset, four equal bins."""
+    """Median first hard-brake time of braking Cutoff episodes by the ego's start offset, four equal bins."""
     lo, hi = (float(v) for v in ScenarioConfig().to_dict()["ego"]["start_spread"])
     edges = [lo + (hi - lo) * k / 4 for k in range(5)]
     header = ["planner", *(f"[{a:g}, {b:g}{']' if k == 3 else ')'} m" for k, (a, b) in
@@ -216,7 +228,7 @@ def offset_lines(records: Sequence[dict[str, Any]], planners: Sequence[str]) -> 
                      or (k == 3 and float(record_field(r, "ego_start_offset")) == b)]
             cells.append(f"{statistics.median(times):.2f} ({len(times)})" if times else "-")
         rows.append([planner, *cells])
-    return markdown_table(header, rows) if rows else ["No braking Cutoff episode."]
+    return markdown_table(header, rows) if rows else ["No Cutoff episode with a hard brake."]
 
 
 def _verdict(hits: int, other_hits: int, alarms: int, other_alarms: int) -> str:
@@ -231,7 +243,8 @@ def _verdict(hits: int, other_hits: int, alarms: int, other_alarms: int) -> str:
 
 def in_short(by_part: dict[str, tuple[range, list[dict[str, Any]]]]) -> list[str]:
     """One line per planner: cdf against it on each seed range (collisions of any label and
-    false alarms, with McNemar p on the discordant seeds)."""
+    false alarms, with McNemar p on the discordant seeds); those with cdf's own rule
+    (:data:`SAME_RULE`) are marked as the same rule with another predictor."""
     lines = []
     for other in PLANNERS[1:]:
         pieces = []
@@ -247,7 +260,8 @@ def in_short(by_part: dict[str, tuple[range, list[dict[str, Any]]]]) -> list[str
                           f"(p = {_p(c.false_alarm_only_first, c.false_alarm_only_second)}): "
                           f"{_verdict(hits, other_hits, alarms, other_alarms)}")
         if pieces:
-            lines.append(f"- `cdf` against `{other}`: " + "; ".join(pieces) + ".")
+            same = " (the same layered rule, another predictor)" if other in SAME_RULE else ""
+            lines.append(f"- `cdf` against `{other}`{same}: " + "; ".join(pieces) + ".")
     return lines
 
 
@@ -262,13 +276,17 @@ def make_comparison(part: Part, opts: Options) -> Made:
     if not good:
         return Made([*lines, "No completed episode.", ""], failed, good)
     metrics = planner_metrics(good)
-    lines += [planner_table(good), "", *braking_lines(metrics, good), "",
+    lines += [planner_table(good), "",
+              "Cutoff recall counts the Cutoff episodes a planner predicted (it braked; with the layered rule, it "
+              "braked hard or was slowing the ego when the obstacle entered its lane); false alarms, false "
+              "discovery and released brakes count hard brakes only:", "", *braking_lines(metrics, good), "",
               "Paired on the same seeds (common random numbers); McNemar p is the exact two-sided test on the "
               "discordant seeds:", "", *paired_lines(good, [p for p in PLANNERS[1:] if p in metrics]), "",
               "### Brier scores of the filters", "", filter_table(good, p_left=CDFConfig().prior.p_left), "",
               "### When each planner brakes, by the ego's start offset", "",
-              "Median brake time [s] (episodes) of the Cutoff episodes in which the planner braked, by the ego's "
-              "start offset (metres ahead of its nominal start):", "", *offset_lines(good, PLANNERS[:-1]), ""]
+              "Median time [s] of the first hard brake (episodes) over the Cutoff episodes in which the planner "
+              "braked hard, by the ego's start offset (metres ahead of its nominal start); a layered rule's "
+              "gentle slowing is not counted:", "", *offset_lines(good, PLANNERS[:-1]), ""]
     if opts.figures is not None:
         from cdf_mj.experiments.sweep import comparison_figures
 
@@ -339,7 +357,9 @@ def make_grid(part: Part, opts: Options) -> Made:
         f"*History (cdf_mj 0.1.0, episodes of 8 s ending 20 m past the conflict point):* the rule chose `cv` "
         f"with horizon {cv.horizon:g} s and margin {cv.margin:g} m, and `imm` with horizon {imm.horizon:g} s and "
         f"threshold {imm.threshold:g} (margin {imm.margin:g} m); these are still the defaults (`CVConfig()`, "
-        "`IMMConfig()`), and every table on this page uses them.",
+        "`IMMConfig()`), and every table on this page uses them. `cv-layered` and `imm-layered` keep these "
+        "predictors' settings but decide by the layered rule, whose anticipation threshold was chosen for each "
+        "predictor on seeds 0–199 by another rule (`scripts/tune_layers.py`), not on this grid.",
         "",
         f"The same grid run again on this code, seeds {_span(part.seeds)} (records under "
         f"`{opts.out / part.name}/`); bold: the rule's pick today." + _failed_note(failed),
@@ -395,7 +415,10 @@ SWEEP_TEXT = {
            "at the largest τ: before the ego brakes, the filter's history does not depend on τ, so the first tick "
            "with P(cutoff) ≥ τ is where a run at τ brakes; the line under the table counts how often that agrees "
            "with the braking runs. Avoidance comes from the braking runs only.",
-    "risk": "The risk rule's braking threshold (release at half of it), for every predictor with that rule.",
+    "risk": "Version 0.2's risk rule (the full brake at the last safe moment, released when the risk falls; "
+            "`cdf-risk`, `imm-risk` and `cv-risk` elsewhere): its braking threshold (release at half of it), for "
+            "every predictor with that rule. Here `cdf` runs with `decision = \"risk\"`, not its default layered "
+            "rule; `imm` and `reactive` are references.",
     "beta": "β, the probability per tick that the obstacle's driver observes a visible ego: only the world's "
             "changes; every planner keeps its own settings (the CDF's prior on β is the range "
             f"{list(CDFConfig().prior.beta)}). A larger β means more obstacles see the ego and yield.",
@@ -473,10 +496,18 @@ def all_parts(episodes: int | None) -> dict[str, Part]:
     return parts
 
 
+def _anticipation(name: str) -> str:
+    """Planner ``name``'s anticipation threshold as a run builds it (its layered rule's
+    ``LayeredConfig.anticipate``); ``-`` for a planner without the layered rule."""
+    layers = getattr(getattr(bind_planner(name, CDFConfig())(), "rule", None), "layers", None)
+    return "-" if layers is None else f"{layers.anticipate:g}"
+
+
 def introduction(small: bool) -> list[str]:
     """The page's head: what is compared, each planner's knowledge and rule (parameters read
     from their configs)."""
     cdf, cv, imm = CDFConfig(), CVConfig(), IMMConfig()
+    lay, risk = cdf.layered, cdf.risk
     grown = f" (the obstacle's grown by {cv.margin:g} m)" if cv.margin else ""
     return [
         "# Analysis: the CDF against the alternatives it argues against",
@@ -484,26 +515,40 @@ def introduction(small: bool) -> list[str]:
         *(["**Few seeds or some parts only: a check that the script runs, not a result.**", ""] if small else []),
         "The paper compares its Cognitive Driving Framework (CDF) with one reactive planner and concludes that",
         "modelling the other driver's *belief* is what makes early braking possible. Here the CDF meets the",
-        "alternatives its introduction names, each predictor with its own rule and with the CDF's risk rule, on",
-        "the same seeds (common random numbers: the same obstacle, intent, observation draws, noise and ego start",
-        "for every planner on a seed):",
+        "alternatives its introduction names, each predictor with its own rule and with the CDF's layered rule,",
+        "on the same seeds (common random numbers: the same obstacle, intent, observation draws, noise and ego",
+        "start for every planner on a seed). `cdf` against `imm-layered` and `cv-layered` is the same rule with",
+        "another predictor: it isolates the prediction.",
         "",
-        *markdown_table(["planner", "what it knows", "brakes when"], [
+        "The layered rule ([DECISION.md](DECISION.md)) gives a graded command each tick, read from one roll of "
+        "the predictor's hypotheses against the ego's plans: it slows the ego gently (at "
+        f"{lay.comfort_brake:g} m/s²) once the probability of a collision if the ego goes on reaches its "
+        f"anticipation threshold and slowing is the less risky (until it falls below {lay.anticipate_release:g}); "
+        "it brakes fully only in an emergency (the probability of a collision that deferring the full brake by "
+        f"one tick and {risk.latency + lay.emergency_margin:g} s would leave unavoidable reaches {risk.brake:g}, "
+        f"released below {risk.release:g}) or behind a car in its lane closer than the RSS safe distance (further "
+        f"back it follows it at a {lay.time_gap:g} s time gap); a hard brake is held at least {lay.dwell:g} s. "
+        f"For these planners a *brake* is a command of {lay.hard_brake:g} m/s² or more of deceleration: their "
+        "gentle slowing is neither a brake nor a false alarm.",
+        "",
+        *markdown_table(["planner", "what it knows", "brakes (or slows) when"], [
             ["`reactive`", "the obstacle's footprint", "any part of the obstacle is inside the ego lane (the paper's "
              "baseline)"],
             ["`cv`", "both measured poses", "the straight-line, constant-speed extrapolations of both cars put their "
              f"collision boxes{grown} in contact within {cv.horizon:g} s"],
-            ["`cv-risk`", "as `cv`", "the risk rule on the constant-velocity prediction"],
+            ["`cv-layered`", "as `cv`", "the layered rule on the constant-velocity prediction (anticipation "
+             f"threshold {_anticipation('cv-layered')}, chosen for this predictor on seeds 0–199)"],
             ["`imm`", "both measured poses, the two routes", "P(conflict) = Σ over intents P(intent) · [that "
              f"intent's predicted path meets the ego within {imm.horizon:g} s] reaches {imm.threshold:g}; intent "
              "from filterpy's `IMMEstimator`, no belief"],
-            ["`imm-risk`", "as `imm`", "the risk rule on the IMM's intents"],
+            ["`imm-layered`", "as `imm`", "the layered rule on the IMM's intents (anticipation threshold "
+             f"{_anticipation('imm-layered')}, chosen for this predictor on seeds 0–199)"],
             ["`cdf-threshold`", "both measured poses, the routes, the obstacle driver's model with its belief",
              f"P(cutoff) from the particle filter ({cdf.n_particles} particles) reaches τ = {cdf.tau:g}, held "
              "(the paper's rule)"],
-            ["`cdf`", "as `cdf-threshold`", "the risk rule: the probability of a collision that deferring would make "
-             f"unavoidable reaches {cdf.risk.brake:g}; released below {cdf.risk.release:g} "
-             "([DECISION.md](DECISION.md))"],
+            ["`cdf`", "as `cdf-threshold`", "the layered rule on the particle filter's hypotheses (anticipation "
+             f"threshold {_anticipation('cdf')}, chosen on seeds 0–199; the emergency layer's {risk.brake:g} is the "
+             "risk rule's threshold, chosen on the same seeds)"],
         ]),
         "",
         "`imm` runs one Kalman filter per intent, each tracking the obstacle's progress along its own route "
@@ -516,9 +561,11 @@ def introduction(small: bool) -> list[str]:
         "deceleration. Code: `cdf_mj/planners/baselines.py`; parameters `CVConfig`, `IMMConfig`.",
         "",
         "Definitions as in [RESULTS.md](RESULTS.md): *avoided* is among the Cutoff episodes (the constant-speed "
-        "run of the seed hits the obstacle); a *false alarm* is a brake in an episode not labelled Cutoff, as a "
-        "share of all episodes; *lead time* is from the brake to the obstacle entering the ego lane, over braking "
-        "Cutoff episodes (negative: braked after the entry); *time lost* is over episodes without a collision. "
+        "run of the seed hits the obstacle); a *false alarm* is a (hard) brake in an episode not labelled Cutoff, "
+        "as a share of all episodes; *lead time* is from the first (hard) brake to the obstacle entering the ego "
+        "lane, over the Cutoff episodes with one (negative: braked after the entry); *Cutoff recall* counts the "
+        "Cutoff episodes predicted Cutoff (braked, or with the layered rule slowing the ego when the obstacle "
+        "entered its lane); *time lost* is over episodes without a collision. "
         "The truth of P(left) is the episode's intent; the truth of P(seen) at tick t is \"the obstacle observed "
         "the ego on an earlier tick\" (a planner decides on the pose measured at the start of the tick, before "
         "the obstacle looks on that tick). The Brier tables' references are not filters: the prior held "

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
-"""The decision rules compared: each predictor with the paper's threshold rule and with the
-risk rule, on held-out seeds first, then on the scenario presets, then on the
-development seeds.
+"""The decision rules compared: each predictor with the paper's threshold rule, with version
+0.2's risk rule and with the layered rule, on held-out seeds first, then on the scenario
+presets, then on the development seeds.
 
 Runs (resumable, with :func:`~cdf_mj.experiments.experiment.run_experiment`, into
 ``OUT/PART``) and writes a Markdown page (default docs/DECISION_RESULTS.md):
@@ -9,16 +9,19 @@ Runs (resumable, with :func:`~cdf_mj.experiments.experiment.run_experiment`, int
 - ``held-out``: the default scenario on seeds 100000-100999 (never used for tuning);
 - one part per preset on seeds 1000-1199 (held out as well);
 - ``development``: the default scenario on seeds 0-199, where the risk rule's threshold
-  was chosen (scripts/tune_risk.py), labelled as such.
+  (scripts/tune_risk.py) and the layered rule's anticipation threshold per predictor
+  (scripts/tune_layers.py) were chosen, labelled as such.
 
-For every planner: Cutoff recall (braked in Cutoff episodes), avoided (ours and the
-paper's formula, where a collision of any label counts), false alarms per episode and
-per Yield episode, the false-discovery rate of its predicted Cutoffs (braked episodes
-not labelled Cutoff), collisions in Yield and Right episodes, time lost; then ``cdf``
-against every other planner seed by seed (exact McNemar tests on collisions of any label
-and on false alarms), and the issue's targets::
+For every planner: Cutoff recall (predicted Cutoff in Cutoff episodes: braked, or for the
+layered rule slowed for the obstacle as it entered the lane), avoided (ours and the
+paper's formula, where a collision of any label counts), false alarms (hard braking) per
+episode and per Yield episode, the false-discovery rate of its hard brakes, collisions in
+Yield and Right episodes, time lost; the safety margins over the Cutoff episodes
+(:func:`cdf_mj.analysis.tables.margin_table`); then ``cdf`` against every other planner
+seed by seed (exact McNemar tests on collisions of any label and on false alarms), and
+the issue's targets::
 
-    python scripts/decision.py                          # all parts (about 15 min on 2 cores)
+    python scripts/decision.py                          # all parts (about 25 min on 2 cores)
     python scripts/decision.py --parts held-out --episodes 20 --out /tmp/d --doc /tmp/d.md
 
 Bad input (an unknown part or planner, a result directory of other settings) is one line
@@ -39,16 +42,19 @@ from typing import Any, NoReturn
 
 from cdf_mj.analysis.metrics import PlannerMetrics, mcnemar_exact, paired_counts, planner_metrics
 from cdf_mj.analysis.pages import ScriptParser, exit_status, fail, write_page
-from cdf_mj.analysis.tables import format_number, format_rate
-from cdf_mj.config import CDFConfig, ScenarioConfig
+from cdf_mj.analysis.safety import safety_summary
+from cdf_mj.analysis.tables import format_number, format_rate, margin_table
+from cdf_mj.config import CDFConfig, LayeredConfig, ScenarioConfig
 from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
 from cdf_mj.planners.registry import PLANNERS
 from cdf_mj.presets import load_preset, scenario_preset_names
 from cdf_mj.records import completed, is_false_alarm, record_field
 
 PROG = "decision"
-PLANNERS_DEFAULT = ("cdf", "cdf-threshold", "imm-risk", "imm", "cv-risk", "reactive")
-PRESET_PLANNERS = ("cdf", "cdf-threshold", "imm-risk", "reactive")
+PLANNERS_DEFAULT = ("cdf", "cdf-risk", "cdf-threshold", "imm-layered", "imm-risk", "imm", "cv-layered", "reactive")
+PRESET_PLANNERS = ("cdf", "cdf-risk", "cdf-threshold", "imm-layered", "reactive")
+#: The predictor the CDF is judged against under the same (layered) rule.
+SAME_RULE = "imm-layered"
 
 
 @dataclass(frozen=True)
@@ -117,26 +123,55 @@ def _verdict(ok: bool) -> str:
     return "met" if ok else "**missed**"
 
 
-def targets(metrics: dict[str, PlannerMetrics]) -> list[str]:
-    """The issue's targets for the default scenario, judged on the point estimates."""
+def _cutoff_safety(records: Sequence[dict[str, Any]], planner: str) -> dict[str, Any]:
+    """:func:`safety_summary` of ``planner``'s Cutoff episodes, with the count of those it
+    avoided without a hard brake (``no_brake``)."""
+    cut = [r for r in records if record_field(r, "planner") == planner and record_field(r, "label") == "Cutoff"]
+    return {**safety_summary(cut), "no_brake": sum(1 for r in cut if record_field(r, "brake_time") is None),
+            "n": len(cut)}
+
+
+def targets(records: Sequence[dict[str, Any]], metrics: dict[str, PlannerMetrics]) -> list[str]:
+    """The issue's targets for ``cdf`` on the default scenario, judged on the point estimates."""
     cdf = metrics.get("cdf")
     if cdf is None:
         return []
+    mine = [r for r in records if record_field(r, "planner") == "cdf"]
+    s, every = _cutoff_safety(records, "cdf"), safety_summary(mine)
     lines = ["Targets (default scenario, point estimates):", ""]
-    fa, fay = cdf.false_alarms, cdf.false_alarms_yield
-    lines += [f"- recall 100 %: {format_rate(cdf.recall)}: {_verdict(cdf.recall.k == cdf.recall.n)}",
-              f"- avoided, paper's formula, >= 99 %: {_percent(cdf.paper_avoided)}: "
-              f"{_verdict(cdf.paper_avoided >= 0.99)}",
-              f"- false alarms <= 1.0 % of episodes: {format_rate(fa)}: {_verdict(fa.value <= 0.01)}",
-              f"- false alarms <= 3 % of Yield episodes: {format_rate(fay)}: {_verdict(fay.value <= 0.03)}"]
+    fa = cdf.false_alarms
+    ttc = s["ttc_at_brake"]
+    ttc_ok = not ttc["n"] or (ttc["median"] >= 1.5 and ttc["min"] >= 1.0)
+    ttc_text = ("no hard brake in any Cutoff episode" if not ttc["n"] else
+                f"median {ttc['median']:.2f} s, least {ttc['min']:.2f} s over the {ttc['n']} Cutoff episodes "
+                f"with a hard brake; {s['no_brake']} of {s['n']} needed none")
+    switches = every["brake_switches"]
+    rss = every["rss_ticks"]
+    rss_ok = not rss["n"] or rss["value"] <= 0.01
+    rss_text = "-" if not rss["n"] else f"{100 * (1 - rss['value']):.1f} % of {rss['n']} ticks"
+    jerk, limit = every["peak_jerk_comfort"], LayeredConfig().comfort_jerk
+    lines += [f"- Cutoff recall 100 %: {format_rate(cdf.recall)}: {_verdict(cdf.recall.k == cdf.recall.n)}",
+              f"- avoided 100 %: {format_rate(cdf.avoided)}: {_verdict(cdf.avoided.k == cdf.avoided.n)}",
+              f"- avoided, paper's formula, >= 99.5 %: {_percent(cdf.paper_avoided)}: "
+              f"{_verdict(cdf.paper_avoided >= 0.995)}",
+              f"- false alarms (hard braking) <= 1.0 % of episodes: {format_rate(fa)}: {_verdict(fa.value <= 0.01)}",
+              f"- TTC at the first hard brake >= 1.5 s median and >= 1.0 s least, or no hard brake needed: "
+              f"{ttc_text}: {_verdict(ttc_ok)}",
+              f"- brake switches <= 2 per episode (median): "
+              f"{format_number(switches['median'], 0) if switches['n'] else '-'}: "
+              f"{_verdict(not switches['n'] or switches['median'] <= 2)}",
+              f"- following ticks at or beyond the RSS distance >= 99 %: {rss_text}: {_verdict(rss_ok)}",
+              f"- peak jerk outside hard braking within the rule's stated {limit:g} m/s³ (the world's process "
+              f"noise on the acceleration adds its own): median {format_number(jerk['median'], 1)}, largest "
+              f"{format_number(jerk['max'], 1)} m/s³: {_verdict(not jerk['n'] or jerk['max'] <= limit)}"]
+    if "cdf-threshold" in metrics:
+        t = metrics["cdf-threshold"]
+        lines.append(f"- time lost no more than the paper's rule's: {format_number(cdf.time_lost)} s vs "
+                     f"{format_number(t.time_lost)} s: {_verdict(cdf.time_lost <= t.time_lost)}")
     if "reactive" in metrics:
         r = metrics["reactive"]
         lines.append(f"- collisions in Yield episodes no more than reactive's: {cdf.collisions_yield} vs "
                      f"{r.collisions_yield}: {_verdict(cdf.collisions_yield <= r.collisions_yield)}")
-    if "cdf-threshold" in metrics:
-        t = metrics["cdf-threshold"]
-        lines.append(f"- less time lost than the threshold rule: {format_number(cdf.time_lost)} s vs "
-                     f"{format_number(t.time_lost)} s: {_verdict(cdf.time_lost < t.time_lost)}")
     return [*lines, ""]
 
 
@@ -158,7 +193,7 @@ def beats(records: Sequence[dict[str, Any]], metrics: dict[str, PlannerMetrics],
     verdict = ("better on both" if both else "no worse on either, better on one" if neither_worse
                and (hits, alarms) != (other_hits, other_alarms) else "the same" if neither_worse
                else "worse on at least one")
-    return (f"cdf against {other} (same rule, other predictor): collisions {hits} vs {other_hits} "
+    return (f"cdf against {other} (the same layered rule, another predictor): collisions {hits} vs {other_hits} "
             f"({_compare(hits, other_hits)}; McNemar p = {p_hit:.3g}), false alarms {alarms} vs {other_alarms} "
             f"({_compare(alarms, other_alarms)}; p = {p_fa:.3g}): {verdict}.")
 
@@ -194,16 +229,17 @@ def section(part: Part, records: Sequence[dict[str, Any]], failed: int) -> list[
              f"{labels['Right']} Right" + (f"; {failed} failed episode(s) left out" if failed else "") + ".", ""]
     if not metrics:
         return [*lines, "No completed episode.", ""]
-    lines += [*planner_rows(metrics), ""]
+    lines += [*planner_rows(metrics), "", "Safety margins over the Cutoff episodes (from the true poses, "
+              "docs/SAFETY.md):", "", *margin_table(good, list(metrics)), ""]
     if "cdf" in metrics:
         lines += [*paired_rows(good, "cdf", [p for p in metrics if p != "cdf"]), ""]
-        verdict = beats(good, metrics, "imm-risk")
+        verdict = beats(good, metrics, SAME_RULE)
         if verdict:
             lines += [verdict, ""]
-        lines += [f"- {line}" for p in ("cdf", "cdf-threshold") if (line := false_alarm_brakes(good, p))]
+        lines += [f"- {line}" for p in ("cdf", "cdf-risk", "cdf-threshold") if (line := false_alarm_brakes(good, p))]
         lines.append("")
     if part.name in ("held-out", "development"):
-        lines += targets(metrics)
+        lines += targets(good, metrics)
     return lines
 
 
@@ -214,16 +250,20 @@ def markdown(sections: list[list[str]], small: bool) -> str:
         "",
         "The rules and how the threshold was chosen: [DECISION.md](DECISION.md).",
         "",
-        "- `cdf`: the CDF filter with the risk rule; `cdf-threshold`: the same filter with the paper's",
-        "  rule (brake once P(cutoff) >= tau, held); `imm-risk`, `cv-risk`: the intent-only IMM and the",
-        "  constant-velocity predictors with the same risk rule; `imm`: the IMM with its own threshold",
-        "  rule; `reactive`: brakes once the obstacle is in the ego's lane.",
-        "- **Cutoff recall**: Cutoff episodes in which the planner braked. **avoided**: Cutoff episodes",
-        "  without a collision with the obstacle. **paper's formula**: (Cutoff episodes - collisions with",
-        "  the obstacle of any label) / Cutoff episodes. **false alarms**: braked in an episode not",
-        "  labelled Cutoff, of all episodes and of the Yield episodes. **false discovery**: of the episodes",
-        "  in which it braked (predicted Cutoff), those not labelled Cutoff. **time lost**: mean over",
-        "  episodes without a collision.",
+        "- `cdf`: the CDF filter with the layered rule (anticipate, emergency, follow: a graded command);",
+        "  `cdf-risk`: the same filter with version 0.2's risk rule (the full brake at the last safe",
+        "  moment, released); `cdf-threshold`: with the paper's rule (brake once P(cutoff) >= tau, held);",
+        "  `imm-layered`, `cv-layered`: the intent-only IMM and the constant-velocity predictors with the",
+        "  layered rule (each predictor's anticipation threshold chosen by one rule on seeds 0-199);",
+        "  `imm-risk`: the IMM with the risk rule; `imm`: the IMM with its own threshold rule; `reactive`:",
+        "  brakes once the obstacle is in the ego's lane.",
+        "- **Cutoff recall**: Cutoff episodes the planner predicted (it braked hard, or the layered rule",
+        "  was slowing the ego when the obstacle entered its lane). **avoided**: Cutoff episodes without a",
+        "  collision with the obstacle. **paper's formula**: (Cutoff episodes - collisions with the",
+        "  obstacle of any label) / Cutoff episodes. **false alarms**: braked hard (3 m/s² or more for the",
+        "  layered rule; the full brake for the others) in an episode not labelled Cutoff, of all episodes",
+        "  and of the Yield episodes. **false discovery**: of the episodes in which it braked hard, those",
+        "  not labelled Cutoff. **time lost**: mean over episodes without a collision.",
         "- 95 % Wilson intervals; paired tables count the seeds on which only one planner collides (any",
         "  label) or false-alarms, with the exact two-sided McNemar test on those discordant seeds.",
         "",

@@ -13,7 +13,10 @@ each baseline (exact McNemar test on the discordant seeds), and the issue's targ
     python scripts/mismatch.py                                   # 200 seeds from 1000, all presets
     python scripts/mismatch.py --episodes 5 --presets paper,stop-and-wait --out /tmp/mm --doc /tmp/mm.md
 
-The CDF always runs with ``CDFConfig()``: its parameters were chosen on seeds 0-199, so
+The CDF always runs with ``CDFConfig()`` (its default layered rule: a graded command that
+slows gently, brakes hard only in an emergency or behind a car too close, and releases;
+its false alarms and lead times count hard brakes, ``LayeredConfig.hard_brake`` or more of
+deceleration): its parameters and the rule's thresholds were chosen on seeds 0-199, so
 the default seeds 1000-1199 are held out. Every metric is the one of
 :mod:`cdf_mj.analysis.metrics` and :mod:`cdf_mj.records`. Progress goes to stderr. Bad
 input (an unknown or broken preset, a result directory of other settings) is one line
@@ -108,7 +111,7 @@ def _causes(cdf: Sequence[dict[str, Any]]) -> str:
     if hits:
         lead = f" (median lead time {format_number(median(leads))} s)" if leads else ""
         late_text = f"{len(late)} braked too late{lead}"
-        parts.append(f"Collisions: {unwarned} Cutoff episodes without braking, {late_text}, "
+        parts.append(f"Collisions: {unwarned} Cutoff episodes without a hard brake, {late_text}, "
                      f"{other} in episodes not labelled Cutoff.")
     alarms = Counter(str(record_field(r, "label")) for r in cdf if is_false_alarm(r))
     if alarms:
@@ -173,11 +176,19 @@ def mismatch_markdown(results: Sequence[PresetResult], planners: Sequence[str]) 
     seeds = max((len({record_field(r, "seed") for r in completed(res.records)}) for res in results), default=0)
     few = [f"**{seeds} seeds per preset: a check that the evaluation runs, not a result (the intervals are too "
            "wide for any conclusion).**", ""] if seeds < 100 else []
+    cdf = CDFConfig()
+    layered = cdf.decision == "layered"
+    rule = (": graded, it slows gently, brakes hard only in an emergency or behind a car too close, and "
+            "releases" if layered else "")
+    brake = ([f"- **brake**: a hard brake: a command of {cdf.layered.hard_brake:g} m/s² or more of deceleration "
+              "for a planner with", "  the layered rule (`cdf`: its gentle slowing is not a brake), the full brake "
+              "for the others."] if layered
+             else ["- **brake**: the full brake."])
     lines = [
         "# Model mismatch: the CDF on its defaults against drivers it was not written for",
         "",
         "Each preset (`cdf-mj presets`, files in `cdf_mj/presets/`) changes the world's driver, or the ego,",
-        f"in one trait; the CDF keeps `CDFConfig()` (chosen on seeds 0-199; its {CDFConfig().decision} rule), "
+        f"in one trait; the CDF keeps `CDFConfig()` (chosen on seeds 0-199; its {cdf.decision} rule{rule}), "
         "and the planners",
         f"{', '.join(planners)} run on the same seeds (common random numbers).",
         "",
@@ -185,9 +196,10 @@ def mismatch_markdown(results: Sequence[PresetResult], planners: Sequence[str]) 
         "- **avoided**: Cutoff episodes without a collision with the obstacle / Cutoff episodes.",
         "- **paper's formula**: (Cutoff episodes - collisions with the obstacle of any label) / Cutoff",
         "  episodes; the issue's target is on this one.",
+        *brake,
         "- **false alarms**: episodes not labelled Cutoff in which the planner braked / all episodes.",
-        "- **lead time**: median of (obstacle enters the ego lane - brake decision) over braking Cutoff",
-        "  episodes.",
+        "- **lead time**: median of (obstacle enters the ego lane - first brake) over the Cutoff episodes",
+        "  with a brake.",
         "- Intervals are 95 % Wilson intervals. The paired tables count seeds on which only one of the two",
         "  planners collides (Cutoff episodes) or brakes (other episodes); McNemar p is the exact two-sided",
         "  binomial test on those discordant seeds.",

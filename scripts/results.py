@@ -10,11 +10,15 @@ the package version, :mod:`cdf_mj.analysis.pages`):
   experiment; the scenario was calibrated on these seeds);
 - ``held-out``: the same on seeds 100000-100999, never used to choose anything.
 
-Both run ``cdf`` (the CDF with its risk rule, the default), ``cdf-threshold`` (the CDF with
-the paper's rule) and ``reactive`` (the paper's baseline) on the same seeds. The page has
-the paper's two tables beside ours (the CDF's predictions against the labels; collisions,
-avoidance by our count and by the paper's formula, false alarms, lead time, gap, time
-lost; 95 % Wilson intervals), every figure the paper reports set against our interval
+Both run ``cdf`` (the CDF with its layered rule, the default: a graded command that slows
+the ego gently when a cut-off becomes likely, brakes hard only in an emergency or behind a
+car too close, and releases), ``cdf-threshold`` (the CDF with the paper's rule) and
+``reactive`` (the paper's baseline) on the same seeds. A *brake* is a hard brake
+(``LayeredConfig.hard_brake`` or more of deceleration for ``cdf``; the full brake for the
+others): the false alarms and lead times count those only. The page has the paper's two
+tables beside ours (the CDF's predictions against the labels; collisions, avoidance by our
+count and by the paper's formula, false alarms, lead time, gap, time lost; 95 % Wilson
+intervals), every figure the paper reports set against our interval
 (matched: the paper's figure inside it), where the differences come from (counted from
 the records), and the figures of ``cdf-mj report`` for the development part (into
 ``--figures``, default docs/img/report; needs matplotlib). Every number on the page comes
@@ -138,7 +142,7 @@ def part_section(part: Part, records: Sequence[dict[str, Any]], failed: int, out
     for planner in CDF_PLANNERS:
         mine = _of(good, planner)
         if mine:
-            rule = "the risk rule" if planner == "cdf" else "the paper's rule"
+            rule = "the layered rule" if planner == "cdf" else "the paper's rule"
             lines += [f"`{planner}` ({rule}): predictions, ours \\| paper", "", *confusion_lines(mine, planner)]
     lines += ["Planners:", "", *planner_lines(planner_metrics(good)), ""]
     return lines
@@ -273,13 +277,13 @@ def cause_lines(records: Sequence[dict[str, Any]], planner: str, part_name: str)
                 if record_field(r, "brake_time") is None and not hit_obstacle(r)]
         lost = [float(record_field(r, "time_lost")) for r in alarms if not hit_obstacle(r)]
         lines.append(
-            f"- `{planner}`, {part_name}: {_count(len(alarms), 'false alarm')}. It braked at "
+            f"- `{planner}`, {part_name}: {_count(len(alarms), 'false alarm')}. It first braked hard at "
             f"{_range(brake)}; the obstacle first saw the ego at "
             f"{_range([float(record_field(r, 'first_seen_time')) for r in seen])} in {len(seen)} of them "
             f"({after} at or after the brake), never in {len(alarms) - len(seen)}. Released by the end: "
             f"{released}. Mean time lost in them {format_number(statistics.fmean(lost) if lost else None)} s, "
-            f"against {format_number(statistics.fmean(calm) if calm else None)} s in episodes without a brake "
-            "or a collision.")
+            f"against {format_number(statistics.fmean(calm) if calm else None)} s in episodes without a hard "
+            "brake or a collision.")
     others = [r for r in mine if hit_obstacle(r) and not is_imminent(r)]
     if others:
         delays = [float(record_field(r, "collision_time")) - float(record_field(r, "brake_time")) for r in others
@@ -290,7 +294,8 @@ def cause_lines(records: Sequence[dict[str, Any]], planner: str, part_name: str)
         lines.append(
             f"- `{planner}`, {part_name}: {_count(len(others), 'collision')} in episodes not labelled Cutoff "
             f"(seeds {seeds}"
-            f"{more}); {len(others) - unbraked} after a brake, from brake to contact {_range(delays)}; "
+            f"{more}); {len(others) - unbraked} after a hard brake, from its first hard brake to contact "
+            f"{_range(delays)}; "
             f"{unbraked} without one.")
     cut_hits = [r for r in mine if hit_obstacle(r) and is_imminent(r)]
     if cut_hits:
@@ -299,16 +304,18 @@ def cause_lines(records: Sequence[dict[str, Any]], planner: str, part_name: str)
         starts = [float(record_field(r, "ego_start_offset")) for r in cut_hits]
         lines.append(
             f"- `{planner}`, {part_name}: {_count(len(cut_hits), 'collision')} in Cutoff episodes: {unbraked} without "
-            f"a brake, {len(cut_hits) - unbraked} braked too late (lead time {_range(leads)}); ego start offsets "
+            f"a hard brake, {len(cut_hits) - unbraked} braked too late (lead time {_range(leads)}); ego start offsets "
             f"{_range(starts, 'm')}.")
     return lines
 
 
 def causes_section(by_part: dict[str, list[dict[str, Any]]], names: dict[str, str]) -> list[str]:
     lines = ["## Where the differences come from", "",
-             "Counted from the same records. A *false alarm* is a brake in an episode not labelled Cutoff; "
-             "\"first saw\" is the obstacle driver's first observation of the ego (`first_seen_time`), after "
-             "which it may yield; the paper's rule holds its brake, the risk rule may release it.", ""]
+             "Counted from the same records. A *false alarm* is a hard brake in an episode not labelled Cutoff "
+             f"(for `cdf`, a command of {CDFConfig().layered.hard_brake:g} m/s² or more of deceleration: its gentle "
+             "slowing is not one); \"first saw\" is the obstacle driver's first observation of the ego "
+             "(`first_seen_time`), after which it may yield; the paper's rule holds its brake, the layered rule "
+             "releases it.", ""]
     body = [line for planner in PLANNERS for p, recs in by_part.items()
             for line in cause_lines(recs, planner, names[p])]
     return [*lines, *(body or ["Nothing to explain: no false alarm and no collision."]), ""]
@@ -322,7 +329,7 @@ def figure_lines(run_dir: Path, records: Sequence[dict[str, Any]], figures_dir: 
 
     cdf = sorted(_of(completed(records), "cdf"), key=lambda r: record_field(r, "seed"))
     seeds = []
-    for lab in LABELS:  # the first seed of each label, a Cutoff the CDF braked for first
+    for lab in LABELS:  # the first seed of each label, a Cutoff the CDF braked hard in first
         cand = [r for r in cdf if record_field(r, "label") == lab]
         cand.sort(key=lambda r: (record_field(r, "brake_time") is None) == (lab == LABELS[0]))
         if cand:
@@ -347,6 +354,7 @@ def markdown(sections: list[list[str]], beside: list[str], causes: list[str], fi
              small: bool, out: Path) -> str:
     """The whole page (without its stamp)."""
     scenario, cdf = ScenarioConfig(), CDFConfig()
+    lay = cdf.layered
     timing = ", ".join(f"{k} = {v}" for k, v in scenario.to_dict().get("timing", {}).items())
     lines = [
         "# Results: the paper's experiment in MuJoCo",
@@ -355,9 +363,15 @@ def markdown(sections: list[list[str]], beside: list[str], causes: list[str], fi
         "The planners run on the same seeds (common random numbers: the same obstacle intent, observation",
         "draws, noise and ego start for each seed):",
         "",
-        f"- `cdf`: the CDF's particle filter ({cdf.n_particles} particles) with the risk rule, the default: brake "
-        f"when the probability of a collision that deferring would make unavoidable reaches {cdf.risk.brake:g}, "
-        f"release below {cdf.risk.release:g} ([DECISION.md](DECISION.md));",
+        f"- `cdf`: the CDF's particle filter ({cdf.n_particles} particles) with the layered rule, the default "
+        "([DECISION.md](DECISION.md)), a graded command each tick: it slows the ego gently (at "
+        f"{lay.comfort_brake:g} m/s²) once the probability of a collision if the ego goes on reaches "
+        f"{lay.anticipate:g} and slowing is the less risky (until it falls below {lay.anticipate_release:g}); it "
+        "brakes fully only in an emergency (the probability of a collision that deferring the full brake by one "
+        f"tick and {cdf.risk.latency + lay.emergency_margin:g} s would leave unavoidable reaches "
+        f"{cdf.risk.brake:g}, released below {cdf.risk.release:g}) or behind a car in its lane closer than the "
+        f"RSS safe distance (further back it follows at a {lay.time_gap:g} s time gap); a hard brake is held at "
+        f"least {lay.dwell:g} s. Its *brake* is a command of {lay.hard_brake:g} m/s² or more of deceleration;",
         f"- `cdf-threshold`: the same filter with the paper's rule: brake once P(cutoff) >= τ = {cdf.tau:g}, "
         "held to the end;",
         "- `reactive`: the paper's baseline, brakes once any part of the obstacle is inside the ego's lane.",
@@ -365,12 +379,16 @@ def markdown(sections: list[list[str]], beside: list[str], causes: list[str], fi
         "Labels come from a counterfactual run of each seed with the ego holding its speed (README, \"The",
         "scenario\"): Cutoff (it would hit the obstacle), Yield (a left-turner that does not cut it off),",
         "Right. The paper's tables are of its CDF, whose rule is that of `cdf-threshold`; its figures stand",
-        "beside both CDF rows. Every rate has its 95 % Wilson interval.",
+        "beside both CDF rows. A CDF predicts Cutoff if it braked (hard), or, for `cdf`, if it was slowing the",
+        "ego when the obstacle entered the ego's lane; otherwise Yield or Right by its last P(left). Every rate",
+        "has its 95 % Wilson interval.",
         "",
         f"Scenario: `ScenarioConfig()` (timing: {timing}); the CDF: `CDFConfig()`. The scenario was calibrated "
         "on seeds 0–999 for its label shares and the reactive baseline only ([PARAMETERS.md](PARAMETERS.md)); "
-        "the CDF's parameters and the risk rule's threshold were chosen on seeds 0–199 "
-        "([DECISION.md](DECISION.md)); seeds 100000–100999 were never used to choose anything.",
+        "the CDF's parameters, the risk rule's threshold (the layered rule's emergency layer uses it) and the "
+        "layered rule's anticipation threshold were chosen on seeds 0–199 ([DECISION.md](DECISION.md); "
+        "`scripts/tune_risk.py`, `scripts/tune_layers.py`); seeds 100000–100999 were never used to choose "
+        "anything.",
         "",
         f"Each part is one `run_experiment` call into `{out}/<part>` (the records of `cdf-mj experiment "
         "--planners cdf,cdf-threshold,reactive` on the same seeds). `cdf-mj experiment` prints the same "
@@ -387,11 +405,12 @@ def markdown(sections: list[list[str]], beside: list[str], causes: list[str], fi
         "- *avoided*: our figure: Cutoff episodes without such a contact, of all Cutoff episodes.",
         "- *(imminent − occurred) / imminent*: the paper's formula, beside ours for comparison with the paper:",
         "  since *occurred* counts every label, it also charges the collisions in episodes labelled Yield",
-        "  (after a false alarm), so it is at most our *avoided*.",
-        "- *false alarms*: episodes not labelled Cutoff in which the planner braked, of all episodes (and of",
-        "  the Yield episodes).",
-        "- *lead time*: from the brake to the obstacle entering the ego lane, median over the Cutoff episodes",
-        "  in which the planner braked (negative: braked after the entry).",
+        "  (after a false alarm, for example), so it is at most our *avoided*.",
+        "- *false alarms*: episodes not labelled Cutoff in which the planner braked hard, of all episodes (and",
+        f"  of the Yield episodes): for `cdf` a command of {lay.hard_brake:g} m/s² or more of deceleration (its",
+        "  gentle slowing is not a brake), for the others their full brake.",
+        "- *lead time*: from the first hard brake to the obstacle entering the ego lane, median over the Cutoff",
+        "  episodes in which the planner braked hard (negative: braked after the entry).",
         "- *min gap*: the smallest distance between the two cars' hulls, median over all episodes.",
         "- *time lost*: the ego's progress deficit at the end over its nominal speed, mean over episodes",
         "  without a collision.",

@@ -15,7 +15,8 @@ same command continues a killed run), then write a Markdown page (default docs/S
   paper's formula), false alarms (braked in an episode not labelled Cutoff), with 95 %
   Wilson intervals; the safety margins of :mod:`cdf_mj.analysis.safety` over the Cutoff
   episodes (docs/SAFETY.md defines each); exact McNemar tests of ``cdf`` against every
-  other planner, seed by seed, on collisions and on false alarms::
+  other planner, seed by seed, on collisions and on false alarms;
+- the issue's targets for ``cdf`` on the presets that have one, met or missed::
 
     python scripts/stress.py                                      # everything (long)
     python scripts/stress.py --episodes 4 --presets stress-merge-brakes --doc /tmp/s.md
@@ -27,7 +28,9 @@ for this suite measured its first table on seeds 100000-100099, which these incl
 episodes, and some 80 Cutoff episodes per preset for the margins.
 
 The CDF runs with ``CDFConfig()`` everywhere: nothing of a stress (the world's driver
-family, the noise, the latency) is passed to any planner. Results are as measured: a
+family, the noise, the latency) is passed to any planner, except in the ``*-told`` presets,
+which tell every planner the ego's own sensing figures (``sensing.told``: the latency and the
+noise, as a real ego knows its own hardware). Results are as measured: a
 failure here is a finding, not an error. Progress goes to stderr. Bad input (an unknown
 or broken preset, an unknown planner, a count out of range, a result directory of other
 settings) is one line ``stress: error: ...`` and exit status 2, before anything runs.
@@ -45,8 +48,8 @@ from typing import Any
 
 from cdf_mj.analysis.metrics import Rate, mcnemar_exact, paired_counts, planner_metrics
 from cdf_mj.analysis.pages import ScriptParser, command_line, write_page
-from cdf_mj.analysis.safety import SafetyParams, safety_summary
-from cdf_mj.analysis.tables import format_number, format_rate
+from cdf_mj.analysis.safety import SafetyParams
+from cdf_mj.analysis.tables import format_number, format_rate, margin_table
 from cdf_mj.cli.args import CLIError, _episodes, _non_negative_int, _out_path, _planner_list, _seed_range, _workers
 from cdf_mj.config import CDFConfig
 from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
@@ -54,7 +57,14 @@ from cdf_mj.presets import STRESS_PREFIX, Preset, preset_names, read_preset
 from cdf_mj.records import RecordLike, completed, hit_obstacle, is_imminent, record_field
 
 PROG = "stress"
-PLANNERS_DEFAULT = ("cdf", "cdf-threshold", "imm-risk", "reactive")
+PLANNERS_DEFAULT = ("cdf", "cdf-risk", "cdf-threshold", "imm-layered", "reactive")
+#: The issue's targets for ``cdf`` on the stress presets: no collision where the merged car
+#: brakes or stops; at most 1 % collisions under noise and latency the rule is told; for the
+#: driver families written apart from the filter's model, the paper's formula >= 99 % and
+#: false alarms <= 3 %.
+NO_COLLISION = ("stress-merge-brakes", "stress-merge-stops")
+TOLD = ("stress-noise-told", "stress-latency-2-told", "stress-brake-latency-2-told")
+FAMILIES = ("stress-gap-acceptance", "stress-rolling-stop", "stress-aggressive", "stress-off-route")
 REFERENCE = "default"  # the preset of the default world, run first for reference
 SEED0, EPISODES = 100000, 200  # held out; see the module docstring
 SIGNIFICANT = 0.05  # McNemar p below which the overview names a difference
@@ -89,17 +99,6 @@ def _collisions(records: Sequence[RecordLike]) -> Rate:
     return Rate(sum(map(hit_obstacle, records)), len(records))
 
 
-def _stat(entry: dict[str, Any], extreme: str | None = None, digits: int = 2) -> str:
-    """A :func:`safety_summary` entry: its median, ``[min]`` or ``[max]`` if asked, and in
-    how many episodes it happened; ``-`` if in none."""
-    if not entry["n"]:
-        return "-"
-    text = format_number(entry["median"], digits)
-    if extreme:
-        text += f" [{format_number(entry[extreme], digits)}]"
-    return f"{text} ({entry['n']})"
-
-
 def _value(v: Any) -> str:
     return f"[{', '.join(f'{x:g}' for x in v)}]" if isinstance(v, tuple) else f"{v:g}" if isinstance(v, float) \
         else str(v).lower() if isinstance(v, bool) else str(v)
@@ -119,32 +118,6 @@ def outcome_table(records: Sequence[RecordLike], planners: Sequence[str]) -> lis
     return _table(["planner", "episodes", "collisions with the obstacle, any label (95 % CI)",
                    "Cutoff avoided (95 % CI)", "paper's formula", "false alarms: braked, not Cutoff (95 % CI)",
                    "time lost [s]"], rows)
-
-
-def margin_table(records: Sequence[RecordLike], planners: Sequence[str]) -> list[str]:
-    """Markdown: per planner, the safety margins over its Cutoff episodes."""
-    critical = SafetyParams().ttc_critical
-    rows = []
-    for name in planners:
-        cutoffs = [r for r in _of(records, name) if is_imminent(r)]
-        if not cutoffs:
-            continue
-        s = safety_summary(cutoffs)
-        rss = s["rss_ticks"]
-        rss_text = "-" if not rss["n"] else (f"{100 * rss['value']:.0f} % of {rss['n']} ticks; "
-                                             f"{s['rss_episodes']['k']}/{s['rss_episodes']['n']} episodes")
-        rows.append([name, str(s["episodes"]), _stat(s["ttc_at_brake"], "min"),
-                     format_rate(Rate(s["late_brake"]["k"], s["late_brake"]["n"])), _stat(s["min_ttc"]),
-                     _stat(s["min_headway"]), _stat(s["min_gap"]), rss_text, _stat(s["brake_switches"], digits=0),
-                     _stat(s["peak_decel"], "max"), _stat(s["peak_jerk_comfort"], digits=1)])
-    if not rows:
-        return ["No Cutoff episode: no margins."]
-    return _table(["planner", "Cutoff episodes", "TTC at brake onset [s], median [min] (n)",
-                   f"onsets with TTC < {critical:g} s (95 % CI)", "minimum TTC [s], median (n)",
-                   "minimum headway [s], median (n)", "minimum gap [m], median (n)",
-                   "following ticks under the RSS distance", "brake switches, median (n)",
-                   "peak deceleration [m/s²], median [max] (n)", "peak jerk outside hard braking [m/s³], "
-                   "median (n)"], rows)
 
 
 def paired_table(records: Sequence[RecordLike], planners: Sequence[str]) -> list[str]:
@@ -181,6 +154,36 @@ def preset_section(run: PresetRun, planners: Sequence[str]) -> list[str]:
               "Margins over the Cutoff episodes:", "", *margin_table(run.records, planners), "",
               "`cdf` against the others, seed by seed:", "", *paired_table(run.records, planners), ""]
     return lines
+
+
+def targets(runs: Sequence[PresetRun]) -> list[str]:
+    """Markdown: the issue's targets for ``cdf`` (:data:`NO_COLLISION`, :data:`TOLD`,
+    :data:`FAMILIES`) on the presets of this page, judged on the point estimates."""
+    lines = []
+    for run in runs:
+        m = planner_metrics(run.records).get("cdf")
+        name = run.preset.name
+        if m is None:
+            continue
+        hits = _collisions(_of(run.records, "cdf"))
+        if name in NO_COLLISION:
+            lines.append(f"- `{name}`: no collision: {format_rate(hits)}: {_verdict(hits.k == 0)}")
+        elif name in TOLD:
+            lines.append(f"- `{name}`: collisions <= 1 %: {format_rate(hits)}: {_verdict(hits.value <= 0.01)}")
+        elif name in FAMILIES:
+            paper = m.paper_avoided
+            shown = "-" if not m.imminent else f"{100 * paper:.1f} % ({m.imminent - m.collisions}/{m.imminent})"
+            ok = (not m.imminent or paper >= 0.99) and m.false_alarms.value <= 0.03
+            lines.append(f"- `{name}`: paper's formula >= 99 %: {shown}; false alarms <= 3 %: "
+                         f"{format_rate(m.false_alarms)}: {_verdict(ok)}")
+    if not lines:
+        return []
+    return ["## Targets for `cdf`", "", "The issue's targets on the stress presets (point estimates):", "",
+            *lines, ""]
+
+
+def _verdict(ok: bool) -> str:
+    return "met" if ok else "**missed**"
 
 
 def overview(runs: Sequence[PresetRun], planners: Sequence[str]) -> list[str]:
@@ -233,24 +236,31 @@ def stress_markdown(runs: Sequence[PresetRun], planners: Sequence[str]) -> str:
         *few,
         f"Planners {', '.join(f'`{p}`' for p in planners)} on the same seeds of every preset (common random",
         "numbers); each preset (`cdf-mj presets NAME`, files `cdf_mj/presets/stress-*.toml`) sets only what it",
-        "stresses, and no planner is told of it (the CDF keeps `CDFConfig()`). Results as measured.",
+        "stresses, and no planner is told of it (the CDF keeps `CDFConfig()`), except the `*-told` presets,",
+        "which tell every planner the ego's own sensing figures (its latency and noise). `cdf` decides with",
+        "the layered rule, `cdf-risk` with version 0.2's risk rule, `cdf-threshold` with the paper's, and",
+        "`imm-layered` is the intent-only IMM with the layered rule (docs/DECISION.md). Results as measured.",
         "",
         *overview(runs, planners),
+        *targets(runs),
         "## How to read the tables",
         "",
         "- **collisions**: episodes in which the ego touched the obstacle, whatever the label.",
         "- **Cutoff avoided**: Cutoff episodes (the constant-speed run of the seed hits the obstacle) without",
         "  a collision with the obstacle; **paper's formula**: (Cutoff episodes - collisions of any label) /",
         "  Cutoff episodes.",
-        "- **false alarms**: episodes not labelled Cutoff in which the planner braked, of all episodes.",
+        "- **false alarms**: episodes not labelled Cutoff in which the planner braked hard (a graded",
+        "  command of `LayeredConfig.hard_brake`, 3 m/s², or more; the others' full brake), of all episodes.",
         "- **time lost**: the ego's progress deficit at the end, mean over the episodes without a collision.",
         "- The margins are over the Cutoff episodes, from the true poses (docs/SAFETY.md gives every",
-        "  formula); (n) counts the episodes in which a margin happened: **TTC at brake onset** at the first",
-        f"  brake (median [least]) and the share of onsets with TTC < {critical:g} s; **minimum TTC** with the",
+        "  formula); (n) counts the episodes in which a margin happened: the Cutoff episodes the planner",
+        "  avoided **without a hard brake** (slowing only); **TTC at the first hard brake** (median",
+        f"  [least]) and the share of those onsets with TTC < {critical:g} s; **minimum TTC** with the",
         "  obstacle in the lane; **minimum headway** (gap / ego speed) with it ahead in the lane; **minimum",
         "  gap** between the collision boxes; **following ticks under the RSS distance**, pooled over the",
-        "  episodes, and the episodes with any; **brake switches** (on or off); **peak deceleration**",
-        "  (median [largest]); **peak jerk outside hard braking**, the comfort jerk.",
+        "  episodes, and the episodes with any; **brake switches** (hard braking on or off); **peak",
+        "  deceleration** (median [largest]); **peak jerk outside hard braking**, the comfort jerk (median",
+        "  [largest]; it includes the world's process noise on the acceleration, 0.3 m/s² a tick).",
         "- 95 % Wilson intervals. The paired tables count the seeds on which only one of the two planners",
         "  collides (any label) or false-alarms; McNemar p is the exact two-sided binomial test on those",
         "  discordant seeds.",
