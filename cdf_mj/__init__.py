@@ -22,7 +22,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-__version__ = "0.2.0"
+__version__ = "0.3.0"
 
 from cdf_mj.envs import ENV_ID  # light: neither Gymnasium nor MuJoCo
 
@@ -33,6 +33,7 @@ _EXPORTS = {
     "SceneNames": "cdf_mj.config",
     "DriverPrior": "cdf_mj.config",
     "RiskConfig": "cdf_mj.config",
+    "LayeredConfig": "cdf_mj.config",
     "scaled": "cdf_mj.config",
     "CarGeometry": "cdf_mj.model.vehicle",
     "TrackedCar": "cdf_mj.sim.tracking",
@@ -67,6 +68,7 @@ __all__ = [  # literal, for linters; tests/test_layers.py checks it against _EXP
     "EpisodeRecord",
     "IMMPlanner",
     "Label",
+    "LayeredConfig",
     "ParticleFilter",
     "RiskConfig",
     "ScenarioConfig",
@@ -88,7 +90,7 @@ __all__ = [  # literal, for linters; tests/test_layers.py checks it against _EXP
 ]
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time see __getattr__
-    from cdf_mj.config import CDFConfig, DriverPrior, RiskConfig, ScenarioConfig, SceneNames, scaled
+    from cdf_mj.config import CDFConfig, DriverPrior, LayeredConfig, RiskConfig, ScenarioConfig, SceneNames, scaled
     from cdf_mj.envs.t_intersection import TIntersectionEnv
     from cdf_mj.experiments.experiment import run_experiment
     from cdf_mj.experiments.sweep import run_sweep

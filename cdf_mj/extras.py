@@ -35,7 +35,7 @@ WHEEL = f"cdf_mj-{__version__}-py3-none-any.whl"
 def install_hint(extra: str) -> str:
     """How to install ``extra``, one line valid for a checkout and for a wheel, e.g.
     ``install the viz extra: pip install -e '.[viz]' in a checkout, or
-    pip install 'cdf_mj-0.2.0-py3-none-any.whl[viz]'``. ValueError for an unknown extra."""
+    pip install 'cdf_mj-0.3.0-py3-none-any.whl[viz]'``. ValueError for an unknown extra."""
     if extra not in EXTRAS:
         raise ValueError(f"unknown extra {extra!r}: choose from {', '.join(EXTRAS)}")
     return f"install the {extra} extra: pip install -e '.[{extra}]' in a checkout, or pip install '{WHEEL}[{extra}]'"
