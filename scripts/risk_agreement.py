@@ -41,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", type=_seeds, default=range(0, 20), help="seed range A-B (default 0-19)")
     parser.add_argument("--verbose", action="store_true", help="print every tick with a risk")
     args = parser.parse_args(argv)
-    scene, config, cdf = Scene.load(), ScenarioConfig(), CDFConfig()
+    scene, config, cdf = Scene.load(), ScenarioConfig(), CDFConfig(decision="risk")
     threshold = cdf.risk.brake
     diffs: list[float] = []
     fast: list[float] = []

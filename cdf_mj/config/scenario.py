@@ -181,9 +181,10 @@ class Ego(_Group):
     # The most the nominal controller brakes for a car ahead: an adaptive cruise control's
     # limit (ISO 15622 allows 3.5 m/s^2); harder braking is the planner's (emergency) call.
     follow_brake: float = bounded(3.5, 0.0, MAX_ACCEL, "m/s^2", open_low=True)
-    # The ego's actuator: its acceleration changes by at most this per second, whatever is
-    # commanded (50: the full brake, 4.877 m/s^2, builds within one 0.1 s tick, as the
-    # paper's brake did; a planner may state a lower limit for its own commands).
+    # The ego's actuator for a graded planner's commands: its acceleration changes by at
+    # most this per second (50: the full brake, 4.877 m/s^2, builds within one 0.1 s tick,
+    # as the paper's brake did; the layered rule limits its own commands to its comfort
+    # jerk outside the full brake). A yes/no planner's brake and release act at once.
     jerk_limit: float = bounded(50.0, 0.0, MAX_JERK, "m/s^3", open_low=True)
 
     def __post_init__(self) -> None:

@@ -2,17 +2,20 @@
 at reset, :class:`PlannerInput` each tick), the base of deciding planners, and the
 registry of planners by name.
 
-A planner decides, at the planner rate (10 Hz), whether the ego brakes. It is told only
-what an ego can know: at :meth:`Planner.reset` a :class:`PlannerContext` (the junction's
+A planner decides, at the planner rate (10 Hz), how the ego may accelerate: a yes/no
+planner whether it brakes fully (:meth:`Planner.brake`), a graded one the most the ego may
+accelerate (:meth:`Planner.command`, [m/s^2]). It is told only what an ego can know: at :meth:`Planner.reset` a :class:`PlannerContext` (the junction's
 static :class:`~cdf_mj.model.layout.Layout` with the cars' dimensions, the planner tick
 and the ego's own nominal controller) and a random stream, and each tick the measured
 system pose (:class:`PlannerInput`). It never sees the live simulation nor any field that
 describes the other driver (its intent prior, its acceleration, its turn speed, ...):
 a predicting planner brings its own model of that driver in its own configuration.
-Braking is at the maximum rate (16 ft/s^2 = 4.877 m/s^2); once decided it is held to the
-end of the episode, as in the paper, unless the planner ``releases_brake`` (the risk rule
-of :mod:`cdf_mj.planners.decision`), which returns the ego to its nominal speed.
-``brake`` is called at every tick, also while the ego brakes, so that a filter keeps
+A yes/no planner's brake is the maximum rate (16 ft/s^2 = 4.877 m/s^2); once decided it
+is held to the end of the episode, as in the paper, unless the planner ``releases_brake``
+(the risk rule of :mod:`cdf_mj.planners.decision`), which returns the ego to its nominal
+speed. A graded planner (the layered rule) commands slowing, following and the full brake
+itself; a command at or beyond its ``hard_brake`` counts as a brake. ``brake`` or
+``command`` is called at every tick, also while the ego brakes, so that a filter keeps
 filtering to the end.
 
 Planners are made by name: :mod:`cdf_mj.planners.registry` (``make_planner``,
@@ -21,13 +24,16 @@ Planners are made by name: :mod:`cdf_mj.planners.registry` (``make_planner``,
 =============  ==============================================  ==============================
 constant       never brakes (the counterfactual run)           :mod:`cdf_mj.planners.simple`
 reactive       brakes once the obstacle is inside the ego lane :mod:`cdf_mj.planners.simple`
-cdf            the CDF filter with the risk rule               :mod:`cdf_mj.planners.cdf`
+cdf            the CDF filter with the layered rule (graded)   :mod:`cdf_mj.planners.cdf`
+cdf-risk       the CDF filter with version 0.2's risk rule     :mod:`cdf_mj.planners.cdf`
 cdf-threshold  the CDF filter, brakes once P(cutoff) >= tau    :mod:`cdf_mj.planners.cdf`
                (the paper's rule)
 cv             constant-velocity conflict prediction           :mod:`cdf_mj.planners.baselines`
 cv-risk        constant velocity with the risk rule            :mod:`cdf_mj.planners.baselines`
+cv-layered     constant velocity with the layered rule         :mod:`cdf_mj.planners.baselines`
 imm            intent-only IMM conflict prediction             :mod:`cdf_mj.planners.baselines`
 imm-risk       intent-only IMM with the risk rule              :mod:`cdf_mj.planners.baselines`
+imm-layered    intent-only IMM with the layered rule           :mod:`cdf_mj.planners.baselines`
 =============  ==============================================  ==============================
 """
 

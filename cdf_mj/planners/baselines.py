@@ -51,10 +51,13 @@ from cdf_mj.planners.base import DecidingPlanner, DecisionRule, PlannerContext, 
 from cdf_mj.planners.decision import LayeredRule, RiskRule, ThresholdRule
 
 __all__ = [
+    "BASELINE_LAYERS",
     "CVConfig",
+    "CVLayeredPlanner",
     "CVPlanner",
     "CVRiskPlanner",
     "IMMConfig",
+    "IMMLayeredPlanner",
     "IMMPlanner",
     "IMMRiskPlanner",
     "RouteKalmanFilter",
@@ -200,9 +203,9 @@ def _times(horizon: float, dt: float) -> np.ndarray:
 
 
 #: The layered rule of ``imm-layered`` and ``cv-layered``: their anticipation threshold,
-#: chosen on seeds 0-199 by the rule that chose the CDF's (scripts/tune_layers.py). Their
-#: risks are all or nothing (one hypothesis, weighted by P(left) or 1), so every threshold
-#: tried gave the same episodes and the rule's last tie-break, the larger, chose 0.5.
+#: chosen on seeds 0-199 by the rule that chose the CDF's (scripts/tune_layers.py). With one
+#: hypothesis each (a risk is 0 or its weight), every threshold tried gave the same
+#: episodes, and the rule's last tie-break, the larger, chose 0.5.
 BASELINE_LAYERS = LayeredConfig(anticipate=0.5, anticipate_release=0.25)
 
 

@@ -75,7 +75,7 @@ def _unit(total: float) -> float:
     return min(max(float(total), 0.0), 1.0)
 
 
-__all__ = ["Assessment", "DecisionRule", "GivenFutures", "LayeredRule", "Layers", "Predictor", "RiskRule",
+__all__ = ["SLOW", "Assessment", "DecisionRule", "GivenFutures", "LayeredRule", "Layers", "Predictor", "RiskRule",
            "ThresholdRule", "rollout_assessment"]
 
 
@@ -315,16 +315,20 @@ class LayeredRule(RiskRule):
         self._max_accel = car.max_accel
         self._rho = dt + cfg.latency + context.latency  # [s] the ego's response time in the RSS distance
         self._cars = (context.layout.ego, context.layout.obstacle)
-        if lay.comfort_brake >= self._max_brake:
-            raise ValueError(f"LayeredConfig.comfort_brake={lay.comfort_brake:g} m/s^2 is not below the ego car's "
-                             f"full brake {self._max_brake:g} m/s^2; for a testbed at another scale, scale the "
-                             "configs with the cars (cdf_mj.scaled)")
+        for name in ("comfort_brake", "hard_brake"):
+            if getattr(lay, name) >= self._max_brake:
+                raise ValueError(f"LayeredConfig.{name}={getattr(lay, name):g} m/s^2 is not below the ego car's full "
+                                 f"brake {self._max_brake:g} m/s^2; for a testbed at another scale, scale the configs "
+                                 "with the cars (cdf_mj.scaled)")
+        self._speed_noise = 2.0 * context.measurement_std[3]  # [m/s] a told speed noise a standing car may show
         self._cap = math.inf  # [m/s^2] the command now (its ramp is limited by comfort_jerk)
         self._hard = False  # the full brake is on
         self._hard_since = -math.inf
         self._slowing = False  # the anticipation layer slows the ego
         self._slow_since = -math.inf
         self._stand_since: float | None = None
+        self._standoff = False  # latched until the other car moves
+        self._lead: tuple[float, np.ndarray] | None = None  # the last measured car ahead: (t, pose)
         self._v_last: float | None = None
         self.last_layers: Layers | None = None
         self.last_command = math.inf
@@ -357,14 +361,25 @@ class LayeredRule(RiskRule):
         deferred, now, go, slow = (min(max(float(v), 0.0), 1.0) for v in m @ _READ)
         return deferred, now, go, slow, self.map.inside(q)
 
-    def _follow(self, poses: np.ndarray) -> tuple[float, float, float]:
-        """``(accel, gap, rss)``: the follow layer's command [m/s^2] behind a merged car ahead
-        in the ego's lane (``inf``: none), the gap to it [m] and its RSS distance [m]."""
+    def _follow(self, t: float, poses: np.ndarray) -> tuple[float, float, float, float]:
+        """``(accel, gap, rss, need)``: the follow layer's command [m/s^2] behind a car ahead
+        in the ego's lane (``inf``: none), the gap to it [m], its RSS distance [m] and the
+        deceleration [m/s^2] that stops the ego, after its response time, ``min_gap / 2``
+        behind where that car would stop at its full brake (``inf``: no room; 0: none): a
+        full brake for the RSS distance is released only once the comfortable brake would
+        do. The command is the IDM's, braking at most the comfortable brake. A missed
+        measurement of the other car (NaN) keeps the last one, moved on at its speed."""
         ego, lead = poses[0], poses[1]
+        if np.isfinite(lead).all():
+            self._lead = (t, lead)
+        elif self._lead is not None:  # dead-reckoned from the last measurement
+            t0, last = self._lead
+            x, y, th, v = (float(u) for u in last)
+            lead = np.array([x + v * (t - t0) * math.cos(th), y + v * (t - t0) * math.sin(th), th, v])
         ego_car, lead_car = self._cars
         if not (np.isfinite(lead).all() and math.cos(float(lead[2]) - float(ego[2])) >= _FOLLOW_COS
                 and in_lane_ahead(self._layout, lead, lead_car, ego)):
-            return math.inf, math.inf, 0.0
+            return math.inf, math.inf, 0.0, 0.0
         ex, ey, eth, ev = (float(v) for v in ego)
         lx, ly, lth, lv = (float(v) for v in lead)
         gap = box_gap(ego_car.footprint_one(ex, ey, eth), lead_car.footprint_one(lx, ly, lth))
@@ -373,45 +388,67 @@ class LayeredRule(RiskRule):
         rss = rss_distance(ev, v_lead, self._rho, self._max_accel, self._max_brake, lead_car.max_brake)
         idm = idm_interaction(gap, ev, v_lead, self._max_accel, lay.comfort_brake, lay.time_gap, lay.min_gap,
                               lay.comfort_brake)
-        return idm, gap, rss
+        room = gap - 0.5 * lay.min_gap + max(v_lead, 0.0) ** 2 / (2.0 * lead_car.max_brake) - max(ev, 0.0) * self._rho
+        need = max(ev, 0.0) ** 2 / (2.0 * room) if room > 0.0 else math.inf
+        return idm, gap, rss, need
+
+    def _stands_off(self, t: float, obs: PlannerInput, v: float) -> bool:
+        """Whether the other car is taken to wait for the ego: both have stood (below
+        ``stand_speed``, the other not in the ego's lane) for ``standoff``; latched until the
+        other is measured moving or in the lane, whatever the ego does meanwhile. A missed
+        measurement neither starts nor ends it (the timer runs on)."""
+        lay, other = self.layers, obs.poses[1]
+        if not np.isfinite(other).all():
+            return self._standoff
+        moving = abs(float(other[3])) >= lay.stand_speed + self._speed_noise or obs.obstacle_in_lane
+        if self._standoff:
+            if moving:
+                self._standoff, self._stand_since = False, None
+            return self._standoff
+        if moving or v >= lay.stand_speed:
+            self._stand_since = None
+        elif self._stand_since is None:
+            self._stand_since = t
+        elif t - self._stand_since >= lay.standoff - 1e-9:
+            self._standoff = True
+        return self._standoff
 
     def command(self, predictor: Predictor, obs: PlannerInput) -> float:
         """This tick's command [m/s^2] (``-inf``: the full brake; ``inf``: none)."""
         lay, dt, t = self.layers, self._dt, obs.t
         ego = obs.poses[0]
         v = max(float(ego[3]), 0.0)
-        # Standoff: both stand (the other not in the ego's lane) for layers.standoff.
-        other_v = float(obs.poses[1, 3]) if np.isfinite(obs.poses[1]).all() else math.inf
-        standing = v < lay.stand_speed and abs(other_v) < lay.stand_speed and not obs.obstacle_in_lane
-        if not standing:
-            self._stand_since = None
-        elif self._stand_since is None:
-            self._stand_since = t
-        standoff = standing and self._stand_since is not None and t - self._stand_since >= lay.standoff - 1e-9
+        standoff = self._stands_off(t, obs, v)
         futures = predictor.futures(self._defer)
         if standoff:
             futures = _moving(futures, lay.stand_speed)
         emergency, now, go, slow, inside = self.layers_of(ego, futures)
-        follow, gap, rss = self._follow(obs.poses)
+        follow, gap, rss, need = self._follow(t, obs.poses)
         cfg = self.config
+        a_now = (v - self._v_last) / dt if self._v_last is not None else 0.0  # [m/s^2] the ego's, last tick
+        self._v_last = v
         # Emergency (the full brake), held at least layers.dwell.
         if self._hard:
             release = emergency < cfg.release or (inside and emergency < now)
-            if release and gap >= rss and t - self._hard_since >= lay.dwell - 1e-9:
+            # Behind a car: only once the comfortable brake would stop it behind that car's stop.
+            if release and gap >= rss and need <= lay.comfort_brake and t - self._hard_since >= lay.dwell - 1e-9:
                 self._hard = False
+                self._cap = max(a_now, -lay.comfort_brake)  # the ramp back starts below a hard brake
         elif (emergency >= cfg.brake and now <= emergency) or gap < rss:
             self._hard, self._hard_since = True, t
         # Anticipation (the comfortable brake), with hysteresis and the same dwell, and only
         # while slowing is the safer of the two: an ego that slows into the conflict it
         # meant to let pass (a slow driver pulling out as it arrives later) goes on instead.
-        if self._slowing:
+        # Behind a car ahead in its lane the follow layer answers for that car instead (the
+        # GO plan does not follow it, so its risk there says nothing of slowing).
+        if gap < math.inf:
+            self._slowing = False
+        elif self._slowing:
             if (go < lay.anticipate_release or slow > go) and t - self._slow_since >= lay.dwell - 1e-9:
                 self._slowing = False
         elif go >= lay.anticipate and slow < go:
             self._slowing, self._slow_since = True, t
         # The command: the full brake at once; any other ramps at comfort_jerk.
-        a_now = (v - self._v_last) / dt if self._v_last is not None else 0.0  # [m/s^2] the ego's, last tick
-        self._v_last = v
         if self._hard:
             self._cap = -self._max_brake
             command = -math.inf
@@ -419,6 +456,8 @@ class LayeredRule(RiskRule):
             target = min(-lay.comfort_brake if self._slowing else math.inf, max(follow, -lay.comfort_brake))
             step = lay.comfort_jerk * dt
             cap = min(self._cap, max(a_now, -lay.comfort_brake) + step)  # a cap above the ego's use does not bind
+            if v < 1e-3 and target >= 0.0:  # a standing ego: a negative cap only holds it, so none is kept
+                cap = max(cap, 0.0)
             cap = max(cap - step, min(target, cap + step))
             self._cap = cap = min(cap, self._max_accel)
             command = math.inf if cap >= self._max_accel else cap
@@ -428,14 +467,21 @@ class LayeredRule(RiskRule):
         self.last_command = command
         return command
 
+    def assess(self, ego_pose: np.ndarray, futures: Futures | np.ndarray, exact: bool = False) -> Assessment:
+        """:meth:`RiskRule.assess` for this rule's plans: the emergency layer's deferred risk,
+        the risk of braking fully now, of going on (always exact here) and whether the ego
+        is in the conflict zone."""
+        deferred, now, go, _, inside = self.layers_of(ego_pose, futures)
+        return Assessment(deferred=deferred, brake=now, inside=inside, go=go)
+
     def decide(self, predictor: Predictor, ego_pose: np.ndarray, braking: bool) -> bool:
         """Not used: this rule commands (:meth:`command`); TypeError."""
         raise TypeError("LayeredRule gives a graded command: call command(predictor, obs)")
 
     def values(self) -> dict[str, float]:
         """``risk`` (the emergency layer's), ``anticipate`` (the anticipation's: P(collision
-        going on)) and ``accel``
-        (the command within the car's limits [m/s^2]) of this tick."""
+        going on)) and ``accel`` (the command, a cap on the ego's acceleration, within the
+        car's limits [m/s^2]) of this tick."""
         ly = self.last_layers
         accel = min(max(self.last_command, -self._max_brake), self._max_accel) if ly is not None else 0.0
         return {"risk": ly.emergency if ly else 0.0, "anticipate": ly.go if ly else 0.0, "accel": accel}

@@ -142,13 +142,16 @@ def _simulate(scene: Scene, config: ScenarioConfig, seed: int, planner: Planner,
     planner.reset(PlannerContext.of(layout, config), world.rng["planner"])
     sensor = Sensor(config.sensing, layout, world.rng["sensing"])
     delay = CommandDelay(config.sensing.brake_latency)
-    actuator = JerkLimiter(config.ego.jerk_limit, config.timing.dt)
+    graded = bool(getattr(planner, "graded", False))
+    # A graded planner's commands go through the ego's jerk-limited actuator; a yes/no
+    # planner's full brake and release act at once, as the paper's did (its records are
+    # what they were before graded commands existed).
+    actuator = JerkLimiter(config.ego.jerk_limit, config.timing.dt) if graded else float
     follows = config.ego.follow and not holds_speed
     braking = False
     brake_time: float | None = None
     deviated: float | None = None  # [s] the first tick the ego did not hold its speed
     releases = bool(getattr(planner, "releases_brake", False))
-    graded = bool(getattr(planner, "graded", False))
     max_brake = layout.ego.max_brake
     hard = getattr(planner, "hard_brake", None) if graded else None
     hard = hard_brake_of(max_brake) if hard is None else hard  # [m/s^2] a command from which it is a brake

@@ -4,10 +4,11 @@ to the planner (:class:`cdf_mj.config.Sensing`); records keep the truth.
 :class:`Sensor` turns each tick's true :class:`~cdf_mj.scenario.world.Measurement` into the
 planner's: the obstacle's pose ``latency`` ticks old, plus Gaussian noise, or none at all
 (a dropout: the obstacle's row is NaN and it is not in the lane); the ego's own pose is
-exact. :class:`BrakeActuator` delays the ego's brake decisions (:class:`CommandDelay` its
-graded commands) by ``brake_latency`` ticks; :class:`JerkLimiter` is the ego's actuator,
-whose acceleration changes by at most ``ego.jerk_limit`` per second.
-With perfect sensing (the default) both pass everything through and draw nothing.
+exact. :class:`CommandDelay` delays the ego's commands (a yes/no planner's full brake and
+release too) by ``brake_latency`` ticks; :class:`JerkLimiter` is the actuator a graded
+planner's commands go through, whose acceleration changes by at most ``ego.jerk_limit`` per
+second. With perfect sensing (the default) the sensor and the delay pass everything
+through and draw nothing.
 
 Randomness: the sensor draws from its own stream (the world's ``sensing`` stream), so the
 obstacle, the ego's start and every other draw of a seed are the same whatever the
@@ -27,7 +28,7 @@ import numpy as np
 from cdf_mj.config import Sensing
 from cdf_mj.model.layout import Layout
 
-__all__ = ["BrakeActuator", "CommandDelay", "JerkLimiter", "Sensor"]
+__all__ = ["CommandDelay", "JerkLimiter", "Sensor"]
 
 
 class Sensor:
@@ -70,18 +71,6 @@ class Sensor:
         out[1] = obstacle + noise
         x, y, th = out[1, :3].tolist()
         return out, bool(self.layout.ego_lane.contains_any(self.layout.obstacle.footprint_one(x, y, th)))
-
-
-class BrakeActuator:
-    """The ego's brake ``latency`` ticks behind its decisions (released as late)."""
-
-    def __init__(self, latency: int) -> None:
-        self._queue: deque[bool] = deque([False] * latency, maxlen=latency + 1)
-
-    def __call__(self, decided: bool) -> bool:
-        """The brake state that acts on this tick, given this tick's decision."""
-        self._queue.append(decided)
-        return self._queue[0]
 
 
 class CommandDelay:
