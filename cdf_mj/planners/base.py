@@ -4,9 +4,10 @@ registry of planners by name.
 
 A planner decides, at the planner rate (10 Hz), how the ego may accelerate: a yes/no
 planner whether it brakes fully (:meth:`Planner.brake`), a graded one the most the ego may
-accelerate (:meth:`Planner.command`, [m/s^2]). It is told only what an ego can know: at :meth:`Planner.reset` a :class:`PlannerContext` (the junction's
-static :class:`~cdf_mj.model.layout.Layout` with the cars' dimensions, the planner tick
-and the ego's own nominal controller) and a random stream, and each tick the measured
+accelerate (:meth:`Planner.command`, [m/s^2]). It is told only what an ego can know: at
+:meth:`Planner.reset` a :class:`PlannerContext` (the junction's static
+:class:`~cdf_mj.model.layout.Layout` with the cars' dimensions, the planner tick, the ego's
+own nominal controller and what it knows of its sensing) and a random stream, and each tick the measured
 system pose (:class:`PlannerInput`). It never sees the live simulation nor any field that
 describes the other driver (its intent prior, its acceleration, its turn speed, ...):
 a predicting planner brings its own model of that driver in its own configuration.
