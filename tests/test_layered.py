@@ -282,3 +282,21 @@ def test_the_monitor_accel_is_the_speed_hold_capped_by_the_rule(scene: Scene) ->
         assert (p.accel == pytest.approx(-4.877)) == p.brake
         world.step(np.array([d.accel, float(ego_control(world.driver, world.layout.ego, m.poses[0], False)[1])]))
     assert seen_slowing
+
+
+# ------------------------------------------------------------------ the pictures of docs/DECISION.md
+def test_the_decision_figures_script_draws_a_layer_and_refuses_an_unknown_one(tmp_path) -> None:
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "scripts" / "decision_figures.py"
+    pytest.importorskip("matplotlib")
+    ok = subprocess.run([sys.executable, str(script), "--only", "anticipate", "--out", str(tmp_path)],
+                        capture_output=True, text=True, timeout=300)
+    assert ok.returncode == 0, ok.stderr[-2000:]
+    assert (tmp_path / "anticipate.png").stat().st_size > 10_000 and "anticipate: seed" in ok.stderr
+    bad = subprocess.run([sys.executable, str(script), "--only", "brake", "--out", str(tmp_path / "x")],
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and bad.stderr.startswith("decision_figures: error: unknown picture(s) brake")
+    assert len(bad.stderr.strip().splitlines()) == 1 and not (tmp_path / "x").exists()
