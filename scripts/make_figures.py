@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Regenerate every figure under ``docs/img`` with the commands the docs print.
 
-One command remakes the pictures of README.md, docs/RESULTS.md and docs/ANALYSIS.md::
+One command remakes the pictures of README.md, docs/RESULTS.md, docs/ANALYSIS.md and docs/DECISION.md::
 
     python scripts/make_figures.py                        # everything, a few minutes on 2 cores
     python scripts/make_figures.py --only report,gif      # some groups
@@ -24,6 +24,8 @@ group         writes (under ``--docs``, default ``docs/img``)
 ``frame``     ``frame.png``: seed 1, the CDF, the default view at 3.0 s, 480 x 360
 ``gif``       ``episode.gif``: the first 4 s of seed 1 with the CDF, 320 x 240 at 10
               frames/s (the README's top picture)
+``decision``  ``decision/{anticipate,emergency,follow}.png``: one picture per layer of the
+              layered rule (docs/DECISION.md), ``python scripts/decision_figures.py``
 ============  ============================================================================
 
 Experiment directories go under ``--results`` (default ``results/figures``) and are
@@ -42,13 +44,15 @@ from __future__ import annotations
 import argparse
 import shlex
 import shutil
+import subprocess
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 PROG = "make_figures"
-GROUPS = ("report", "analysis", "sweeps", "frame", "gif")  # the renderer's groups last
+GROUPS = ("report", "analysis", "sweeps", "decision", "frame", "gif")  # the renderer's groups last
+DECISION_PICTURES = ("anticipate", "emergency", "follow")  # scripts/decision_figures.py's
 ANALYSIS_PLANNERS = "cdf,reactive,cv,imm"
 ANALYSIS_SEED0 = {"dev": 0, "heldout": 100000}  # docs/ANALYSIS.md: seeds 0-999 and 100000-100999
 SWEEPS = ("tau", "beta", "noise", "obs-noise")  # all four planners; particles: the CDF only
@@ -57,8 +61,8 @@ SWEEPS = ("tau", "beta", "noise", "obs-noise")  # all four planners; particles: 
 class CommandFailed(RuntimeError):
     """A ``cdf-mj`` command returned a non-zero exit status."""
 
-    def __init__(self, argv: Sequence[str], status: int) -> None:
-        super().__init__(f"`cdf-mj {shlex.join(argv)}` exited with status {status}")
+    def __init__(self, argv: Sequence[str], status: int, program: str = "cdf-mj") -> None:
+        super().__init__(f"`{program} {shlex.join(argv)}` exited with status {status}")
         self.status = status
 
 
@@ -135,6 +139,21 @@ def make_sweeps(opts: Options) -> None:
             shutil.copyfile(src, dst)
 
 
+def make_decision(opts: Options) -> None:
+    """docs/img/decision: one picture per layer of the layered rule (scripts/decision_figures.py,
+    run as its own process)."""
+    out = opts.docs / "decision"
+    argv = ["scripts/decision_figures.py", "--out", str(out)]
+    print(f"$ python {shlex.join(argv)}  # " + ", ".join(str(out / f"{n}.png") for n in DECISION_PICTURES),
+          flush=True)
+    if opts.dry_run:
+        return
+    script = Path(__file__).resolve().with_name("decision_figures.py")
+    status = subprocess.run([sys.executable, str(script), *argv[1:]], check=False).returncode
+    if status:
+        raise CommandFailed(argv, status, program="python")
+
+
 def make_frame(opts: Options) -> None:
     """docs/img/frame.png: one rendered frame (needs an OpenGL backend: EGL or OSMesa)."""
     cdf_mj(["render", "--seed", "1", "--planner", "cdf", "--frame", "3.0", "--width", "480",
@@ -148,8 +167,8 @@ def make_gif(opts: Options) -> None:
 
 
 MAKERS: dict[str, Callable[[Options], None]] = {
-    "report": make_report, "analysis": make_analysis, "sweeps": make_sweeps, "frame": make_frame,
-    "gif": make_gif,
+    "report": make_report, "analysis": make_analysis, "sweeps": make_sweeps, "decision": make_decision,
+    "frame": make_frame, "gif": make_gif,
 }
 
 
