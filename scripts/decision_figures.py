@@ -10,7 +10,8 @@ anticipate     the first Cutoff seed of the default scenario that ``cdf`` avoids
 emergency      the first Cutoff seed of the default scenario whose first hard brake the
                emergency layer called (its risk at or above ``RiskConfig.brake`` then)
 follow         the first Cutoff seed of ``stress-merge-brakes`` (the merged car brakes at
-               4 m/s^2 to a stop) on which the follow layer brakes after the merge
+               4 m/s^2 to a stop) on which the follow layer brakes for it (at least the
+               comfortable brake, once that car brakes and a second after it merged)
 =============  ===========================================================================
 
 Seeds are searched from 0 (development seeds; a picture is an illustration, not a
@@ -66,11 +67,17 @@ def _emergency(rec: EpisodeRecord) -> bool:
 
 
 def _follows(rec: EpisodeRecord) -> bool:
+    """A cut-off after which the merged car braked and the rule braked for it (at least the
+    comfortable brake, a second or more after the car entered the lane)."""
     if rec.label != "Cutoff" or rec.collision or rec.entered_lane_time is None:
         return False
+    since = (rec.world.get("after_merge") or {}).get("since")
+    if since is None:
+        return False
     h = rec.planner_info["history"]
-    since = rec.entered_lane_time + 1.0
-    return any(t >= since and a <= -LayeredConfig().hard_brake for t, a in zip(h["t"], h["accel"], strict=True))
+    late = max(since, rec.entered_lane_time + 1.0)
+    floor = -LayeredConfig().comfort_brake + 1e-9
+    return any(t >= late and a <= floor for t, a in zip(h["t"], h["accel"], strict=True))
 
 
 #: picture -> (title, scenario, test of an episode)
