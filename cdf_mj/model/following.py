@@ -62,10 +62,11 @@ def in_lane_ahead(layout: Layout, lead: np.ndarray, lead_car: CarGeometry, follo
     return bool(route.project_point(lx, ly)[0] > route.project_point(float(follower[0]), float(follower[1]))[0])
 
 
-def ahead_in_lane(layout: Layout, lead: np.ndarray, lead_car: CarGeometry, follower: np.ndarray) -> bool:
-    """:func:`in_lane_ahead`, and heading the follower's way (within :data:`FOLLOW_HEADING`):
-    a car that has merged, to follow."""
-    return (math.cos(float(lead[2]) - float(follower[2])) >= math.cos(FOLLOW_HEADING)
+def ahead_in_lane(layout: Layout, lead: np.ndarray, lead_car: CarGeometry, follower: np.ndarray,
+                  within: float = FOLLOW_HEADING) -> bool:
+    """:func:`in_lane_ahead`, and heading the follower's way, within ``within`` [rad]
+    (default :data:`FOLLOW_HEADING`: a car that has merged, to follow)."""
+    return (math.cos(float(lead[2]) - float(follower[2])) >= math.cos(within) - 1e-12
             and in_lane_ahead(layout, lead, lead_car, follower))
 
 

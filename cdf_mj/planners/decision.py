@@ -58,7 +58,7 @@ from cdf_mj.model.conflict import (
     route_poses,
     widened,
 )
-from cdf_mj.model.following import idm_interaction, in_lane_ahead, rss_distance
+from cdf_mj.model.following import ahead_in_lane, idm_interaction, rss_distance
 from cdf_mj.model.geometry import box_gap, boxes_overlap
 from cdf_mj.model.vehicle import CarGeometry
 from cdf_mj.planners.base import DecisionRule, PlannerContext, PlannerInput, Predictor, ThresholdRule
@@ -227,10 +227,10 @@ _INDEX4 = np.arange(1 << 4)
 _READ = np.stack([(_INDEX4 & ((1 << GO) | (1 << DEFER))) == ((1 << GO) | (1 << DEFER)),
                   (_INDEX4 & (1 << BRAKE)) != 0, (_INDEX4 & (1 << GO)) != 0, (_INDEX4 & (1 << SLOW)) != 0],
                  axis=1).astype(float)
-#: The follow layer follows a car ahead in the ego's lane heading at most 90 degrees off
+#: [rad] The follow layer follows a car ahead in the ego's lane heading at most this far off
 #: the ego's way: one still turning in, or standing across the lane, already counts (its
 #: speed along the ego's way is its speed times the cosine); one coming the other way does not.
-_FOLLOW_COS = 0.0
+FOLLOW_WITHIN = math.pi / 2
 
 
 @dataclass(frozen=True)
@@ -377,8 +377,7 @@ class LayeredRule(RiskRule):
             x, y, th, v = (float(u) for u in last)
             lead = np.array([x + v * (t - t0) * math.cos(th), y + v * (t - t0) * math.sin(th), th, v])
         ego_car, lead_car = self._cars
-        if not (np.isfinite(lead).all() and math.cos(float(lead[2]) - float(ego[2])) >= _FOLLOW_COS
-                and in_lane_ahead(self._layout, lead, lead_car, ego)):
+        if not (np.isfinite(lead).all() and ahead_in_lane(self._layout, lead, lead_car, ego, FOLLOW_WITHIN)):
             return math.inf, math.inf, 0.0, 0.0
         ex, ey, eth, ev = (float(v) for v in ego)
         lx, ly, lth, lv = (float(v) for v in lead)
