@@ -55,6 +55,7 @@ __all__ = [
     "printable",
     "read_regular",
     "read_text",
+    "read_user_text",
 ]
 
 _KiB, _MiB, _GiB = 2**10, 2**20, 2**30
@@ -172,6 +173,22 @@ def read_text(path: str | Path, what: str, max_bytes: int) -> str:
     """:func:`read_regular`, decoded as UTF-8 (UnicodeDecodeError, a ValueError, if it is
     not UTF-8 text)."""
     return read_regular(path, what, max_bytes).decode("utf-8")
+
+
+def read_user_text(path: str | Path, what: str, max_bytes: int, error: type[ValueError], choices: str) -> str:
+    """:func:`read_text` of a file a user named (a preset, a space), every failure an
+    ``error`` of one line naming ``what`` and the path: a missing file (``choices`` says
+    what to give instead), one that cannot be read (the system's reason), one that is not
+    UTF-8, or a refusal of :func:`read_regular`."""
+    try:
+        return read_text(path, what, max_bytes)
+    except FileNotFoundError:
+        raise error(f"{what} {path} does not exist; {choices}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        why = exc.strerror if isinstance(exc, OSError) and exc.strerror else type(exc).__name__
+        raise error(f"{what} {path} cannot be read ({why})") from None
+    except InputError as exc:
+        raise error(str(exc)) from None
 
 
 # ------------------------------------------------------------------------ nesting

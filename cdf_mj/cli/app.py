@@ -16,6 +16,7 @@ from cdf_mj.cli.args import EXIT_USAGE, PROG, CLIError
 from cdf_mj.cli.bench import _add_bench
 from cdf_mj.cli.episode import _add_episode
 from cdf_mj.cli.experiment import _add_experiment, _add_reproduce
+from cdf_mj.cli.falsify import _add_estimate, _add_falsify
 from cdf_mj.cli.presets import _add_presets
 from cdf_mj.cli.render import _add_render
 from cdf_mj.cli.report import _add_report
@@ -46,7 +47,8 @@ class _Parser(argparse.ArgumentParser):
 #: In the order of the list of commands: a newcomer's first steps first.
 _SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [_add_reproduce, _add_episode, _add_experiment,
                                                                     _add_presets, _add_sweep, _add_render,
-                                                                    _add_report, _add_bench]
+                                                                    _add_report, _add_falsify, _add_estimate,
+                                                                    _add_bench]
 
 
 # ----------------------------------------------------------------- entry point

@@ -47,7 +47,7 @@ if TYPE_CHECKING:
     from cdf_mj.planners.base import Planner
 
 __all__ = ["BACKENDS", "RAY_ANSWER_TIMEOUT_S", "RAY_CONNECT_TIMEOUT_S", "START_METHOD", "Backend",
-           "ClusterUnreachableError", "SeedJob", "SeedResult", "WorkerDiedError", "check_backend",
+           "ClusterUnreachableError", "SeedJob", "SeedResult", "WorkItem", "WorkerDiedError", "check_backend",
            "effective_backend", "run_seeds", "worker_count"]
 
 Backend = Literal["serial", "process", "ray"]
@@ -118,20 +118,24 @@ class SeedWorker:
         self.job = job
         self.scene = Scene.load(job.scene, names=job.config.names)
 
-    def run(self, seed: int, planners: Sequence[str] | None = None) -> SeedResult:
+    def run(self, seed: int, planners: Sequence[str] | None = None,
+            config: ScenarioConfig | None = None) -> SeedResult:
         """Every planner (or those named) on ``seed``; a planner that raises gives a failed record.
 
-        The seed's label comes from :func:`cdf_mj.scenario.episode.seed_label` over all
-        the seed's runs: the counterfactual is simulated only when every planner braked,
-        and then once for all of them.
+        ``config``: this seed's world instead of the job's (a search's candidate; the scene
+        and its names stay the job's). The seed's label comes from
+        :func:`cdf_mj.scenario.episode.seed_label` over all the seed's runs: the
+        counterfactual is simulated only when every planner braked, and then once for all
+        of them.
         """
         from cdf_mj.scenario.episode import run_episode, seed_label
 
         job = self.job
+        world = job.config if config is None else config
         records: list[dict[str, Any]] = []
         for name in planners or job.planners:
             try:
-                rec = run_episode(job.config, seed, job.factories[name](), self.scene, label=False).to_dict()
+                rec = run_episode(world, seed, job.factories[name](), self.scene, label=False).to_dict()
             except (Exception, SystemExit) as exc:  # recorded with its traceback; the run goes on
                 records.append(_failed(seed, name, exc))
                 continue
@@ -141,7 +145,7 @@ class SeedWorker:
         done = [r for r in records if r["status"] == OK]
         if done:
             try:
-                label, hit = seed_label(job.config, seed, self.scene,
+                label, hit = seed_label(world, seed, self.scene,
                                         [(r["intent"], r["counterfactual_collision"]) for r in done])
             except (Exception, SystemExit) as exc:  # without a label no record of this seed is usable
                 records = [_failed(seed, r["planner"], exc) if r["status"] == OK else r for r in records]
@@ -184,19 +188,24 @@ def _init_process(job: SeedJob, parent: int, die_with_parent: bool) -> None:
     _WORKER = SeedWorker(job)
 
 
-def _run_in_process(seed: int, planners: tuple[str, ...] | None) -> SeedResult:
+#: One unit of work: ``(seed, planners)``, or ``(seed, planners, config)`` to run that
+#: seed in a world of its own (:meth:`SeedWorker.run`).
+WorkItem = tuple[int, tuple[str, ...]] | tuple[int, tuple[str, ...], ScenarioConfig | None]
+
+
+def _run_in_process(*item: Any) -> SeedResult:
     assert _WORKER is not None, "worker not initialised"
-    return _WORKER.run(seed, planners)
+    return _WORKER.run(*item)
 
 
-def _serial(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], workers: int,
+def _serial(job: SeedJob, todo: Sequence[WorkItem], workers: int,
             address: str | None) -> Iterator[SeedResult]:
     worker = SeedWorker(job)
-    for seed, planners in todo:
-        yield worker.run(seed, planners)
+    for item in todo:
+        yield worker.run(*item)
 
 
-def _process_pool(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], workers: int,
+def _process_pool(job: SeedJob, todo: Sequence[WorkItem], workers: int,
                   address: str | None) -> Iterator[SeedResult]:
     # At most 2 seeds in flight per worker keeps memory flat and cancellation prompt.
     ctx = get_context(START_METHOD)
@@ -210,8 +219,7 @@ def _process_pool(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], wor
         try:
             while queue or pending:
                 while queue and len(pending) < 2 * workers:
-                    seed, planners = queue.pop()
-                    pending.add(pool.submit(_run_in_process, seed, planners))
+                    pending.add(pool.submit(_run_in_process, *queue.pop()))
                 done, pending = wait(pending, return_when=FIRST_COMPLETED)
                 broken = None
                 for fut in done:  # every finished seed is handed over before a death is reported
@@ -297,7 +305,7 @@ def _probe_ray_address(address: str, timeout: float = RAY_CONNECT_TIMEOUT_S) -> 
                                       "address (ray start --head prints it)")
 
 
-def _ray(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], workers: int,
+def _ray(job: SeedJob, todo: Sequence[WorkItem], workers: int,
          address: str | None) -> Iterator[SeedResult]:
     ray = require("ray", "ray", "the ray backend")
     from ray.util import ActorPool
@@ -312,8 +320,8 @@ def _ray(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], workers: int
         cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
         n_actors = min(workers, cpus) if workers else cpus
         pool = ActorPool([actor.remote(job) for _ in range(n_actors)])
-        for seed, planners in todo:
-            pool.submit(lambda a, item: a.run.remote(*item), (seed, planners))
+        for item in todo:
+            pool.submit(lambda a, item: a.run.remote(*item), item)
         while pool.has_next():
             try:
                 yield pool.get_next_unordered()
@@ -328,9 +336,10 @@ _BACKENDS: dict[str, Callable[..., Iterator[SeedResult]]] = {
     "serial": _serial, "process": _process_pool, "ray": _ray}
 
 
-def run_seeds(job: SeedJob, todo: Sequence[tuple[int, tuple[str, ...]]], backend: Backend = "process",
+def run_seeds(job: SeedJob, todo: Sequence[WorkItem], backend: Backend = "process",
               workers: int | None = None, address: str | None = None) -> Iterator[SeedResult]:
-    """Yield one :class:`SeedResult` per ``(seed, planners)`` item, in completion order.
+    """Yield one :class:`SeedResult` per ``(seed, planners)`` item, in completion order (an
+    item ``(seed, planners, config)`` runs in its own world, as a search's candidates do).
 
     ``workers`` defaults to the CPU count (with Ray and an ``address``: one actor per CPU
     of the cluster); ``backend="process"`` with one worker, or fewer than two seeds, runs

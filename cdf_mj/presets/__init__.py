@@ -40,7 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from cdf_mj.config import FLAT_KEYS, GROUPS, SCENARIO_KEYS, ScenarioConfig
-from cdf_mj.inputs import PRESET_MAX_BYTES, InputError, TOMLDecodeError, parse_toml, read_text
+from cdf_mj.inputs import PRESET_MAX_BYTES, InputError, TOMLDecodeError, parse_toml, read_user_text
 
 __all__ = ["STRESS_PREFIX", "SUFFIX", "Preset", "PresetError", "load_preset", "preset_description", "preset_names",
            "read_preset", "scenario_preset_names"]
@@ -205,16 +205,9 @@ def read_preset(name_or_path: str | Path) -> Preset:
     """
     if _is_path(name_or_path):
         path = Path(name_or_path)
-        try:  # a regular file (a FIFO or a device is refused unopened) of at most PRESET_MAX_BYTES
-            text = read_text(path, "preset file", PRESET_MAX_BYTES)
-        except FileNotFoundError:
-            raise PresetError(f"preset file {path} does not exist; give a path to a .toml file or one of the "
-                              f"names: {', '.join(preset_names())}") from None
-        except (OSError, UnicodeDecodeError) as exc:
-            why = exc.strerror if isinstance(exc, OSError) and exc.strerror else type(exc).__name__
-            raise PresetError(f"preset file {path} cannot be read ({why})") from None
-        except InputError as exc:
-            raise PresetError(str(exc)) from None
+        # a regular file (a FIFO or a device is refused unopened) of at most PRESET_MAX_BYTES
+        text = read_user_text(path, "preset file", PRESET_MAX_BYTES, PresetError,
+                              f"give a path to a .toml file or one of the names: {', '.join(preset_names())}")
         return _parse(text, path.stem, str(path))
     packaged = _packaged()
     if name_or_path not in packaged:

@@ -1,0 +1,208 @@
+"""From a search's failures to a handful a person reads: clustered, minimised, replayed
+on other planners, and written as preset files that ``cdf-mj episode`` and
+``cdf-mj render`` replay.
+
+- **Clusters**: failures with the same choices (driver family, route, after-merge
+  behaviour, whole-number latencies: every discrete dimension) form one cluster; its
+  representative is its most severe failure (least robustness, then the first found).
+- **Minimised**: each representative's options are put back to the base world's values
+  one at a time, in the space's order, keeping each reset under which the same seed still
+  fails (a greedy one-minimal set: no single remaining option can go back). Clusters
+  whose minimised choices agree are merged. What is left is the failure's *traits*: the
+  fewest options away from the defaults found to fail.
+- **Replayed**: the minimised counterexample and up to ``replay`` members of its cluster
+  run on every planner compared, same worlds and seeds.
+- **Written**: ``NN-seed-S.toml``, a preset of every option that differs from the
+  package's defaults, its description saying the planner, the seed and the command::
+
+      cdf-mj episode --preset counterexamples/01-seed-123.toml --seed 123 --planner cdf
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from cdf_mj.config import GROUPS, ScenarioConfig
+from cdf_mj.falsify.evaluate import Evaluation, Evaluator
+from cdf_mj.falsify.space import SearchSpace
+from cdf_mj.records import write_atomic
+
+__all__ = ["Counterexample", "cluster_failures", "find_counterexamples", "preset_text", "write_counterexamples"]
+
+
+@dataclass
+class Counterexample:
+    """One cluster of failures and its minimised representative."""
+
+    planner: str
+    seed: int
+    point: tuple[float, ...]
+    keep: tuple[str, ...]  # options put back to the base world's values
+    changed: dict[str, Any]  # the minimised traits: option -> value, away from the base
+    robustness: float  # of the minimised counterexample (<= 0)
+    summary: dict[str, Any]
+    members: list[Evaluation]
+    contact: dict[str, float] | None = None  # speeds at the first touch [m/s]
+    others: dict[str, bool] = field(default_factory=dict)  # planner -> fails on the minimised case
+    others_members: dict[str, tuple[int, int]] = field(default_factory=dict)  # planner -> (fail, replayed)
+    path: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"planner": self.planner, "seed": self.seed, "point": list(self.point), "keep": list(self.keep),
+                "changed": self.changed, "robustness": self.robustness, "summary": self.summary,
+                "cluster_size": len(self.members), "contact": self.contact, "others": self.others,
+                "others_members": {k: list(v) for k, v in self.others_members.items()}, "path": self.path}
+
+
+def _signature(space: SearchSpace, point: Sequence[float], keep: Sequence[str] = ()) -> tuple[Any, ...]:
+    return tuple((d.key, d.value(float(x))) for d, x in zip(space.dims, point, strict=True)
+                 if d.discrete and d.key not in keep)
+
+
+def cluster_failures(space: SearchSpace, failures: Sequence[Evaluation]) -> list[list[Evaluation]]:
+    """Failures grouped by their discrete coordinates, largest group first; each group's
+    first member is its representative (least robustness, then the first found)."""
+    groups: dict[tuple[Any, ...], list[Evaluation]] = {}
+    for ev in failures:
+        groups.setdefault(_signature(space, ev.point), []).append(ev)
+    out = [sorted(g, key=lambda e: e.robustness) for g in groups.values()]  # stable: first found first
+    return sorted(out, key=lambda g: -len(g))
+
+
+def _minimise(evaluator: Evaluator, planner: str, reps: Sequence[Evaluation]) -> list[tuple[tuple[str, ...],
+                                                                                          Evaluation]]:
+    """Greedy one-minimal reset of each representative (batched across them)."""
+    space = evaluator.space
+    kept: list[list[str]] = [[] for _ in reps]
+    last: list[Evaluation] = list(reps)
+    for j, dim in enumerate(space.dims):
+        trials = []
+        for i, rep in enumerate(reps):
+            if space.at_default(dim, rep.point[j]):
+                kept[i].append(dim.key)  # already the base's value
+            else:
+                trials.append(i)
+        if not trials:
+            continue
+        items = [(reps[i].point, reps[i].seed) for i in trials]
+        got = evaluator.evaluate(items, [planner], keep=[[*kept[i], dim.key] for i in trials])
+        for i, result in zip(trials, got, strict=True):
+            ev = result[planner]
+            if ev.failed:
+                kept[i].append(dim.key)
+                last[i] = ev
+    return [(tuple(sorted(k)), ev) for k, ev in zip(kept, last, strict=True)]
+
+
+def _contact(space: SearchSpace, planner: str, ev: Evaluation, scene: str) -> dict[str, float] | None:
+    """Both cars' speeds [m/s] on the first tick they touch, and the ego's braking then."""
+    from cdf_mj.scenario.episode import EpisodeTick, run_episode
+    from cdf_mj.sim.scene import Scene
+
+    seen: dict[str, float] = {}
+
+    def watch(step: EpisodeTick) -> None:
+        if not seen and step.tick.collision == "obstacle":
+            seen.update(ego_speed=float(step.tick.poses[0, 3]), obstacle_speed=float(step.tick.poses[1, 3]),
+                        ego_command=float(step.command) if math.isfinite(step.command) else float("nan"),
+                        t=float(step.tick.t))
+
+    config = space.config(ev.point, ev.keep)
+    run_episode(config, ev.seed, planner, Scene.load(scene, names=config.names), label=False, observers=[watch])
+    return {k: round(v, 3) for k, v in seen.items() if math.isfinite(v)} or None
+
+
+def find_counterexamples(evaluator: Evaluator, planner: str, failures: Sequence[Evaluation],
+                         compare: Sequence[str] = (), *, max_clusters: int = 12,
+                         replay: int = 20) -> list[Counterexample]:
+    """Cluster ``failures`` of ``planner``, minimise the ``max_clusters`` largest clusters'
+    representatives, merge those that minimise alike, and replay them on ``compare``."""
+    space = evaluator.space
+    clusters = cluster_failures(space, failures)[:max_clusters]
+    if not clusters:
+        return []
+    minimised = _minimise(evaluator, planner, [c[0] for c in clusters])
+    merged: dict[tuple[Any, ...], Counterexample] = {}
+    for cluster, (keep, ev) in zip(clusters, minimised, strict=True):
+        sig = (_signature(space, ev.point, keep), tuple(k for k in space.keys if k not in keep))
+        if sig in merged:
+            merged[sig].members.extend(cluster)
+            continue
+        changed = {k: v for k, v in space.values(ev.point).items() if k not in keep}
+        merged[sig] = Counterexample(planner, ev.seed, ev.point, keep, changed, ev.robustness, ev.summary,
+                                     list(cluster))
+    out = sorted(merged.values(), key=lambda c: -len(c.members))
+    for other in compare:
+        got = evaluator.evaluate([(c.point, c.seed) for c in out], [other], keep=[c.keep for c in out])
+        for c, result in zip(out, got, strict=True):
+            c.others[other] = result[other].failed
+        for c in out:
+            members = c.members[:replay]
+            res = evaluator.evaluate([(m.point, m.seed) for m in members], [other])
+            c.others_members[other] = (sum(r[other].failed for r in res), len(members))
+    for c in out:
+        c.contact = _contact(space, planner, Evaluation(planner, c.seed, c.point, c.keep, c.robustness, True, {}),
+                             evaluator.job.scene)
+    return out
+
+
+# ------------------------------------------------------------------------ files
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value) if isinstance(value, int) else repr(float(value))
+    if isinstance(value, (tuple, list)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    text = str(value).replace("\\", "\\\\").replace('"', '\\"')
+    return f'"{text}"'
+
+
+def preset_text(config: ScenarioConfig, description: str) -> str:
+    """A preset file (:mod:`cdf_mj.presets`) of ``config``: every option that differs from
+    the package's defaults, by group."""
+    default = ScenarioConfig()
+    lines = ['description = """', *description.strip().splitlines(), '"""']
+    for group in GROUPS:
+        ours, theirs = getattr(config, group).to_dict(), getattr(default, group).to_dict()
+        changed = {k: v for k, v in ours.items() if v != theirs[k]}
+        if changed:
+            lines += ["", f"[scenario.{group}]"]
+            lines += [f"{k} = {_toml_value(v)}" for k, v in changed.items()]
+    return "\n".join(lines) + "\n"
+
+
+def write_counterexamples(space: SearchSpace, found: Sequence[Counterexample], directory: str | Path) -> None:
+    """Write each counterexample as ``directory/NN-seed-S.toml`` (sets ``path``)."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    for i, c in enumerate(found, 1):
+        path = directory / f"{i:02d}-seed-{c.seed}.toml"
+        traits = ", ".join(f"{k} = {_short(v)}" for k, v in c.changed.items()) or "none (the base world)"
+        what = "collided" if c.summary.get("collision") else f"reached robustness {c.robustness:.3g}"
+        text = (f"Counterexample {i} of a search of space {space.name!r} for planner {c.planner!r}: with seed "
+                f"{c.seed}, the ego {what} (label {c.summary.get('label')}). {len(c.members)} failure(s) of the "
+                f"search share its choices. Traits away from the space's base world ({space.preset}): "
+                f"{traits}. Replay: cdf-mj episode --preset {path} --seed {c.seed} --planner {c.planner}; "
+                f"watch: cdf-mj render --preset {path} --seed {c.seed} --planner {c.planner}.")
+        write_atomic(path, preset_text(space.config(c.point, c.keep), _wrap(text)))
+        c.path = str(path)
+
+
+def _short(value: Any) -> str:
+    return f"{value:.3g}" if isinstance(value, float) else str(value)
+
+
+def _wrap(text: str, width: int = 88) -> str:
+    lines, line = [], ""
+    for word in text.split():
+        if line and len(line) + 1 + len(word) > width:
+            lines.append(line)
+            line = word
+        else:
+            line = f"{line} {word}" if line else word
+    return "\n".join([*lines, line])

@@ -1,0 +1,231 @@
+"""How likely is a failure per encounter? Plain Monte Carlo and importance sampling by
+the cross-entropy method, over a space's nominal distribution
+(:class:`~cdf_mj.falsify.space.SearchSpace`: each dimension drawn independently from its
+declared nominal, the rest of the world from the episode's seed).
+
+**Monte Carlo** (:func:`monte_carlo`): ``n`` points of the nominal, one episode each;
+the failure rate with its 95 % Wilson interval. It sees nothing below about ``3 / n``.
+
+**Cross-entropy importance sampling** (:func:`cross_entropy`; Rubinstein and Kroese,
+*The Cross-Entropy Method*, 2004; de Boer et al. 2005): a proposal of the same form as
+the nominal (a truncated normal per range, a categorical per choice) is moved towards
+failures in stages: each stage draws ``stage`` points, takes the ``rho`` share with the
+least robustness (or every failure once there are that many) as its elite, and refits
+the proposal to them, each weighted by its likelihood ratio nominal / proposal
+(smoothed by ``smoothing``, a range's std kept above 2 % of its width). Once a stage's
+elite is all failures (or after ``max_stages``), the rest of the budget is drawn from
+the defensive mixture ``(1 - defensive) proposal + defensive nominal`` (Hesterberg
+1995), whose weights ``w = nominal / mixture`` are at most ``1 / defensive``. The
+estimate is the mean of ``w * failed`` over that last stage, with a normal 95 % interval
+(standard error of the weighted mean), the effective sample size of the failures' weights
+(Kish: ``(sum w)^2 / sum w^2``) and the relative standard error. No failure in the last
+stage gives 0 with the bound ``3 / (n * defensive)`` (the rule of three on the mixture).
+
+Both are resumable: the points are drawn from generators seeded by the run's seed and
+stage, the fits are made from the journal's numbers, so a killed run started again
+repeats no episode and gives the same estimate.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from cdf_mj.analysis.metrics import wilson_interval
+from cdf_mj.falsify.evaluate import Evaluator, episode_seed
+from cdf_mj.falsify.space import Range, SearchSpace, truncnorm_logpdf, truncnorm_sample
+
+__all__ = ["Estimate", "Proposal", "cross_entropy", "monte_carlo"]
+
+Z95 = 1.959963984540054
+#: Least std of a fitted range, as a share of its width (a proposal never collapses to a point).
+MIN_STD_SHARE = 0.02
+#: Least probability of a choice in a fitted proposal, as a share of 1 / (its values).
+MIN_CHOICE_SHARE = 0.05
+
+
+@dataclass(frozen=True)
+class Proposal:
+    """A product distribution over a space: per range ``(mean, std)`` of a normal truncated
+    to the range (``std`` infinite: uniform), per choice its probabilities."""
+
+    params: tuple[Any, ...]
+
+    @classmethod
+    def nominal(cls, space: SearchSpace) -> Proposal:
+        """The space's declared nominal distribution."""
+        return cls(tuple(d.nominal_mean_std() if isinstance(d, Range) else np.array(d.weights)
+                         for d in space.dims))
+
+    def sample(self, space: SearchSpace, rng: np.random.Generator, n: int) -> np.ndarray:
+        """``n`` points, shape ``(n, d)``."""
+        cols = []
+        for d, p in zip(space.dims, self.params, strict=True):
+            if isinstance(d, Range):
+                cols.append(truncnorm_sample(rng, n, p[0], p[1], d.low, d.high))
+            else:
+                cols.append(rng.choice(len(p), size=n, p=p).astype(float))
+        return np.column_stack(cols) if cols else np.zeros((n, 0))
+
+    def logpdf(self, space: SearchSpace, points: np.ndarray) -> np.ndarray:
+        """Log density (ranges) times probability (choices) of each point."""
+        out = np.zeros(len(points))
+        for j, (d, p) in enumerate(zip(space.dims, self.params, strict=True)):
+            x = points[:, j]
+            if isinstance(d, Range):
+                out += truncnorm_logpdf(x, p[0], p[1], d.low, d.high)
+            else:
+                with np.errstate(divide="ignore"):
+                    out += np.log(p[np.clip(np.rint(x).astype(int), 0, len(p) - 1)])
+        return out
+
+    def to_dict(self, space: SearchSpace) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for d, p in zip(space.dims, self.params, strict=True):
+            if isinstance(d, Range):
+                out[d.key] = {"mean": p[0], "std": p[1] if math.isfinite(p[1]) else None}
+            else:
+                out[d.key] = {str(v): float(q) for v, q in zip(d.values, p, strict=True)}
+        return out
+
+
+def _refit(space: SearchSpace, old: Proposal, points: np.ndarray, weights: np.ndarray,
+           smoothing: float) -> Proposal:
+    """The weighted maximum-likelihood fit of ``points``, smoothed towards ``old``."""
+    w = weights / weights.sum()
+    params: list[Any] = []
+    for j, (d, p) in enumerate(zip(space.dims, old.params, strict=True)):
+        x = points[:, j]
+        if isinstance(d, Range):
+            mean = float(w @ x)
+            std = max(math.sqrt(float(w @ (x - mean) ** 2)), MIN_STD_SHARE * d.width)
+            old_mean, old_std = p if math.isfinite(p[1]) else ((d.low + d.high) / 2, d.width / math.sqrt(12))
+            params.append((smoothing * mean + (1 - smoothing) * old_mean, smoothing * std + (1 - smoothing) * old_std))
+        else:
+            k = len(p)
+            freq = np.bincount(np.clip(np.rint(x).astype(int), 0, k - 1), weights=w, minlength=k)
+            q = smoothing * freq + (1 - smoothing) * p
+            q = np.maximum(q, MIN_CHOICE_SHARE / k)
+            params.append(q / q.sum())
+    return Proposal(tuple(params))
+
+
+@dataclass
+class Estimate:
+    """A probability of failure per encounter, with its 95 % interval."""
+
+    method: str  # "mc" | "ce"
+    planner: str
+    episodes: int  # all episodes spent (the cross-entropy stages included)
+    n: int  # episodes of the estimating stage
+    failures: int  # failures among them
+    p: float
+    ci: tuple[float, float]
+    ess: float | None = None  # effective sample size of the failures' weights (importance sampling)
+    upper_only: bool = False  # no failure seen: ``ci[1]`` is a bound, ``p`` is 0
+    stages: list[dict[str, Any]] = field(default_factory=list)
+    errors: int = 0  # episodes that raised (counted as no failure)
+
+    @property
+    def rel_error(self) -> float | None:
+        """Standard error over the estimate (None where it is 0)."""
+        if self.p <= 0:
+            return None
+        return (self.ci[1] - self.p) / Z95 / self.p if self.method == "ce" else math.sqrt((1 - self.p) /
+                                                                                          (self.n * self.p))
+
+    def text(self) -> str:
+        if self.upper_only:
+            return f"< {self.ci[1]:.2g} (0 failures in {self.n})"
+        return f"{self.p:.3g} [{self.ci[0]:.2g}, {self.ci[1]:.2g}]"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"method": self.method, "planner": self.planner, "episodes": self.episodes, "n": self.n,
+                "failures": self.failures, "p": self.p, "ci95": list(self.ci), "ess": self.ess,
+                "rel_error": self.rel_error, "upper_only": self.upper_only, "stages": self.stages,
+                "errors": self.errors}
+
+
+def _run(evaluator: Evaluator, planner: str, points: np.ndarray, seed: int, stream: int) -> tuple[np.ndarray,
+                                                                                                  int]:
+    """Robustness of one episode per point (seeds of ``stream``); and how many raised."""
+    items = [(p, episode_seed(seed, i, stream)) for i, p in enumerate(points)]
+    got = [e[planner] for e in evaluator.evaluate(items, [planner])]
+    return np.array([e.robustness for e in got]), sum(e.error is not None for e in got)
+
+
+def monte_carlo(evaluator: Evaluator, planner: str, n: int, *, seed: int = 0) -> Estimate:
+    """Plain Monte Carlo: ``n`` nominal points, one episode each (see the module docstring)."""
+    space = evaluator.space
+    points = Proposal.nominal(space).sample(space, np.random.default_rng([int(seed), 300]), n)
+    r, errors = _run(evaluator, planner, points, seed, 300)
+    k = int((r <= 0).sum())
+    lo, hi = wilson_interval(k, n)
+    return Estimate("mc", planner, n, n, k, k / n, (lo, hi), upper_only=k == 0, errors=errors)
+
+
+def cross_entropy(evaluator: Evaluator, planner: str, budget: int, *, seed: int = 0, stage: int | None = None,
+                  rho: float = 0.1, smoothing: float = 0.7, defensive: float = 0.1, max_stages: int = 4,
+                  on_stage: Callable[[dict[str, Any]], None] | None = None) -> Estimate:
+    """Cross-entropy importance sampling within ``budget`` episodes (see the module
+    docstring). ``stage``: episodes per adaptive stage (default a fifth of the budget, at
+    least 50); the stages stop early once an elite is all failures, and the last stage
+    gets what is left (at least a fifth of the budget)."""
+    if not 0 < rho < 1 or not 0 < defensive < 1 or not 0 < smoothing <= 1:
+        raise ValueError("cross_entropy: rho and defensive must be in (0, 1), smoothing in (0, 1]")
+    space = evaluator.space
+    stage = stage or max(50, budget // 5)
+    nominal = Proposal.nominal(space)
+    q, spent, stages, errors = nominal, 0, [], 0
+    for k in range(max_stages):
+        if budget - spent - stage < budget // 5:
+            break
+        points = q.sample(space, np.random.default_rng([int(seed), 100 + k]), stage)
+        r, e = _run(evaluator, planner, points, seed, 100 + k)
+        spent, errors = spent + stage, errors + e
+        level = max(float(np.quantile(r, rho)), 0.0)
+        elite = r <= level
+        w = np.exp(nominal.logpdf(space, points[elite]) - q.logpdf(space, points[elite]))
+        info: dict[str, Any] = {"stage": k, "episodes": stage, "level": level, "failures": int((r <= 0).sum()),
+                "elite": int(elite.sum())}
+        stages.append(info)
+        if on_stage is not None:
+            on_stage(info)
+        if w.sum() > 0:
+            q = _refit(space, q, points[elite], w, smoothing)
+        if level <= 0.0:
+            break
+    n = budget - spent
+    rng = np.random.default_rng([int(seed), 200])
+    from_q = rng.random(n) >= defensive
+    points = np.where(from_q[:, None], q.sample(space, rng, n), nominal.sample(space, rng, n))
+    r, e = _run(evaluator, planner, points, seed, 200)
+    errors += e
+    log_p = nominal.logpdf(space, points)
+    log_mix = np.logaddexp(math.log1p(-defensive) + q.logpdf(space, points), math.log(defensive) + log_p)
+    w = np.exp(log_p - log_mix)
+    hw = np.where(r <= 0, w, 0.0)
+    k_fail = int((r <= 0).sum())
+    stages.append({"stage": len(stages), "episodes": n, "level": 0.0, "failures": k_fail, "final": True,
+                   "proposal": dict(q.to_dict(space))})
+    if k_fail == 0:
+        return Estimate("ce", planner, budget, n, 0, 0.0, (0.0, 3.0 / (n * defensive)), upper_only=True,
+                        stages=stages, errors=errors)
+    p = float(hw.mean())
+    se = float(hw.std(ddof=1) / math.sqrt(n)) if n > 1 else math.inf
+    ess = float(hw.sum() ** 2 / (hw**2).sum())
+    return Estimate("ce", planner, budget, n, k_fail, p, (max(p - Z95 * se, 0.0), p + Z95 * se), ess=ess,
+                    stages=stages, errors=errors)
+
+
+def agree(a: Estimate, b: Estimate) -> bool:
+    """Whether two estimates' 95 % intervals overlap."""
+    return a.ci[0] <= b.ci[1] and b.ci[0] <= a.ci[1]
+
+
+def summary(estimates: Sequence[Estimate]) -> list[dict[str, Any]]:
+    return [e.to_dict() for e in estimates]

@@ -1,0 +1,199 @@
+"""Running a search's episodes: points of a :class:`~cdf_mj.falsify.space.SearchSpace`
+with their seeds, on any planner, through the experiment runner (serial, process pool or
+Ray), every result appended to a journal as it arrives.
+
+The journal (``evaluations.jsonl`` in the run's directory) is the run's memory: one JSON
+line per episode, flushed and ``fsync``-ed, keyed by planner, seed, point and the options
+kept at their defaults. :meth:`Evaluator.evaluate` runs only what the journal lacks, so a
+run killed at any moment (``SIGKILL`` included) and started again with the same command
+repeats no finished episode and loses at most those in flight; the search, the
+minimisation and the estimators replay their own decisions from the journal's numbers.
+A last line cut short by the kill is dropped; any other damaged line is one error naming
+the file and the line.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+from cdf_mj.config import MAX_SEED
+from cdf_mj.experiments.runner import Backend, SeedJob, run_seeds
+from cdf_mj.falsify.space import SearchSpace
+from cdf_mj.inputs import RECORDS_MAX_BYTES, read_regular
+from cdf_mj.planners.registry import bind_planner
+from cdf_mj.records import OK
+from cdf_mj.sim.scene import DEFAULT_SCENE
+
+__all__ = ["JOURNAL_FILE", "Evaluation", "Evaluator", "Journal", "episode_seed"]
+
+#: The journal's name in a run's directory.
+JOURNAL_FILE = "evaluations.jsonl"
+#: What a record's summary keeps (the rest of a record is for experiments).
+_SUMMARY = ("intent", "label", "collision", "collision_with", "collision_time", "min_gap", "brake_time",
+            "entered_lane_time", "end_time", "time_lost")
+#: The robustness the search is given for an episode that raised (a bug, reported): far
+#: from failure, so that the search moves away.
+ERROR_ROBUSTNESS = 1e3
+
+
+def episode_seed(run_seed: int, index: int, stream: int = 0) -> int:
+    """The episode seed of item ``index`` of a run seeded ``run_seed`` (``stream`` keeps a
+    run's stages apart): 53 bits of a SeedSequence, so distinct items get unrelated seeds."""
+    state = np.random.SeedSequence([int(run_seed), int(stream), int(index)]).generate_state(2, np.uint32)
+    return int((int(state[0]) << 21) ^ int(state[1])) & MAX_SEED
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """One episode of a point: its robustness [m or s] (<= 0 fails) and its record's summary."""
+
+    planner: str
+    seed: int
+    point: tuple[float, ...]
+    keep: tuple[str, ...]
+    robustness: float
+    failed: bool
+    summary: dict[str, Any]
+    error: str | None = None  # the episode raised: its error (robustness is ERROR_ROBUSTNESS)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"key": key_of(self.planner, self.seed, self.point, self.keep), "planner": self.planner,
+                "seed": self.seed, "point": list(self.point), "keep": list(self.keep),
+                "robustness": self.robustness, "failed": self.failed, "summary": self.summary,
+                "error": self.error}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Evaluation:
+        return cls(planner=str(data["planner"]), seed=int(data["seed"]),
+                   point=tuple(float(x) for x in data["point"]), keep=tuple(str(k) for k in data["keep"]),
+                   robustness=float(data["robustness"]), failed=bool(data["failed"]),
+                   summary=dict(data["summary"]), error=data.get("error"))
+
+
+def key_of(planner: str, seed: int, point: Sequence[float], keep: Sequence[str] = ()) -> str:
+    """The journal's key of an episode (floats exactly, as JSON writes them)."""
+    return json.dumps([planner, int(seed), [float(x) for x in point], sorted(keep)])
+
+
+class Journal:
+    """The append-only journal of a run's episodes (see the module docstring)."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self.entries: dict[str, Evaluation] = {}
+        if self.path.exists():
+            self._read()
+        self._fh: IO[str] = open(self.path, "a", encoding="utf-8")  # noqa: SIM115 - closed by close()
+
+    def _read(self) -> None:
+        raw = read_regular(self.path, "journal", RECORDS_MAX_BYTES)
+        complete = raw.rfind(b"\n") + 1
+        for number, line in enumerate(raw[:complete].decode("utf-8", errors="replace").splitlines(), 1):
+            if not line.strip():
+                continue
+            try:
+                data = json.loads(line)
+                ev = Evaluation.from_dict(data)
+                if data.get("key") != key_of(ev.planner, ev.seed, ev.point, ev.keep):
+                    raise ValueError("its key does not match its contents")
+            except (ValueError, KeyError, TypeError) as exc:
+                raise ValueError(f"{self.path}: line {number} is not an evaluation ({exc}); the file is damaged: "
+                                 "move it away or choose another directory") from None
+            self.entries[data["key"]] = ev
+        if complete < len(raw):  # a line cut short by a killed run
+            with open(self.path, "r+b") as fh:
+                fh.truncate(complete)
+                os.fsync(fh.fileno())
+
+    def get(self, planner: str, seed: int, point: Sequence[float], keep: Sequence[str] = ()) -> Evaluation | None:
+        return self.entries.get(key_of(planner, seed, point, keep))
+
+    def append(self, evaluations: Iterable[Evaluation]) -> None:
+        lines = []
+        for ev in evaluations:
+            self.entries[key_of(ev.planner, ev.seed, ev.point, ev.keep)] = ev
+            lines.append(json.dumps(ev.to_dict(), allow_nan=False) + "\n")
+        if lines:
+            self._fh.write("".join(lines))
+            self._fh.flush()
+            os.fsync(self._fh.fileno())
+
+    def close(self) -> None:
+        self._fh.close()
+
+
+def _summary(record: dict[str, Any]) -> dict[str, Any]:
+    out = {k: record.get(k) for k in _SUMMARY}
+    safety = record.get("safety") or {}
+    out["min_ttc"], out["min_headway"] = safety.get("min_ttc"), safety.get("min_headway")
+    return out
+
+
+def _finite(value: float) -> float:
+    return value if math.isfinite(value) else ERROR_ROBUSTNESS
+
+
+class Evaluator:
+    """Runs points of ``space`` on planners, each episode once (see the module docstring).
+
+    ``workers``/``backend``/``address`` as :func:`cdf_mj.experiments.runner.run_seeds`;
+    ``on_episode`` is called with each new episode's count (for a progress bar).
+    """
+
+    def __init__(self, space: SearchSpace, planners: Sequence[str], journal: Journal, *,
+                 scene: str | Path = DEFAULT_SCENE, backend: Backend = "process", workers: int | None = None,
+                 address: str | None = None, on_episode: Callable[[int], None] | None = None) -> None:
+        self.space = space
+        self.journal = journal
+        self.job = SeedJob(config=space.base, scene=str(scene), planners=tuple(planners),
+                           factories={name: bind_planner(name) for name in planners})
+        self.backend, self.workers, self.address = backend, workers, address
+        self.on_episode = on_episode
+        self.episodes_run = 0  # this process's, not the journal's
+
+    def evaluate(self, items: Sequence[tuple[Sequence[float], int]], planners: Sequence[str],
+                 keep: Sequence[Sequence[str]] | None = None) -> list[dict[str, Evaluation]]:
+        """For each ``(point, seed)`` item, planner -> its :class:`Evaluation` (``keep[i]``:
+        the options item ``i`` leaves at the base's values). Runs what the journal lacks,
+        several items at once; an item's seed must not repeat within one call."""
+        keeps = [tuple(sorted(k)) for k in keep] if keep is not None else [()] * len(items)
+        points = [tuple(float(x) for x in p) for p, _ in items]
+        seeds = [int(s) for _, s in items]
+        if len(set(seeds)) != len(seeds):
+            raise ValueError("Evaluator.evaluate: each item of one call needs its own seed")
+        todo = []
+        for point, seed, kept in zip(points, seeds, keeps, strict=True):
+            missing = tuple(p for p in planners if self.journal.get(p, seed, point, kept) is None)
+            if missing:
+                todo.append((seed, missing, self.space.config(point, kept)))
+        where = {seed: (point, kept) for point, seed, kept in zip(points, seeds, keeps, strict=True)}
+        if todo:
+            for result in run_seeds(self.job, todo, backend=self.backend, workers=self.workers,
+                                    address=self.address):
+                point, kept = where[result.seed]
+                new = [self._evaluation(rec, point, kept) for rec in result.records]
+                self.journal.append(new)
+                self.episodes_run += len(new)
+                if self.on_episode is not None:
+                    self.on_episode(len(new))
+        out = []
+        for point, seed, kept in zip(points, seeds, keeps, strict=True):
+            got = {p: self.journal.get(p, seed, point, kept) for p in planners}
+            out.append({p: ev for p, ev in got.items() if ev is not None})
+        return out
+
+    def _evaluation(self, record: dict[str, Any], point: tuple[float, ...], keep: tuple[str, ...]) -> Evaluation:
+        seed, planner = int(record["seed"]), str(record["planner"])
+        if record.get("status") != OK:
+            return Evaluation(planner, seed, point, keep, ERROR_ROBUSTNESS, False, {},
+                              error=str(record.get("error", "the episode failed")))
+        r = _finite(self.space.failure.robustness(record))
+        return Evaluation(planner, seed, point, keep, r, r <= 0.0, _summary(record))

@@ -1,0 +1,141 @@
+"""A falsification or estimation run in a directory: its settings, its journal, its
+results, and a second start of the same command that goes on where the first stopped.
+
+``falsify`` writes into ``out``::
+
+    settings.json          what was asked (the space file's text, planner, seed, ...)
+    evaluations.jsonl      every episode, as it finished (cdf_mj.falsify.evaluate)
+    summary.json           the search's generations, failures and counterexamples
+    report.md              the same for a person
+    progress.png           least robustness per generation (with matplotlib)
+    counterexamples/       NN-seed-S.toml presets, one per cluster
+
+``estimate`` writes ``settings.json``, ``evaluations.jsonl`` and ``estimate.json``. A
+directory holds one kind of run with one set of settings (the budget may grow); another
+is refused with one line, as is a second run into a directory in use.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Sequence
+from contextlib import ExitStack
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from cdf_mj import __version__
+from cdf_mj.experiments.runner import Backend
+from cdf_mj.experiments.store import locked
+from cdf_mj.falsify.counterexamples import Counterexample, find_counterexamples, write_counterexamples
+from cdf_mj.falsify.estimate import Estimate, cross_entropy, monte_carlo
+from cdf_mj.falsify.evaluate import JOURNAL_FILE, Evaluator, Journal
+from cdf_mj.falsify.search import Generation, SearchResult, run_search
+from cdf_mj.falsify.space import SearchSpace
+from cdf_mj.inputs import SETTINGS_MAX_BYTES, InputError, parse_json, read_text
+from cdf_mj.records import write_atomic
+from cdf_mj.sim.scene import DEFAULT_SCENE
+
+__all__ = ["SETTINGS", "FalsifyResult", "estimate", "falsify"]
+
+SETTINGS = "settings.json"
+
+
+@dataclass
+class FalsifyResult:
+    """A finished search and what was made of its failures."""
+
+    space: SearchSpace
+    search: SearchResult
+    counterexamples: list[Counterexample]
+    out: Path
+    episodes_run: int  # by this call (the rest came from the journal)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"space": self.space.name, "failure": self.space.failure.text, "search": self.search.to_dict(),
+                "counterexamples": [c.to_dict() for c in self.counterexamples]}
+
+
+def _settings(out: Path, wanted: dict[str, Any]) -> None:
+    """Write ``wanted`` to ``out/settings.json``, or check it against what is there."""
+    path = out / SETTINGS
+    if path.exists():
+        try:
+            have = parse_json(read_text(path, "settings file", SETTINGS_MAX_BYTES), f"settings file {path}")
+        except (InputError, ValueError, OSError) as exc:
+            raise ValueError(f"{path} cannot be read ({exc}); move it away or choose another directory") from None
+        if not isinstance(have, dict) or have.get("kind") != wanted["kind"]:
+            raise ValueError(f"{out} holds another kind of run ({have.get('kind') if isinstance(have, dict) else '?'}"
+                             f"), not a {wanted['kind']}; choose another directory")
+        for key, value in wanted.items():
+            if key != "version" and have.get(key) != value:
+                shown = "the space file" if key == "space_text" else key
+                raise ValueError(f"{out} holds a {wanted['kind']} run with another {shown} "
+                                 f"({have.get(key)!r:.60} there, {value!r:.60} now); give the same settings to "
+                                 "go on with it, or choose another directory")
+        return
+    write_atomic(path, json.dumps(wanted, indent=2) + "\n")
+
+
+def _open(out: str | Path, wanted: dict[str, Any], stack: ExitStack) -> tuple[Path, Journal]:
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    stack.enter_context(locked(out))
+    _settings(out, wanted)
+    journal = Journal(out / JOURNAL_FILE)
+    stack.callback(journal.close)
+    return out, journal
+
+
+def falsify(space: SearchSpace, planner: str, budget: int, out: str | Path, *, compare: Sequence[str] = (),
+            seed: int = 0, popsize: int | None = None, scene: str | Path = DEFAULT_SCENE,
+            backend: Backend = "process", workers: int | None = None, address: str | None = None,
+            max_clusters: int = 12, figure: bool = True, on_episode: Callable[[int], None] | None = None,
+            on_generation: Callable[[Generation], None] | None = None) -> FalsifyResult:
+    """Search ``space`` for failures of ``planner`` within ``budget`` episodes, cluster and
+    minimise them, replay them on ``compare``, and write the run's files into ``out``
+    (see the module docstring). Resumable: the same call goes on from the journal."""
+    from cdf_mj.falsify.report import falsify_markdown, progress_figure
+
+    wanted = {"kind": "falsify", "version": __version__, "space": space.name, "space_text": space.text,
+              "planner": planner, "seed": seed, "popsize": popsize, "scene": str(scene)}
+    with ExitStack() as stack:
+        out_dir, journal = _open(out, wanted, stack)
+        evaluator = Evaluator(space, [planner, *compare], journal, scene=scene, backend=backend, workers=workers,
+                              address=address, on_episode=on_episode)
+        search = run_search(evaluator, planner, budget, seed=seed, popsize=popsize, on_generation=on_generation)
+        found = find_counterexamples(evaluator, planner, search.failures, [c for c in compare if c != planner],
+                                     max_clusters=max_clusters)
+        write_counterexamples(space, found, out_dir / "counterexamples")
+        result = FalsifyResult(space, search, found, out_dir, evaluator.episodes_run)
+        write_atomic(out_dir / "summary.json", json.dumps(result.to_dict(), indent=2, allow_nan=False) + "\n")
+        figure_path = out_dir / "progress.png"
+        if figure:
+            progress_figure({planner: [search]}, figure_path, space.failure.margin)
+        write_atomic(out_dir / "report.md", falsify_markdown(result, figure_path.name if figure else None))
+        return result
+
+
+def estimate(space: SearchSpace, planner: str, budget: int, out: str | Path, *, method: str = "ce",
+             seed: int = 0, stage: int | None = None, scene: str | Path = DEFAULT_SCENE,
+             backend: Backend = "process", workers: int | None = None, address: str | None = None,
+             on_episode: Callable[[int], None] | None = None,
+             on_stage: Callable[[dict[str, Any]], None] | None = None) -> Estimate:
+    """P(failure) of ``planner`` per encounter of ``space``'s nominal distribution, by
+    ``method`` ``"ce"`` (cross-entropy importance sampling) or ``"mc"`` (plain Monte
+    Carlo), within ``budget`` episodes; written to ``out/estimate.json``. Resumable."""
+    if method not in ("ce", "mc"):
+        raise ValueError(f"method must be 'ce' or 'mc', got {method!r}")
+    wanted = {"kind": "estimate", "version": __version__, "space": space.name, "space_text": space.text,
+              "planner": planner, "seed": seed, "method": method, "stage": stage, "scene": str(scene)}
+    with ExitStack() as stack:
+        out_dir, journal = _open(out, wanted, stack)
+        evaluator = Evaluator(space, [planner], journal, scene=scene, backend=backend, workers=workers,
+                              address=address, on_episode=on_episode)
+        if method == "mc":
+            result = monte_carlo(evaluator, planner, budget, seed=seed)
+        else:
+            result = cross_entropy(evaluator, planner, budget, seed=seed, stage=stage, on_stage=on_stage)
+        write_atomic(out_dir / "estimate.json", json.dumps({"space": space.name, "failure": space.failure.text,
+                                                             **result.to_dict()}, indent=2) + "\n")
+        return result
