@@ -3,7 +3,7 @@
 Layers, lowest first (a name is a top-level module or subpackage of ``cdf_mj``)::
 
     config, records, extras, presets, traits, inputs -> model -> sim -> inference -> planners, analysis -> scenario
-    -> viz -> envs -> experiments -> cli, __main__
+    -> viz -> envs -> experiments -> falsify -> cli, __main__
 
 Every module's source is read with ``ast`` and every ``cdf_mj`` import counted, also
 those inside functions and under ``TYPE_CHECKING``. The package's ``__init__`` is the
@@ -34,6 +34,7 @@ LAYERS: list[set[str]] = [
     {"viz"},
     {"envs"},
     {"experiments"},
+    {"falsify"},
     {"cli", "__main__"},
 ]
 RANK = {name: rank for rank, names in enumerate(LAYERS) for name in names}

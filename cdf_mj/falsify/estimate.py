@@ -10,16 +10,20 @@ the failure rate with its 95 % Wilson interval. It sees nothing below about ``3 
 *The Cross-Entropy Method*, 2004; de Boer et al. 2005): a proposal of the same form as
 the nominal (a truncated normal per range, a categorical per choice) is moved towards
 failures in stages: each stage draws ``stage`` points, takes the ``rho`` share with the
-least robustness (or every failure once there are that many) as its elite, and refits
-the proposal to them, each weighted by its likelihood ratio nominal / proposal
-(smoothed by ``smoothing``, a range's std kept above 2 % of its width). Once a stage's
-elite is all failures (or after ``max_stages``), the rest of the budget is drawn from
-the defensive mixture ``(1 - defensive) proposal + defensive nominal`` (Hesterberg
-1995), whose weights ``w = nominal / mixture`` are at most ``1 / defensive``. The
-estimate is the mean of ``w * failed`` over that last stage, with a normal 95 % interval
-(standard error of the weighted mean), the effective sample size of the failures' weights
-(Kish: ``(sum w)^2 / sum w^2``) and the relative standard error. No failure in the last
-stage gives 0 with the bound ``3 / (n * defensive)`` (the rule of three on the mixture).
+least robustness as its elite (its failures alone once there are ``min_failures`` of
+them: where near misses of one kind are far likelier than failures of another, a
+quantile of the robustness would stay on the near misses), and refits the proposal to
+them, each weighted by its likelihood ratio nominal / proposal (smoothed by
+``smoothing``, a range's std kept above 5 % of its width, a choice above 5 % of an equal
+share). Once a stage's failures are a ``rho`` share of it (or after ``max_stages``), the
+rest of the budget is drawn from the defensive mixture ``(1 - defensive) proposal +
+defensive nominal`` (Hesterberg 1995), whose weights ``w = nominal / mixture`` are at
+most ``1 / defensive``. The estimate is the mean of ``w * failed`` over that last stage,
+with a normal 95 % interval (standard error of the weighted mean), the effective sample
+size of the failures' weights (Kish: ``(sum w)^2 / sum w^2``) and the relative standard
+error; below an effective sample size of about 10 the interval is optimistic. No failure
+in the last stage gives 0 with the bound ``3 / (n * defensive)`` (the rule of three on
+the mixture).
 
 Both are resumable: the points are drawn from generators seeded by the run's seed and
 stage, the fits are made from the journal's numbers, so a killed run started again
@@ -43,7 +47,7 @@ __all__ = ["Estimate", "Proposal", "cross_entropy", "monte_carlo"]
 
 Z95 = 1.959963984540054
 #: Least std of a fitted range, as a share of its width (a proposal never collapses to a point).
-MIN_STD_SHARE = 0.02
+MIN_STD_SHARE = 0.05
 #: Least probability of a choice in a fitted proposal, as a share of 1 / (its values).
 MIN_CHOICE_SHARE = 0.05
 
@@ -170,11 +174,13 @@ def monte_carlo(evaluator: Evaluator, planner: str, n: int, *, seed: int = 0) ->
 
 def cross_entropy(evaluator: Evaluator, planner: str, budget: int, *, seed: int = 0, stage: int | None = None,
                   rho: float = 0.1, smoothing: float = 0.7, defensive: float = 0.1, max_stages: int = 4,
-                  on_stage: Callable[[dict[str, Any]], None] | None = None) -> Estimate:
+                  min_failures: int = 3, on_stage: Callable[[dict[str, Any]], None] | None = None) -> Estimate:
     """Cross-entropy importance sampling within ``budget`` episodes (see the module
     docstring). ``stage``: episodes per adaptive stage (default a fifth of the budget, at
-    least 50); the stages stop early once an elite is all failures, and the last stage
-    gets what is left (at least a fifth of the budget)."""
+    least 50); ``min_failures`` failures make a stage's elite whatever their share; the
+    stages stop once a stage's failures are a ``rho`` share of it (the proposal then fitted
+    to a well-sampled set of failures), and the last stage gets what is left (at least a
+    fifth of the budget)."""
     if not 0 < rho < 1 or not 0 < defensive < 1 or not 0 < smoothing <= 1:
         raise ValueError("cross_entropy: rho and defensive must be in (0, 1), smoothing in (0, 1]")
     space = evaluator.space
@@ -187,7 +193,8 @@ def cross_entropy(evaluator: Evaluator, planner: str, budget: int, *, seed: int 
         points = q.sample(space, np.random.default_rng([int(seed), 100 + k]), stage)
         r, e = _run(evaluator, planner, points, seed, 100 + k)
         spent, errors = spent + stage, errors + e
-        level = max(float(np.quantile(r, rho)), 0.0)
+        n_fail = int((r <= 0).sum())
+        level = 0.0 if n_fail >= min_failures else max(float(np.quantile(r, rho)), 0.0)
         elite = r <= level
         w = np.exp(nominal.logpdf(space, points[elite]) - q.logpdf(space, points[elite]))
         info: dict[str, Any] = {"stage": k, "episodes": stage, "level": level, "failures": int((r <= 0).sum()),
@@ -197,7 +204,7 @@ def cross_entropy(evaluator: Evaluator, planner: str, budget: int, *, seed: int 
             on_stage(info)
         if w.sum() > 0:
             q = _refit(space, q, points[elite], w, smoothing)
-        if level <= 0.0:
+        if n_fail >= rho * stage:  # a well-sampled set of failures: the proposal is fitted to it
             break
     n = budget - spent
     rng = np.random.default_rng([int(seed), 200])

@@ -1,0 +1,340 @@
+#!/usr/bin/env python3
+"""Falsification page: every planner searched for failures on the default space, the
+failures clustered and replayed on the others, and each planner's probability of failure
+per encounter by importance sampling beside plain Monte Carlo (docs/FALSIFY.md).
+
+Parts, each resumable (the same command goes on where a killed run stopped; results in
+``OUT/<part>``):
+
+1. **Search** (:func:`cdf_mj.falsify.run.falsify`): ``--runs`` independent CMA-ES
+   searches of ``--budget`` episodes for the first planner (the issue's target: a
+   collision of ``cdf`` within 2000 episodes in each of 5 runs), one for each other
+   planner; each planner's first run replays its counterexamples on every other planner.
+   The first planner's counterexamples are written to ``docs/falsify/`` so that a reader
+   can replay them (``cdf-mj episode --preset docs/falsify/cdf/01-seed-S.toml --seed S
+   --planner cdf``).
+2. **Probabilities** (:mod:`cdf_mj.falsify.estimate`): for every planner, cross-entropy
+   importance sampling and plain Monte Carlo on the same budget (``--estimate-budget``).
+3. **Validation**: on ``--validate`` (a planner whose rate plain Monte Carlo resolves:
+   ``cdf``, 1.9 % in a first 1000-episode probe, inside the issue's 0.5-5 %; ``cdf-risk``
+   read 2.8 %), ``--validate-episodes`` (20 000) episodes of Monte Carlo against importance
+   sampling with a fifth of them: do the intervals overlap?
+4. **Near the default world**: the first planner on the ``near-default`` space (the same
+   options, each nominally near the default world's value), both estimators on
+   ``--near-budget`` episodes each.
+5. **A rare case with a reference**: ``cdf-risk`` on the ``rare-stop`` space (the merged car
+   stops in 1 encounter of 10^4), both estimators on ``--rare-budget`` episodes each,
+   against the reference 1e-4 x P(failure | the stop), the second factor by plain Monte
+   Carlo with the stop pinned (400 episodes).
+
+Nothing is tuned here: the spaces (cdf_mj/falsify/spaces/), the search and the
+estimators run with their defaults; the seeds are the runs' seeds 0, 1, ... Results are
+as measured, whichever planner they favour. ::
+
+    python scripts/falsify.py                                  # everything (about an hour on 2 cores)
+    python scripts/falsify.py --budget 100 --runs 1 --estimate-budget 200 --validate-episodes 400 \\
+        --near-budget 200 --rare-budget 200 --planners cdf,cdf-risk --doc /tmp/f.md --out /tmp/f  # a look
+
+Bad input (an unknown planner, a count out of range, a result directory of other settings)
+is one line ``falsify: error: ...`` and exit status 2; episodes that raised are counted as
+no failure, named on the page, and make the exit status 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import shutil
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from cdf_mj.analysis.metrics import wilson_interval
+from cdf_mj.analysis.pages import ScriptParser, command_line, markdown_table, write_page
+from cdf_mj.cli.args import _episodes, _int_in, _out_path, _planner_list, _workers
+from cdf_mj.falsify.counterexamples import write_counterexamples
+from cdf_mj.falsify.estimate import Estimate, agree
+from cdf_mj.falsify.report import counterexample_table, progress_figure
+from cdf_mj.falsify.run import FalsifyResult, estimate, falsify
+from cdf_mj.falsify.space import Choice, Range, SearchSpace, load_space
+
+PROG = "falsify"
+PLANNERS = ("cdf", "cdf-risk", "cdf-threshold", "imm-layered", "reactive")
+BUDGET, RUNS = 2000, 5
+ESTIMATE_BUDGET = 2000
+VALIDATE, VALIDATE_EPISODES = "cdf", 20000
+#: The near case: the first planner on the space of small departures from the default world.
+NEAR_SPACE, NEAR_BUDGET = "near-default", 4000
+#: The rare case with a reference: a planner that fails often once the merged car stops, on
+#: the space in which it stops in 1 encounter of 10^4; the reference pins the stop.
+RARE_SPACE, RARE_PLANNER, RARE_BUDGET, RARE_REFERENCE = "rare-stop", "cdf-risk", 2000, 400
+RARE_KEY, RARE_VALUE = "after_merge.behaviour", "stop"
+FIGURE = Path("docs/img/falsify/progress.png")
+SHIPPED = Path("docs/falsify")
+
+
+def _say(quiet: bool, text: str) -> None:
+    if not quiet:
+        print(text, file=sys.stderr, flush=True)
+
+
+def space_table(space: SearchSpace) -> list[str]:
+    """Markdown: each dimension's range or choices and its nominal."""
+    rows = []
+    for d in space.dims:
+        if isinstance(d, Range):
+            nominal = (f"normal({d.mean:g}, {d.std:g}) truncated" if d.mean is not None and d.std is not None
+                       else "uniform")
+            rows.append([f"`{d.key}`", f"[{d.low:g}, {d.high:g}]" + (" (pinned pair)" if d.pair else ""), nominal])
+        else:
+            rows.append([f"`{d.key}`", ", ".join(map(str, d.values)), ", ".join(f"{w:.3g}" for w in d.weights)])
+    return markdown_table(["option", "range or choices", "nominal"], rows)
+
+
+def _rate(e: Estimate) -> str:
+    if e.upper_only:
+        return f"< {e.ci[1]:.2g} (0 of {e.n})"
+    return f"{e.p:.3g} [{e.ci[0]:.2g}, {e.ci[1]:.2g}]"
+
+
+def _stages(e: Estimate) -> str:
+    return "; ".join(f"level {s['level']:.3g} s, {s['failures']} failures of {s['episodes']}" for s in e.stages)
+
+
+def pinned(space: SearchSpace, key: str, value: object) -> SearchSpace:
+    """``space`` with the choice ``key`` pinned to ``value`` (the conditional world)."""
+    dims = tuple(Choice(d.key, (value,), (1.0,)) if d.key == key else d for d in space.dims)
+    return dataclasses.replace(space, name=f"{space.name} with {key} = {value}", dims=dims)
+
+
+@dataclasses.dataclass
+class Parts:
+    """Everything the page reports."""
+
+    space: SearchSpace
+    searches: dict[str, list[FalsifyResult]]
+    estimates: dict[str, tuple[Estimate, Estimate]]
+    validation: tuple[str, Estimate, Estimate] | None  # planner, Monte Carlo, importance sampling
+    near: tuple[str, Estimate, Estimate]  # planner, importance sampling, Monte Carlo
+    rare: tuple[str, float, Estimate, Estimate, Estimate]  # planner, nominal weight, IS, MC, conditional MC
+    budget: int
+
+
+def targets(parts: Parts) -> list[str]:
+    """The issue's targets, met or missed, from the numbers."""
+    planners = list(parts.searches)
+    first, runs = planners[0], parts.searches[planners[0]]
+    found = [r.search.first_failure for r in runs]
+    hit = sum(f is not None and f <= parts.budget for f in found)
+    lines = [f"- **`{first}`: a collision found within {parts.budget} episodes in {hit} of {len(runs)} independent "
+             f"runs** ({'met' if hit == len(runs) else 'missed'}); first failure after "
+             + ", ".join("none" if f is None else str(f) for f in found) + " episodes."]
+    if parts.validation is not None:
+        name, mc, ce = parts.validation
+        ok = agree(mc, ce) and ce.episodes * 5 <= mc.episodes
+        lines.append(f"- **Importance sampling against {mc.episodes}-episode Monte Carlo** (`{name}`, a rate of "
+                     f"{mc.p:.2%}): {_rate(ce)} from {ce.episodes} episodes against {_rate(mc)}: intervals "
+                     f"{'overlap' if agree(mc, ce) else 'do not overlap'} with {mc.episodes / ce.episodes:.0f}x "
+                     f"fewer episodes ({'met' if ok else 'missed'}).")
+    name, weight, ce, mc, cond = parts.rare
+    lo, hi = wilson_interval(cond.failures, cond.n)
+    ref = (weight * lo, weight * hi)
+    bounded = not ce.upper_only and ce.ci[1] < 1e-4
+    overlap = not ce.upper_only and ce.ci[0] <= ref[1] and ref[0] <= ce.ci[1]
+    lines.append(f"- **Below 1e-4** (`{name}` on space `{RARE_SPACE}`): importance sampling {_rate(ce)}, Monte "
+                 f"Carlo on the same {mc.episodes} episodes {_rate(mc)}; the reference {weight:g} x P(failure | "
+                 f"the stop) = [{ref[0]:.2g}, {ref[1]:.2g}] ({cond.failures}/{cond.n} with the stop pinned): "
+                 f"{'a bounded estimate below 1e-4' if bounded else 'no bounded estimate below 1e-4'}, "
+                 f"{'inside' if overlap else 'outside'} the reference, Monte Carlo "
+                 f"{'sees no failure' if mc.failures == 0 else f'sees {mc.failures}'} "
+                 f"({'met' if bounded and overlap and mc.failures == 0 else 'missed'}).")
+    return lines
+
+
+def page(parts: Parts, figure: str | None) -> str:
+    """The Markdown of docs/FALSIFY.md."""
+    space, planners = parts.space, list(parts.searches)
+    lines = ["# Falsification: where each planner fails, and how often", "",
+             "Every planner is searched for failures on the same declared space of worlds (`cdf-mj falsify`), "
+             "its failures are clustered, minimised and replayed on the other planners, and its probability of "
+             "failure per encounter is estimated by importance sampling beside plain Monte Carlo "
+             f"(`cdf-mj estimate`). Failure: {space.failure.text}. The space file, the search and the estimators: "
+             "[FALSIFICATION.md](FALSIFICATION.md).", "", "## Targets", "", *targets(parts),
+             "", "## Search", "",
+             f"CMA-ES on the least time to collision, {parts.budget} episodes a run, runs seeded 0, 1, ...; each "
+             "candidate one episode with its own seed.", ""]
+    rows = []
+    for p, results in parts.searches.items():
+        for seed, r in enumerate(results):
+            s = r.search
+            rows.append([f"`{p}`", str(seed), str(len(s.evaluations)), str(len(s.failures)),
+                         "none" if s.first_failure is None else str(s.first_failure), str(len(r.counterexamples)),
+                         f"{min((e.robustness for e in s.evaluations), default=0):.3g}", str(len(s.errors))])
+    lines += markdown_table(["planner", "run seed", "episodes", "failures", "first failure after", "clusters",
+                             "least robustness [s]", "episodes that raised"], rows)
+    if figure:
+        lines += ["", f"![search progress]({figure})"]
+    for p, results in parts.searches.items():
+        r = results[0]
+        others = [q for q in planners if q != p]
+        lines += ["", f"### Counterexamples of `{p}` (run seeded 0)", ""]
+        if not r.counterexamples:
+            lines.append("No failure within the budget.")
+            continue
+        lines += ["Traits: the options the minimisation could not put back to the default world's. Speeds at "
+                  "the first touch. Other planners: whether each fails on the minimised case, and on how many "
+                  "of the cluster's failures (up to 20 replayed).", ""]
+        lines += counterexample_table(r.counterexamples, others)
+        if p == planners[0]:
+            lines += ["", f"Replay: `cdf-mj episode --preset {SHIPPED}/{p}/NN-seed-S.toml --seed S --planner {p}` "
+                          f"(`cdf-mj render` the same to watch); the files are in [{SHIPPED}/{p}](falsify/{p})."]
+    n_est = next(iter(parts.estimates.values()))[0].episodes if parts.estimates else 0
+    lines += ["", "## Probability of failure per encounter", "",
+              f"Under the default space's nominal mix (its table below); each estimate its own {n_est} episodes, "
+              "95 % intervals (importance sampling: normal on the weighted mean, read with its effective "
+              "sample size; Monte Carlo: Wilson).", ""]
+    rows = []
+    for p, (ce, mc) in parts.estimates.items():
+        rows.append([f"`{p}`", _rate(ce), str(ce.failures), "-" if ce.ess is None else f"{ce.ess:.1f}",
+                     "-" if ce.rel_error is None else f"{ce.rel_error:.2f}", _rate(mc), str(mc.failures),
+                     "yes" if agree(ce, mc) else "**no**"])
+    lines += markdown_table(["planner", "importance sampling (CE)", "failures in its last stage",
+                             "ESS of the failures' weights", "relative s.e.", "Monte Carlo, same budget",
+                             "failures", "intervals overlap"], rows)
+    if parts.validation is not None:
+        name, mc, ce = parts.validation
+        lo, hi = wilson_interval(mc.failures, mc.n)
+        lines += ["", "### Validation against long Monte Carlo", "",
+                  f"`{name}`: Monte Carlo {mc.failures}/{mc.n} = {mc.p:.4f} [{lo:.4f}, {hi:.4f}]; importance "
+                  f"sampling {ce.p:.4f} [{ce.ci[0]:.4f}, {ce.ci[1]:.4f}] from {ce.episodes} episodes "
+                  f"({ce.failures} failures in its last stage of {ce.n}, ESS {ce.ess or 0:.1f}; stages: "
+                  f"{_stages(ce)})."]
+    name, ce, mc = parts.near
+    lines += ["", f"### Near the default world: `{name}` on space `{NEAR_SPACE}`", "",
+              f"Importance sampling {_rate(ce)} from {ce.episodes} episodes ({ce.failures} failures in its last "
+              f"stage of {ce.n}, ESS {ce.ess or 0:.1f}; stages: {_stages(ce)}); Monte Carlo {mc.failures}/{mc.n}: "
+              f"{_rate(mc)}."]
+    name, weight, ce, mc, cond = parts.rare
+    lines += ["", f"### A rare case with a reference: `{name}` on space `{RARE_SPACE}`", "",
+              f"Importance sampling {_rate(ce)} from {ce.episodes} episodes ({ce.failures} failures in its last "
+              f"stage of {ce.n}, ESS {ce.ess or 0:.1f}; stages: {_stages(ce)}); Monte Carlo {mc.failures}/{mc.n}: "
+              f"{_rate(mc)}; with the stop pinned (nominal weight {weight:g}): {cond.failures}/{cond.n}."]
+    lines += ["", "## The default space", "", space.description, "", *space_table(space)]
+    return "\n".join(lines) + "\n"
+
+
+def run(args: argparse.Namespace) -> Parts:
+    """Every part's runs (resumable, into ``args.out``)."""
+    space, out, q = load_space("default"), Path(args.out), args.quiet
+    searches: dict[str, list[FalsifyResult]] = {}
+    for i, planner in enumerate(args.planners):
+        n_runs = args.runs if i == 0 else 1
+        searches[planner] = []
+        for seed in range(n_runs):
+            _say(q, f"search {planner}, run {seed + 1}/{n_runs}: {args.budget} episodes")
+            compare = [p for p in args.planners if p != planner] if seed == 0 else []
+            searches[planner].append(falsify(space, planner, args.budget, out / f"search-{planner}-{seed}",
+                                             compare=compare, seed=seed, workers=args.workers, figure=False))
+    estimates: dict[str, tuple[Estimate, Estimate]] = {}
+    for planner in args.planners:
+        _say(q, f"estimate {planner}: importance sampling and Monte Carlo, {args.estimate_budget} each")
+        estimates[planner] = (
+            estimate(space, planner, args.estimate_budget, out / f"ce-{planner}", method="ce", workers=args.workers),
+            estimate(space, planner, args.estimate_budget, out / f"mc-{planner}", method="mc", workers=args.workers))
+    validation = None
+    if args.validate != "none":
+        _say(q, f"validation {args.validate}: Monte Carlo {args.validate_episodes}, importance sampling "
+                f"{args.validate_episodes // 5}")
+        validation = (args.validate,
+                      estimate(space, args.validate, args.validate_episodes, out / f"validate-mc-{args.validate}",
+                               method="mc", workers=args.workers),
+                      estimate(space, args.validate, max(args.validate_episodes // 5, 10),
+                               out / f"validate-ce-{args.validate}", method="ce", workers=args.workers))
+    first = args.planners[0]
+    _say(q, f"near the default world: {first} on {NEAR_SPACE}, {args.near_budget} episodes each method")
+    near_space = load_space(NEAR_SPACE)
+    near = (first, estimate(near_space, first, args.near_budget, out / f"near-ce-{first}", method="ce",
+                            workers=args.workers),
+            estimate(near_space, first, args.near_budget, out / f"near-mc-{first}", method="mc", workers=args.workers))
+    _say(q, f"rare case: {RARE_PLANNER} on {RARE_SPACE}, {args.rare_budget} episodes each method")
+    rare_space = load_space(RARE_SPACE)
+    dim = next(d for d in rare_space.dims if d.key == RARE_KEY)
+    assert isinstance(dim, Choice)
+    weight = dim.weights[dim.values.index(RARE_VALUE)]
+    rare = (RARE_PLANNER, weight,
+            estimate(rare_space, RARE_PLANNER, args.rare_budget, out / "rare-ce", method="ce", workers=args.workers),
+            estimate(rare_space, RARE_PLANNER, args.rare_budget, out / "rare-mc", method="mc", workers=args.workers),
+            estimate(pinned(rare_space, RARE_KEY, RARE_VALUE), RARE_PLANNER, RARE_REFERENCE, out / "rare-reference",
+                     method="mc", workers=args.workers))
+    return Parts(space, searches, estimates, validation, near, rare, args.budget)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run every part and write the page; returns the exit status (1 if episodes raised)."""
+    p = ScriptParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--planners", type=_planner_list, default=list(PLANNERS),
+                   help=f"comma-separated planners, the first searched --runs times (default {','.join(PLANNERS)})")
+    p.add_argument("--budget", type=_episodes, default=BUDGET, help=f"episodes per search (default {BUDGET})")
+    p.add_argument("--runs", type=_int_in(1, 100, "independent searches"), default=RUNS,
+                   help=f"independent searches of the first planner (default {RUNS})")
+    p.add_argument("--estimate-budget", type=_episodes, default=ESTIMATE_BUDGET,
+                   help=f"episodes per estimate, each method (default {ESTIMATE_BUDGET})")
+    p.add_argument("--validate", default=VALIDATE,
+                   help=f"planner of the validation (default {VALIDATE}; 'none' to skip)")
+    p.add_argument("--validate-episodes", type=_episodes, default=VALIDATE_EPISODES,
+                   help=f"Monte Carlo episodes of the validation (default {VALIDATE_EPISODES}); importance "
+                        "sampling gets a fifth")
+    p.add_argument("--near-budget", type=_episodes, default=NEAR_BUDGET,
+                   help=f"episodes of each estimate near the default world (default {NEAR_BUDGET})")
+    p.add_argument("--rare-budget", type=_episodes, default=RARE_BUDGET,
+                   help=f"episodes of each estimate of the rare case (default {RARE_BUDGET})")
+    p.add_argument("--workers", type=_workers, default=None, help="worker processes (default: the CPU count)")
+    p.add_argument("--out", type=_out_path, default="results/falsify-page", help="result directory")
+    p.add_argument("--doc", type=_out_path, default="docs/FALSIFY.md", help="Markdown page written")
+    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    args = p.parse_args(argv)
+    if len(set(args.planners)) != len(args.planners):
+        p.error(f"--planners names a planner twice: {','.join(args.planners)}")
+    if args.validate != "none" and args.validate not in args.planners:
+        p.error(f"--validate {args.validate} is not among --planners")
+    doc = Path(args.doc)
+    if doc.is_dir():
+        p.error(f"--doc {doc} is a directory; give the path of the Markdown page to write")
+    try:
+        parts = run(args)
+    except ValueError as exc:
+        p.error(str(exc))
+    official = doc.resolve() == Path("docs/FALSIFY.md").resolve()
+    figure_path = FIGURE if official else doc.with_suffix(".png")
+    figure_path.parent.mkdir(parents=True, exist_ok=True)
+    progress_figure({k: [r.search for r in v] for k, v in parts.searches.items()}, figure_path,
+                    parts.space.failure.margin)
+    if official:  # the first planner's counterexamples, for readers to replay
+        shipped = SHIPPED / args.planners[0]
+        if shipped.exists():
+            shutil.rmtree(shipped)
+        write_counterexamples(parts.space, parts.searches[args.planners[0]][0].counterexamples, shipped)
+    command = command_line("scripts/falsify.py", [
+        ("--planners", None if tuple(args.planners) == PLANNERS else ",".join(args.planners)),
+        ("--budget", None if args.budget == BUDGET else args.budget),
+        ("--runs", None if args.runs == RUNS else args.runs),
+        ("--estimate-budget", None if args.estimate_budget == ESTIMATE_BUDGET else args.estimate_budget),
+        ("--validate", None if args.validate == VALIDATE else args.validate),
+        ("--validate-episodes", None if args.validate_episodes == VALIDATE_EPISODES else args.validate_episodes),
+        ("--near-budget", None if args.near_budget == NEAR_BUDGET else args.near_budget),
+        ("--rare-budget", None if args.rare_budget == RARE_BUDGET else args.rare_budget)])
+    relative = "img/falsify/progress.png" if official else figure_path.name
+    write_page(doc, page(parts, relative), command)
+    _say(args.quiet, f"wrote {doc}, {figure_path}")
+    estimates = [*(e for pair in parts.estimates.values() for e in pair), *parts.near[1:], *parts.rare[2:],
+                 *(parts.validation[1:] if parts.validation else ())]
+    errors = sum(len(r.search.errors) for v in parts.searches.values() for r in v) + sum(e.errors for e in estimates)
+    if errors:
+        print(f"{PROG}: {errors} episode(s) raised (counted as no failure); see the journals in {args.out}",
+              file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
