@@ -194,8 +194,12 @@ def cross_entropy(evaluator: Evaluator, planner: str, budget: int, *, seed: int 
         r, e = _run(evaluator, planner, points, seed, 100 + k)
         spent, errors = spent + stage, errors + e
         n_fail = int((r <= 0).sum())
-        level = 0.0 if n_fail >= min_failures else max(float(np.quantile(r, rho)), 0.0)
-        elite = r <= level
+        if n_fail >= min_failures:
+            elite, level = r <= 0.0, 0.0
+        else:  # the rho share of least robustness by rank (many episodes tie at the margin's cap)
+            elite = np.zeros(len(r), dtype=bool)
+            elite[np.argsort(r, kind="stable")[: max(1, math.ceil(rho * len(r)))]] = True
+            level = max(float(r[elite].max()), 0.0)
         w = np.exp(nominal.logpdf(space, points[elite]) - q.logpdf(space, points[elite]))
         info: dict[str, Any] = {"stage": k, "episodes": stage, "level": level, "failures": int((r <= 0).sum()),
                 "elite": int(elite.sum())}

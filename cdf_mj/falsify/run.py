@@ -68,13 +68,21 @@ def _settings(out: Path, wanted: dict[str, Any]) -> None:
             raise ValueError(f"{out} holds another kind of run ({have.get('kind') if isinstance(have, dict) else '?'}"
                              f"), not a {wanted['kind']}; choose another directory")
         for key, value in wanted.items():
-            if key != "version" and have.get(key) != value:
-                shown = "the space file" if key == "space_text" else key
-                raise ValueError(f"{out} holds a {wanted['kind']} run with another {shown} "
-                                 f"({have.get(key)!r:.60} there, {value!r:.60} now); give the same settings to "
-                                 "go on with it, or choose another directory")
+            if key == "version" or have.get(key) == value:
+                continue
+            if key == "space_text":
+                what = "space file (its text differs from the one the run was made with)"
+            else:
+                what = f"{key} ({_short(have.get(key))} there, {_short(value)} now)"
+            raise ValueError(f"{out} holds a {wanted['kind']} run with another {what}; give the same settings to "
+                             "go on with it, or choose another directory")
         return
     write_atomic(path, json.dumps(wanted, indent=2) + "\n")
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 80 else text[:77] + "..."
 
 
 def _open(out: str | Path, wanted: dict[str, Any], stack: ExitStack) -> tuple[Path, Journal]:

@@ -404,11 +404,17 @@ def load_space(name_or_path: str | Path) -> SearchSpace:
 
 
 # ------------------------------------------------------------------------ densities
+def _flat(std: float, low: float, high: float) -> bool:
+    """A normal this wide is uniform on the range to within 1e-12 (and its CDF difference
+    would underflow): treated as the uniform."""
+    return not math.isfinite(std) or std > 1e12 * (high - low)
+
+
 def truncnorm_logpdf(x: np.ndarray, mean: float, std: float, low: float, high: float) -> np.ndarray:
     """Log density of a normal (``mean``, ``std``) truncated to ``[low, high]`` at ``x``
     (a uniform for an infinite ``std``)."""
     x = np.asarray(x, dtype=float)
-    if not math.isfinite(std):
+    if _flat(std, low, high):
         return np.full_like(x, -math.log(high - low))
     a, b = _NORMAL.cdf((low - mean) / std), _NORMAL.cdf((high - mean) / std)
     z = (x - mean) / std
@@ -420,7 +426,7 @@ def truncnorm_sample(rng: np.random.Generator, n: int, mean: float, std: float, 
     """``n`` draws of a normal (``mean``, ``std``) truncated to ``[low, high]`` (inverse
     CDF; a uniform for an infinite ``std``)."""
     u = rng.random(n)
-    if not math.isfinite(std):
+    if _flat(std, low, high):
         return low + u * (high - low)
     a, b = _NORMAL.cdf((low - mean) / std), _NORMAL.cdf((high - mean) / std)
     if b - a < 1e-12:  # the mass lies beyond an end: the nearer end
