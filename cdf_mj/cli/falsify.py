@@ -49,10 +49,14 @@ def _cmd_falsify(args: argparse.Namespace) -> int:
             bar.update(g.episodes - bar.n)
             bar.set_postfix(best=f"{g.best_so_far:.3g}", failures=g.failures_so_far)
 
+        def counterexamples(failures: int) -> None:
+            if failures and not args.quiet:
+                bar.write(f"{failures} failures: clustering, minimising and replaying them")
+
         result = falsify(space, args.planner, args.budget, args.out, compare=args.compare or (), seed=args.seed,
                          popsize=args.popsize, scene=args.scene, backend=args.backend, workers=args.workers,
                          address=args.address, max_clusters=args.max_clusters, figure=not args.no_figure,
-                         on_generation=generation)
+                         on_generation=generation, on_search_done=counterexamples)
     s = result.search
     first = f"first after {s.first_failure} episodes" if s.first_failure else "none within the budget"
     print(f"{len(s.failures)} failures of {args.planner} ({space.failure.text}) in {len(s.evaluations)} episodes; "
@@ -61,9 +65,10 @@ def _cmd_falsify(args: argparse.Namespace) -> int:
         traits = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in c.changed.items())
         print(f"  {i}. {len(c.members)} failures: {traits or 'the base world'} (seed {c.seed}): {c.path}")
     print(f"wrote {result.out / 'report.md'}, {result.out / 'summary.json'}")
-    if s.errors:
-        print(f"{PROG}: {len(s.errors)} episodes raised (counted as no failure): {s.errors[0].error}; see "
-              f"{result.out / 'evaluations.jsonl'}", file=sys.stderr)
+    if result.errors:
+        print(f"{PROG}: {len(result.errors)} episodes raised (counted as no failure; in the search, the "
+              f"minimisation or the replays): {result.errors[0].error}; see {result.out / 'summary.json'}",
+              file=sys.stderr)
         return EXIT_FAILED_EPISODES
     return 0
 

@@ -7,7 +7,8 @@ on other planners, and written as preset files that ``cdf-mj episode`` and
   representative is its most severe failure (least robustness, then the first found).
 - **Minimised**: each representative's options are put back to the base world's values
   one at a time, in the space's order, keeping each reset under which the same seed still
-  fails (a greedy one-minimal set: no single remaining option can go back). Clusters
+  fails, in passes until a pass puts none back (a one-minimal set: no single remaining
+  option can go back). Clusters
   whose minimised choices agree are merged. What is left is the failure's *traits*: the
   fewest options away from the defaults found to fail.
 - **Replayed**: the minimised counterexample and up to ``replay`` members of its cluster
@@ -43,11 +44,12 @@ class Counterexample:
     point: tuple[float, ...]
     keep: tuple[str, ...]  # options put back to the base world's values
     changed: dict[str, Any]  # the minimised traits: option -> value, away from the base
-    robustness: float  # of the minimised counterexample (<= 0)
+    robustness: float  # of the minimised counterexample, <= 0 [the margin's unit: m or s]
     summary: dict[str, Any]
     members: list[Evaluation]
     contact: dict[str, float] | None = None  # speeds at the first touch [m/s]
-    others: dict[str, bool] = field(default_factory=dict)  # planner -> fails on the minimised case
+    others: dict[str, bool | None] = field(default_factory=dict)  # planner -> fails on the minimised case
+    # (None: the episode raised)
     others_members: dict[str, tuple[int, int]] = field(default_factory=dict)  # planner -> (fail, replayed)
     path: str | None = None
 
@@ -75,26 +77,32 @@ def cluster_failures(space: SearchSpace, failures: Sequence[Evaluation]) -> list
 
 def _minimise(evaluator: Evaluator, planner: str, reps: Sequence[Evaluation]) -> list[tuple[tuple[str, ...],
                                                                                           Evaluation]]:
-    """Greedy one-minimal reset of each representative (batched across them)."""
+    """One-minimal reset of each representative (batched across them): passes over the
+    dimensions in order, each trying to put one more option back, until a pass puts none
+    back (a reset can make another one possible). A trial that raised keeps its option
+    (and is in :attr:`Evaluator.errors`)."""
     space = evaluator.space
-    kept: list[list[str]] = [[] for _ in reps]
+    kept: list[list[str]] = [[d.key for d, x in zip(space.dims, rep.point, strict=True) if space.at_default(d, x)]
+                             for rep in reps]
     last: list[Evaluation] = list(reps)
-    for j, dim in enumerate(space.dims):
-        trials = []
-        for i, rep in enumerate(reps):
-            if space.at_default(dim, rep.point[j]):
-                kept[i].append(dim.key)  # already the base's value
-            else:
-                trials.append(i)
-        if not trials:
-            continue
-        items = [(reps[i].point, reps[i].seed) for i in trials]
-        got = evaluator.evaluate(items, [planner], keep=[[*kept[i], dim.key] for i in trials])
-        for i, result in zip(trials, got, strict=True):
-            ev = result[planner]
-            if ev.failed:
-                kept[i].append(dim.key)
-                last[i] = ev
+    tried: list[set[tuple[str, ...]]] = [set() for _ in reps]  # keep sets already run
+    changed = True
+    while changed:
+        changed = False
+        for dim in space.dims:
+            trials = [i for i in range(len(reps)) if dim.key not in kept[i]
+                      and tuple(sorted([*kept[i], dim.key])) not in tried[i]]
+            if not trials:
+                continue
+            keeps = [[*kept[i], dim.key] for i in trials]
+            got = evaluator.evaluate([(reps[i].point, reps[i].seed) for i in trials], [planner], keep=keeps)
+            for i, k, result in zip(trials, keeps, got, strict=True):
+                tried[i].add(tuple(sorted(k)))
+                ev = result[planner]
+                if ev.failed:
+                    kept[i].append(dim.key)
+                    last[i] = ev
+                    changed = True
     return [(tuple(sorted(k)), ev) for k, ev in zip(kept, last, strict=True)]
 
 
@@ -139,7 +147,7 @@ def find_counterexamples(evaluator: Evaluator, planner: str, failures: Sequence[
     for other in compare:
         got = evaluator.evaluate([(c.point, c.seed) for c in out], [other], keep=[c.keep for c in out])
         for c, result in zip(out, got, strict=True):
-            c.others[other] = result[other].failed
+            c.others[other] = None if result[other].error is not None else result[other].failed
         for c in out:
             members = c.members[:replay]
             res = evaluator.evaluate([(m.point, m.seed) for m in members], [other])
@@ -158,15 +166,21 @@ def _toml_value(value: Any) -> str:
         return repr(value) if isinstance(value, int) else repr(float(value))
     if isinstance(value, (tuple, list)):
         return "[" + ", ".join(_toml_value(v) for v in value) + "]"
-    text = str(value).replace("\\", "\\\\").replace('"', '\\"')
-    return f'"{text}"'
+    return '"' + _toml_text(str(value)).replace("\n", "\\n") + '"'
+
+
+def _toml_text(text: str) -> str:
+    """``text`` inside a TOML multi-line basic string: backslashes and quotes escaped, other
+    control characters as ``\\uXXXX``."""
+    out = text.replace("\\", "\\\\").replace('"', '\\"')
+    return "".join(c if c == "\n" or c.isprintable() else f"\\u{ord(c):04x}" for c in out)
 
 
 def preset_text(config: ScenarioConfig, description: str) -> str:
     """A preset file (:mod:`cdf_mj.presets`) of ``config``: every option that differs from
     the package's defaults, by group."""
     default = ScenarioConfig()
-    lines = ['description = """', *description.strip().splitlines(), '"""']
+    lines = ['description = """', *_toml_text(description.strip()).splitlines(), '"""']
     for group in GROUPS:
         ours, theirs = getattr(config, group).to_dict(), getattr(default, group).to_dict()
         changed = {k: v for k, v in ours.items() if v != theirs[k]}
@@ -177,9 +191,12 @@ def preset_text(config: ScenarioConfig, description: str) -> str:
 
 
 def write_counterexamples(space: SearchSpace, found: Sequence[Counterexample], directory: str | Path) -> None:
-    """Write each counterexample as ``directory/NN-seed-S.toml`` (sets ``path``)."""
+    """Write each counterexample as ``directory/NN-seed-S.toml`` (sets ``path``); files of
+    that form left by an earlier run are removed first, so the directory holds this run's."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
+    for old in directory.glob("[0-9][0-9]-seed-*.toml"):
+        old.unlink()
     for i, c in enumerate(found, 1):
         path = directory / f"{i:02d}-seed-{c.seed}.toml"
         traits = ", ".join(f"{k} = {_short(v)}" for k, v in c.changed.items()) or "none (the base world)"

@@ -13,27 +13,33 @@ failures in stages: each stage draws ``stage`` points, takes the ``rho`` share w
 least robustness as its elite (its failures alone once there are ``min_failures`` of
 them: where near misses of one kind are far likelier than failures of another, a
 quantile of the robustness would stay on the near misses), and refits the proposal to
-them, each weighted by its likelihood ratio nominal / proposal (smoothed by
-``smoothing``, a range's std kept above 5 % of its width, a choice above 5 % of an equal
-share). Once a stage's failures are a ``rho`` share of it (or after ``max_stages``), the
-rest of the budget is drawn from the defensive mixture ``(1 - defensive) proposal +
-defensive nominal`` (Hesterberg 1995), whose weights ``w = nominal / mixture`` are at
-most ``1 / defensive``. The estimate is the mean of ``w * failed`` over that last stage,
-with a normal 95 % interval (standard error of the weighted mean), the effective sample
-size of the failures' weights (Kish: ``(sum w)^2 / sum w^2``) and the relative standard
-error; below an effective sample size of about 10 the interval is optimistic. No failure
-in the last stage gives 0 with the bound ``3 / (n * defensive)`` (the rule of three on
-the mixture).
+them, each weighted by its likelihood ratio nominal / proposal: a dimension whose elite
+does not differ clearly from the nominal stays at the nominal (so that the many
+dimensions a failure does not depend on add no spread to the weights); another is fitted
+by the method of moments of its family, smoothed by ``smoothing``, a range's std kept
+above 5 % of its width, a choice above 5 % of an equal share. Once a stage's failures
+are a ``rho`` share of it (or after ``max_stages``), the rest of the budget is drawn from
+the defensive mixture ``(1 - defensive) proposal + defensive nominal`` (Hesterberg 1995),
+whose weights ``w = nominal / mixture`` are at most ``1 / defensive``. The estimate is
+the mean of ``w * failed`` over that last stage, with a normal 95 % interval (standard
+error of the weighted mean), the effective sample size of the failures' weights (Kish:
+``(sum w)^2 / sum w^2``), the relative standard error, and the largest single failure's
+share of the estimate; below an effective sample size of 10, or with one failure
+carrying over a quarter, the interval is optimistic and the estimate is marked not
+reliable (:attr:`Estimate.reliable`). No failure in the last stage gives 0 with the
+bound ``3 / (n * defensive)`` (the rule of three on the mixture). At least
+:data:`MIN_CE_BUDGET` episodes.
 
-Both are resumable: the points are drawn from generators seeded by the run's seed and
-stage, the fits are made from the journal's numbers, so a killed run started again
-repeats no episode and gives the same estimate.
+The same command resumes a killed run: the points are drawn from generators seeded by
+the run's seed and stage, the fits are made from the journal's numbers, so it repeats no
+episode and gives the same estimate. Another budget draws another sample (the stages'
+sizes and the points depend on it).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -41,15 +47,25 @@ import numpy as np
 
 from cdf_mj.analysis.metrics import wilson_interval
 from cdf_mj.falsify.evaluate import Evaluator, episode_seed
-from cdf_mj.falsify.space import Range, SearchSpace, truncnorm_logpdf, truncnorm_sample
+from cdf_mj.falsify.space import (
+    Range,
+    SearchSpace,
+    truncnorm_logpdf,
+    truncnorm_matching,
+    truncnorm_moments,
+    truncnorm_sample,
+)
 
-__all__ = ["Estimate", "Proposal", "cross_entropy", "monte_carlo"]
+__all__ = ["MIN_CE_BUDGET", "Estimate", "Proposal", "agree", "cross_entropy", "monte_carlo"]
 
 Z95 = 1.959963984540054
 #: Least std of a fitted range, as a share of its width (a proposal never collapses to a point).
 MIN_STD_SHARE = 0.05
 #: Least probability of a choice in a fitted proposal, as a share of 1 / (its values).
 MIN_CHOICE_SHARE = 0.05
+#: Least budget of the cross-entropy estimator [episodes]: one adaptive stage of 50 and a
+#: last stage of at least a fifth of the budget.
+MIN_CE_BUDGET = 100
 
 
 @dataclass(frozen=True)
@@ -88,6 +104,8 @@ class Proposal:
         return out
 
     def to_dict(self, space: SearchSpace) -> dict[str, Any]:
+        """Option key -> its distribution (a range's ``mean``/``std``, None: uniform; a
+        choice's probability of each value), for estimate.json."""
         out: dict[str, Any] = {}
         for d, p in zip(space.dims, self.params, strict=True):
             if isinstance(d, Range):
@@ -97,21 +115,42 @@ class Proposal:
         return out
 
 
-def _refit(space: SearchSpace, old: Proposal, points: np.ndarray, weights: np.ndarray,
+def _refit(space: SearchSpace, nominal: Proposal, old: Proposal, points: np.ndarray, weights: np.ndarray,
            smoothing: float) -> Proposal:
-    """The weighted maximum-likelihood fit of ``points``, smoothed towards ``old``."""
+    """The proposal fitted to the elite ``points`` (likelihood-ratio ``weights``).
+
+    A dimension whose elite does not differ clearly from the nominal (its weighted mean and
+    std each within 3 standard errors of the nominal's, a choice's every share within 3
+    of its standard errors; the elite's effective size sets them) stays at the nominal, so
+    that the dimensions failure does not depend on add no spread to the weights. Another
+    is fitted by the method of moments of its family (a truncated normal's mean and std
+    matched, not its parameters taken as the moments), smoothed towards the last
+    proposal's moments by ``smoothing``.
+    """
     w = weights / weights.sum()
+    n_eff = 1.0 / float((w**2).sum())
     params: list[Any] = []
-    for j, (d, p) in enumerate(zip(space.dims, old.params, strict=True)):
+    for j, (d, p0, p) in enumerate(zip(space.dims, nominal.params, old.params, strict=True)):
         x = points[:, j]
         if isinstance(d, Range):
             mean = float(w @ x)
-            std = max(math.sqrt(float(w @ (x - mean) ** 2)), MIN_STD_SHARE * d.width)
-            old_mean, old_std = p if math.isfinite(p[1]) else ((d.low + d.high) / 2, d.width / math.sqrt(12))
-            params.append((smoothing * mean + (1 - smoothing) * old_mean, smoothing * std + (1 - smoothing) * old_std))
+            std = math.sqrt(float(w @ (x - mean) ** 2))
+            m0, s0 = truncnorm_moments(p0[0], p0[1], d.low, d.high)
+            se = s0 / math.sqrt(n_eff)
+            if abs(mean - m0) <= 3 * se and abs(std - s0) <= 3 * s0 / math.sqrt(2 * n_eff):
+                params.append(p0)
+                continue
+            m1, s1 = truncnorm_moments(p[0], p[1], d.low, d.high)
+            target = (smoothing * mean + (1 - smoothing) * m1,
+                      max(smoothing * std + (1 - smoothing) * s1, MIN_STD_SHARE * d.width))
+            params.append(truncnorm_matching(*target, d.low, d.high))
         else:
             k = len(p)
             freq = np.bincount(np.clip(np.rint(x).astype(int), 0, k - 1), weights=w, minlength=k)
+            bound = 3 * np.sqrt(p0 * (1 - p0) / n_eff) + 1e-12
+            if np.all(np.abs(freq - p0) <= bound):
+                params.append(p0)
+                continue
             q = smoothing * freq + (1 - smoothing) * p
             q = np.maximum(q, MIN_CHOICE_SHARE / k)
             params.append(q / q.sum())
@@ -130,6 +169,7 @@ class Estimate:
     p: float
     ci: tuple[float, float]
     ess: float | None = None  # effective sample size of the failures' weights (importance sampling)
+    top_share: float | None = None  # the largest single failure's share of the estimate (importance sampling)
     upper_only: bool = False  # no failure seen: ``ci[1]`` is a bound, ``p`` is 0
     stages: list[dict[str, Any]] = field(default_factory=list)
     errors: int = 0  # episodes that raised (counted as no failure)
@@ -142,16 +182,28 @@ class Estimate:
         return (self.ci[1] - self.p) / Z95 / self.p if self.method == "ce" else math.sqrt((1 - self.p) /
                                                                                           (self.n * self.p))
 
+    @property
+    def reliable(self) -> bool:
+        """Whether the interval can be read at face value: Monte Carlo's always; importance
+        sampling's where its failures' effective sample size is at least 10 and no single
+        failure carries more than a quarter of the estimate (else its normal interval is
+        optimistic: a few heavy weights carry it)."""
+        if self.method == "mc" or self.upper_only:
+            return True
+        return (self.ess or 0.0) >= 10 and (self.top_share or 0.0) <= 0.25
+
     def text(self) -> str:
+        """The estimate and its interval (or the bound), for a line of output."""
         if self.upper_only:
             return f"< {self.ci[1]:.2g} (0 failures in {self.n})"
         return f"{self.p:.3g} [{self.ci[0]:.2g}, {self.ci[1]:.2g}]"
 
     def to_dict(self) -> dict[str, Any]:
+        """JSON-serialisable view (estimate.json)."""
         return {"method": self.method, "planner": self.planner, "episodes": self.episodes, "n": self.n,
                 "failures": self.failures, "p": self.p, "ci95": list(self.ci), "ess": self.ess,
-                "rel_error": self.rel_error, "upper_only": self.upper_only, "stages": self.stages,
-                "errors": self.errors}
+                "top_share": self.top_share, "reliable": self.reliable, "rel_error": self.rel_error,
+                "upper_only": self.upper_only, "stages": self.stages, "errors": self.errors}
 
 
 def _run(evaluator: Evaluator, planner: str, points: np.ndarray, seed: int, stream: int) -> tuple[np.ndarray,
@@ -181,8 +233,12 @@ def cross_entropy(evaluator: Evaluator, planner: str, budget: int, *, seed: int 
     stages stop once a stage's failures are a ``rho`` share of it (the proposal then fitted
     to a well-sampled set of failures), and the last stage gets what is left (at least a
     fifth of the budget)."""
-    if not 0 < rho < 1 or not 0 < defensive < 1 or not 0 < smoothing <= 1:
-        raise ValueError("cross_entropy: rho and defensive must be in (0, 1), smoothing in (0, 1]")
+    if not 0 < rho < 1 or not 0 < defensive < 1 or not 0 < smoothing <= 1 or not 0 < max_stages < 100:
+        raise ValueError("cross_entropy: rho and defensive must be in (0, 1), smoothing in (0, 1], "
+                         "max_stages in [1, 99]")
+    if budget < MIN_CE_BUDGET:
+        raise ValueError(f"cross-entropy importance sampling needs a budget of at least {MIN_CE_BUDGET} episodes "
+                         f"(a stage of 50 and a last stage), got {budget}; use Monte Carlo below that")
     space = evaluator.space
     stage = stage or max(50, budget // 5)
     nominal = Proposal.nominal(space)
@@ -207,7 +263,7 @@ def cross_entropy(evaluator: Evaluator, planner: str, budget: int, *, seed: int 
         if on_stage is not None:
             on_stage(info)
         if w.sum() > 0:
-            q = _refit(space, q, points[elite], w, smoothing)
+            q = _refit(space, nominal, q, points[elite], w, smoothing)
         if n_fail >= rho * stage:  # a well-sampled set of failures: the proposal is fitted to it
             break
     n = budget - spent
@@ -227,16 +283,12 @@ def cross_entropy(evaluator: Evaluator, planner: str, budget: int, *, seed: int 
         return Estimate("ce", planner, budget, n, 0, 0.0, (0.0, 3.0 / (n * defensive)), upper_only=True,
                         stages=stages, errors=errors)
     p = float(hw.mean())
-    se = float(hw.std(ddof=1) / math.sqrt(n)) if n > 1 else math.inf
+    se = float(hw.std(ddof=1) / math.sqrt(n))
     ess = float(hw.sum() ** 2 / (hw**2).sum())
     return Estimate("ce", planner, budget, n, k_fail, p, (max(p - Z95 * se, 0.0), p + Z95 * se), ess=ess,
-                    stages=stages, errors=errors)
+                    top_share=float(hw.max() / hw.sum()), stages=stages, errors=errors)
 
 
 def agree(a: Estimate, b: Estimate) -> bool:
     """Whether two estimates' 95 % intervals overlap."""
     return a.ci[0] <= b.ci[1] and b.ci[0] <= a.ci[1]
-
-
-def summary(estimates: Sequence[Estimate]) -> list[dict[str, Any]]:
-    return [e.to_dict() for e in estimates]

@@ -32,7 +32,7 @@ from cdf_mj.planners.registry import bind_planner
 from cdf_mj.records import OK
 from cdf_mj.sim.scene import DEFAULT_SCENE
 
-__all__ = ["JOURNAL_FILE", "Evaluation", "Evaluator", "Journal", "episode_seed"]
+__all__ = ["JOURNAL_FILE", "Evaluation", "Evaluator", "Journal", "episode_seed", "key_of"]
 
 #: The journal's name in a run's directory.
 JOURNAL_FILE = "evaluations.jsonl"
@@ -145,7 +145,9 @@ class Evaluator:
     """Runs points of ``space`` on planners, each episode once (see the module docstring).
 
     ``workers``/``backend``/``address`` as :func:`cdf_mj.experiments.runner.run_seeds`;
-    ``on_episode`` is called with each new episode's count (for a progress bar).
+    ``on_episode`` is called with the count of episodes each call settles, run or found in
+    the journal (for a progress bar). :attr:`errors` keeps every episode asked for that
+    raised (the caller reports them and exits 1).
     """
 
     def __init__(self, space: SearchSpace, planners: Sequence[str], journal: Journal, *,
@@ -158,6 +160,7 @@ class Evaluator:
         self.backend, self.workers, self.address = backend, workers, address
         self.on_episode = on_episode
         self.episodes_run = 0  # this process's, not the journal's
+        self.errors: dict[str, Evaluation] = {}  # journal key -> an episode that raised
 
     def evaluate(self, items: Sequence[tuple[Sequence[float], int]], planners: Sequence[str],
                  keep: Sequence[Sequence[str]] | None = None) -> list[dict[str, Evaluation]]:
@@ -169,11 +172,14 @@ class Evaluator:
         seeds = [int(s) for _, s in items]
         if len(set(seeds)) != len(seeds):
             raise ValueError("Evaluator.evaluate: each item of one call needs its own seed")
-        todo = []
+        todo, found = [], 0
         for point, seed, kept in zip(points, seeds, keeps, strict=True):
             missing = tuple(p for p in planners if self.journal.get(p, seed, point, kept) is None)
+            found += len(planners) - len(missing)
             if missing:
                 todo.append((seed, missing, self.space.config(point, kept)))
+        if found and self.on_episode is not None:
+            self.on_episode(found)
         where = {seed: (point, kept) for point, seed, kept in zip(points, seeds, keeps, strict=True)}
         if todo:
             for result in run_seeds(self.job, todo, backend=self.backend, workers=self.workers,
@@ -188,6 +194,9 @@ class Evaluator:
         for point, seed, kept in zip(points, seeds, keeps, strict=True):
             got = {p: self.journal.get(p, seed, point, kept) for p in planners}
             out.append({p: ev for p, ev in got.items() if ev is not None})
+            for p, ev in got.items():
+                if ev is not None and ev.error is not None:
+                    self.errors[key_of(p, seed, point, kept)] = ev
         return out
 
     def _evaluation(self, record: dict[str, Any], point: tuple[float, ...], keep: tuple[str, ...]) -> Evaluation:

@@ -72,7 +72,8 @@ def counterexample_table(found: Sequence[Counterexample], compare: Sequence[str]
         row = f"| {i} | {len(c.members)} | {traits} | {c.seed} | {c.summary.get('label')} | {contact} |"
         for p in compare:
             failed, replayed = c.others_members.get(p, (0, 0))
-            mark = "fails" if c.others.get(p) else "passes"
+            got = c.others.get(p)
+            mark = "raised" if got is None else "fails" if got else "passes"
             row += f" {mark}; {failed}/{replayed} of the cluster |"
         lines.append(row)
     return lines
@@ -89,9 +90,9 @@ def falsify_markdown(result: FalsifyResult, figure: str | None) -> str:
              f"- episodes: {len(s.evaluations)}; failures found: {len(s.failures)}; first failure: {first}",
              f"- least robustness: {min((e.robustness for e in s.evaluations), default=float('nan')):.3g}",
              f"- restarts: {max((g.restart for g in s.generations), default=0)}; generations: {len(s.generations)}"]
-    if s.errors:
-        lines.append(f"- **{len(s.errors)} episodes raised** (counted as no failure): first error: "
-                     f"{s.errors[0].error}")
+    if result.errors:
+        lines.append(f"- **{len(result.errors)} episodes raised** (counted as no failure; search, minimisation "
+                     f"and replays): first error: {result.errors[0].error}")
     if figure:
         lines += ["", f"![progress]({figure})"]
     lines += ["", "## Counterexamples", ""]

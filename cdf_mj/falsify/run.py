@@ -11,8 +11,9 @@ results, and a second start of the same command that goes on where the first sto
     counterexamples/       NN-seed-S.toml presets, one per cluster
 
 ``estimate`` writes ``settings.json``, ``evaluations.jsonl`` and ``estimate.json``. A
-directory holds one kind of run with one set of settings (the budget may grow); another
-is refused with one line, as is a second run into a directory in use.
+directory holds one kind of run with one set of settings and one version of the package
+(a search's budget may grow; an estimate's budget changes its sample); another is
+refused with one line, as is a second run into a directory in use.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from cdf_mj.experiments.runner import Backend
 from cdf_mj.experiments.store import locked
 from cdf_mj.falsify.counterexamples import Counterexample, find_counterexamples, write_counterexamples
 from cdf_mj.falsify.estimate import Estimate, cross_entropy, monte_carlo
-from cdf_mj.falsify.evaluate import JOURNAL_FILE, Evaluator, Journal
+from cdf_mj.falsify.evaluate import JOURNAL_FILE, Evaluation, Evaluator, Journal
 from cdf_mj.falsify.search import Generation, SearchResult, run_search
 from cdf_mj.falsify.space import SearchSpace
 from cdf_mj.inputs import SETTINGS_MAX_BYTES, InputError, parse_json, read_text
@@ -50,10 +51,12 @@ class FalsifyResult:
     counterexamples: list[Counterexample]
     out: Path
     episodes_run: int  # by this call (the rest came from the journal)
+    errors: list[Evaluation]  # every episode of the run that raised: search, minimisation, replays
 
     def to_dict(self) -> dict[str, Any]:
         return {"space": self.space.name, "failure": self.space.failure.text, "search": self.search.to_dict(),
-                "counterexamples": [c.to_dict() for c in self.counterexamples]}
+                "counterexamples": [c.to_dict() for c in self.counterexamples],
+                "errors": [e.to_dict() for e in self.errors]}
 
 
 def _settings(out: Path, wanted: dict[str, Any]) -> None:
@@ -64,20 +67,28 @@ def _settings(out: Path, wanted: dict[str, Any]) -> None:
             have = parse_json(read_text(path, "settings file", SETTINGS_MAX_BYTES), f"settings file {path}")
         except (InputError, ValueError, OSError) as exc:
             raise ValueError(f"{path} cannot be read ({exc}); move it away or choose another directory") from None
-        if not isinstance(have, dict) or have.get("kind") != wanted["kind"]:
+        kind = wanted["kind"]
+        if not isinstance(have, dict) or have.get("kind") != kind:
             raise ValueError(f"{out} holds another kind of run ({have.get('kind') if isinstance(have, dict) else '?'}"
-                             f"), not a {wanted['kind']}; choose another directory")
+                             f"), not {_article(kind)} {kind}; choose another directory")
         for key, value in wanted.items():
-            if key == "version" or have.get(key) == value:
+            if have.get(key) == value:
                 continue
             if key == "space_text":
                 what = "space file (its text differs from the one the run was made with)"
+            elif key == "version":
+                what = (f"version of cdf_mj ({_short(have.get(key))} there, {value} now: episodes of two versions "
+                        "are not mixed)")
             else:
                 what = f"{key} ({_short(have.get(key))} there, {_short(value)} now)"
-            raise ValueError(f"{out} holds a {wanted['kind']} run with another {what}; give the same settings to "
-                             "go on with it, or choose another directory")
+            raise ValueError(f"{out} holds {_article(kind)} {kind} run with another {what}; give the same settings "
+                             "to go on with it, or choose another directory")
         return
     write_atomic(path, json.dumps(wanted, indent=2) + "\n")
+
+
+def _article(word: str) -> str:
+    return "an" if word[:1] in "aeiou" else "a"
 
 
 def _short(value: Any) -> str:
@@ -99,7 +110,8 @@ def falsify(space: SearchSpace, planner: str, budget: int, out: str | Path, *, c
             seed: int = 0, popsize: int | None = None, scene: str | Path = DEFAULT_SCENE,
             backend: Backend = "process", workers: int | None = None, address: str | None = None,
             max_clusters: int = 12, figure: bool = True, on_episode: Callable[[int], None] | None = None,
-            on_generation: Callable[[Generation], None] | None = None) -> FalsifyResult:
+            on_generation: Callable[[Generation], None] | None = None,
+            on_search_done: Callable[[int], None] | None = None) -> FalsifyResult:
     """Search ``space`` for failures of ``planner`` within ``budget`` episodes, cluster and
     minimise them, replay them on ``compare``, and write the run's files into ``out``
     (see the module docstring). Resumable: the same call goes on from the journal."""
@@ -112,10 +124,12 @@ def falsify(space: SearchSpace, planner: str, budget: int, out: str | Path, *, c
         evaluator = Evaluator(space, [planner, *compare], journal, scene=scene, backend=backend, workers=workers,
                               address=address, on_episode=on_episode)
         search = run_search(evaluator, planner, budget, seed=seed, popsize=popsize, on_generation=on_generation)
+        if on_search_done is not None:
+            on_search_done(len(search.failures))
         found = find_counterexamples(evaluator, planner, search.failures, [c for c in compare if c != planner],
                                      max_clusters=max_clusters)
         write_counterexamples(space, found, out_dir / "counterexamples")
-        result = FalsifyResult(space, search, found, out_dir, evaluator.episodes_run)
+        result = FalsifyResult(space, search, found, out_dir, evaluator.episodes_run, list(evaluator.errors.values()))
         write_atomic(out_dir / "summary.json", json.dumps(result.to_dict(), indent=2, allow_nan=False) + "\n")
         figure_path = out_dir / "progress.png"
         if figure:
@@ -145,5 +159,5 @@ def estimate(space: SearchSpace, planner: str, budget: int, out: str | Path, *, 
         else:
             result = cross_entropy(evaluator, planner, budget, seed=seed, stage=stage, on_stage=on_stage)
         write_atomic(out_dir / "estimate.json", json.dumps({"space": space.name, "failure": space.failure.text,
-                                                             **result.to_dict()}, indent=2) + "\n")
+                                                             **result.to_dict()}, indent=2, allow_nan=False) + "\n")
         return result

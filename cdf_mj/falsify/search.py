@@ -46,8 +46,8 @@ class Generation:
     index: int
     restart: int
     episodes: int  # episodes of the search so far, this generation's included
-    best: float  # least robustness of this generation
-    best_so_far: float
+    best: float  # least robustness of this generation [the margin's unit: m or s]
+    best_so_far: float  # [m or s]
     failures_so_far: int
 
 

@@ -58,7 +58,8 @@ from cdf_mj.inputs import PRESET_MAX_BYTES, InputError, TOMLDecodeError, parse_t
 from cdf_mj.presets import PresetError, read_preset
 
 __all__ = ["MARGINS", "MARGIN_CAP", "MAX_DIMS", "MAX_VALUES", "Choice", "Dim", "FailureSpec", "Range",
-           "SearchSpace", "SpaceError", "load_space", "space_names"]
+           "SearchSpace", "SpaceError", "load_space", "space_names", "truncnorm_logpdf", "truncnorm_matching",
+           "truncnorm_moments", "truncnorm_sample"]
 
 #: What a failure's margin may be: the least bumper-to-bumper gap [m] (the record's
 #: ``min_gap``), the least time to collision [s] or the least time headway [s] (its
@@ -135,14 +136,17 @@ class Range:
         return self.high - self.low
 
     def value(self, x: float) -> Any:
-        """The option's value at point coordinate ``x``."""
+        """The option's value at point coordinate ``x`` (the option's unit; clipped to the
+        range; a pair option as ``(x, x)``)."""
         v = float(min(max(x, self.low), self.high))
         return (v, v) if self.pair else v
 
     def from_unit(self, u: float) -> float:
+        """The coordinate (the option's unit) at ``u`` in [0, 1] of the range."""
         return self.low + float(min(max(u, 0.0), 1.0)) * self.width
 
     def to_unit(self, x: float) -> float:
+        """The share of the range at coordinate ``x``."""
         return (x - self.low) / self.width
 
     def nominal_mean_std(self) -> tuple[float, float]:
@@ -164,15 +168,19 @@ class Choice:
     discrete = True
 
     def value(self, x: float) -> Any:
+        """The value at coordinate ``x`` (a value's index, rounded)."""
         return self.values[self.index(x)]
 
     def index(self, x: float) -> int:
+        """The index of coordinate ``x``, rounded and clipped."""
         return int(min(max(round(x), 0), len(self.values) - 1))
 
     def from_unit(self, u: float) -> float:
+        """The index at ``u`` in [0, 1): the unit interval cut into equal parts."""
         return float(min(int(float(min(max(u, 0.0), 1.0)) * len(self.values)), len(self.values) - 1))
 
     def to_unit(self, x: float) -> float:
+        """The middle of index ``x``'s part of the unit interval."""
         return (self.index(x) + 0.5) / len(self.values)
 
 
@@ -302,9 +310,10 @@ def _dim(key: str, spec: Any, base: ScenarioConfig, where: str) -> Dim:
     mean, std = spec.get("mean"), spec.get("std")
     if (mean is None) != (std is None):
         raise SpaceError(f"{at}: give both mean and std (a truncated normal), or neither (uniform)")
-    if mean is not None and not (_finite_number(mean) and _finite_number(std) and std > 0):  # type: ignore[operator]
-        raise SpaceError(f"{at}: mean must be a finite number and std a finite number > 0, got mean={mean!r}, "
-                         f"std={std!r}")
+    if mean is not None and not (_finite_number(mean) and _finite_number(std) and std > 0  # type: ignore[operator]
+                                 and low <= mean <= high):
+        raise SpaceError(f"{at}: mean must be a number within the range [{low:g}, {high:g}] and std a finite "
+                         f"number > 0, got mean={mean!r}, std={std!r}")
     return Range(key, float(low), float(high), None if mean is None else float(mean),
                  None if std is None else float(std), pair=isinstance(default, tuple))
 
@@ -433,3 +442,56 @@ def truncnorm_sample(rng: np.random.Generator, n: int, mean: float, std: float, 
         return np.full(n, low if mean < low else high)
     p = np.clip(a + u * (b - a), 1e-15, 1 - 1e-15)
     return np.clip(np.array([mean + std * _NORMAL.inv_cdf(float(q)) for q in p]), low, high)
+
+
+def truncnorm_moments(mean: float, std: float, low: float, high: float) -> tuple[float, float]:
+    """Mean and std of a normal (``mean``, ``std``) truncated to ``[low, high]`` (the
+    uniform's for an infinite ``std``)."""
+    if _flat(std, low, high):
+        return (low + high) / 2, (high - low) / math.sqrt(12)
+    a, b = (low - mean) / std, (high - mean) / std
+    z = _NORMAL.cdf(b) - _NORMAL.cdf(a)
+    if z < 1e-300:  # all the mass beyond an end: that end
+        return (low if mean < low else high), 0.0
+    pa, pb = _NORMAL.pdf(a), _NORMAL.pdf(b)
+    shift = (pa - pb) / z
+    var = std * std * (1 + (a * pa - b * pb) / z - shift * shift)
+    return mean + std * shift, math.sqrt(max(var, 0.0))
+
+
+def truncnorm_matching(target_mean: float, target_std: float, low: float, high: float) -> tuple[float, float]:
+    """The normal (mean, std) whose truncation to ``[low, high]`` has the given mean and
+    std (the method of moments for the truncated family), by damped Newton steps on
+    (mean, log std); a std beyond 1000 widths is the uniform (``inf``). Falls back to the
+    targets themselves if it does not converge."""
+    width = high - low
+    m = min(max(target_mean, low + 1e-6 * width), high - 1e-6 * width)
+    s = min(max(target_std, 1e-4 * width), width / math.sqrt(12))
+    if s >= 0.999 * width / math.sqrt(12) and abs(m - (low + high) / 2) <= 1e-3 * width:
+        return (low + high) / 2, math.inf  # the uniform
+    x = np.array([m, math.log(s)])
+    cap = math.log(1e3 * width)
+
+    def residual(v: np.ndarray) -> np.ndarray:
+        got = truncnorm_moments(float(v[0]), math.exp(min(float(v[1]), cap)), low, high)
+        return np.array([(got[0] - m) / width, (got[1] - s) / width])
+
+    for _ in range(80):
+        f = residual(x)
+        if float(np.abs(f).max()) < 1e-9:
+            break
+        jac = np.empty((2, 2))
+        for k, h in enumerate((1e-7 * width, 1e-7)):
+            step = np.zeros(2)
+            step[k] = h
+            jac[:, k] = (residual(x + step) - f) / h
+        try:
+            delta = np.linalg.solve(jac, -f)
+        except np.linalg.LinAlgError:
+            break
+        scale = max(1.0, float(abs(delta[0]) / width), float(abs(delta[1])))
+        x = x + delta / scale
+        x[1] = min(x[1], cap)
+    if float(np.abs(residual(x)).max()) > 1e-5:  # not reached (no truncated normal has these moments)
+        return target_mean, max(target_std, 1e-4 * width)
+    return float(x[0]), (math.inf if x[1] >= cap - 1e-9 else math.exp(float(x[1])))
