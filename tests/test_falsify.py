@@ -634,7 +634,7 @@ def test_a_directory_refuses_other_settings_and_a_second_run(spaces, tmp_path, c
     edited = tmp_path / "small.toml"
     edited.write_text(SMALL_SPACE.replace('["keep", "stop"]', '["keep", "brake"]'))
     (tmp_path / "fast.toml").write_text(FAST_PRESET)
-    with pytest.raises(ValueError, match="space file") as info:
+    with pytest.raises(ValueError, match="another space") as info:
         falsify(load_space(edited), "reactive", 8, out, workers=1, figure=False)
     assert "\n" not in str(info.value)
     with pytest.raises(ValueError, match="another kind of run"):
@@ -645,6 +645,9 @@ def test_a_directory_refuses_other_settings_and_a_second_run(spaces, tmp_path, c
                                    "--budget", "8", "--workers", "1", "--out", str(out), "--quiet", "--no-figure"),
                           str(out), "another planner")
     assert _files(out) == before  # nothing refused wrote anything
+    reworded = tmp_path / "reworded.toml"  # another name, description and comments: the same space, the same run
+    reworded.write_text(SMALL_SPACE.replace("Where reactive collides often", "Reworded") + "# a comment\n")
+    assert falsify(load_space(reworded), "reactive", 8, out, workers=1, figure=False).episodes_run == 0
 
 
 def test_a_damaged_journal_is_one_line_on_the_command_line(spaces, tmp_path, capsys):

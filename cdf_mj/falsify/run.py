@@ -34,7 +34,7 @@ from cdf_mj.falsify.evaluate import JOURNAL_FILE, Evaluation, Evaluator, Journal
 from cdf_mj.falsify.search import Generation, SearchResult, run_search
 from cdf_mj.falsify.space import SearchSpace
 from cdf_mj.inputs import SETTINGS_MAX_BYTES, InputError, parse_json, read_text
-from cdf_mj.records import write_atomic
+from cdf_mj.records import jsonable, write_atomic
 from cdf_mj.sim.scene import DEFAULT_SCENE
 
 __all__ = ["SETTINGS", "FalsifyResult", "estimate", "falsify"]
@@ -59,6 +59,17 @@ class FalsifyResult:
                 "errors": [e.to_dict() for e in self.errors]}
 
 
+def space_spec(space: SearchSpace) -> dict[str, Any]:
+    """What of a space decides its episodes: the base world, the failure and the
+    dimensions (not the description or the file's comments), as JSON."""
+    return {"base": jsonable(space.base), "failure": jsonable(space.failure), "dims": jsonable(space.dims)}
+
+
+#: Settings stored beside a run but not compared on resume (the space's name and text: a new
+#: comment or description does not make another run).
+_NOT_COMPARED = ("space", "space_text")
+
+
 def _settings(out: Path, wanted: dict[str, Any]) -> None:
     """Write ``wanted`` to ``out/settings.json``, or check it against what is there."""
     path = out / SETTINGS
@@ -72,10 +83,10 @@ def _settings(out: Path, wanted: dict[str, Any]) -> None:
             raise ValueError(f"{out} holds another kind of run ({have.get('kind') if isinstance(have, dict) else '?'}"
                              f"), not {_article(kind)} {kind}; choose another directory")
         for key, value in wanted.items():
-            if have.get(key) == value:
+            if key in _NOT_COMPARED or have.get(key) == value:
                 continue
-            if key == "space_text":
-                what = "space file (its text differs from the one the run was made with)"
+            if key == "space_spec":
+                what = "space (its base world, failure or dimensions differ from the run's)"
             elif key == "version":
                 what = (f"version of cdf_mj ({_short(have.get(key))} there, {value} now: episodes of two versions "
                         "are not mixed)")
@@ -117,8 +128,8 @@ def falsify(space: SearchSpace, planner: str, budget: int, out: str | Path, *, c
     (see the module docstring). Resumable: the same call goes on from the journal."""
     from cdf_mj.falsify.report import falsify_markdown, progress_figure
 
-    wanted = {"kind": "falsify", "version": __version__, "space": space.name, "space_text": space.text,
-              "planner": planner, "seed": seed, "popsize": popsize, "scene": str(scene)}
+    wanted = {"kind": "falsify", "version": __version__, "space": space.name, "space_spec": space_spec(space),
+              "space_text": space.text, "planner": planner, "seed": seed, "popsize": popsize, "scene": str(scene)}
     with ExitStack() as stack:
         out_dir, journal = _open(out, wanted, stack)
         evaluator = Evaluator(space, [planner, *compare], journal, scene=scene, backend=backend, workers=workers,
@@ -148,8 +159,9 @@ def estimate(space: SearchSpace, planner: str, budget: int, out: str | Path, *, 
     Carlo), within ``budget`` episodes; written to ``out/estimate.json``. Resumable."""
     if method not in ("ce", "mc"):
         raise ValueError(f"method must be 'ce' or 'mc', got {method!r}")
-    wanted = {"kind": "estimate", "version": __version__, "space": space.name, "space_text": space.text,
-              "planner": planner, "seed": seed, "method": method, "stage": stage, "scene": str(scene)}
+    wanted = {"kind": "estimate", "version": __version__, "space": space.name, "space_spec": space_spec(space),
+              "space_text": space.text, "planner": planner, "seed": seed, "method": method, "stage": stage,
+              "scene": str(scene)}
     with ExitStack() as stack:
         out_dir, journal = _open(out, wanted, stack)
         evaluator = Evaluator(space, [planner], journal, scene=scene, backend=backend, workers=workers,
