@@ -100,7 +100,8 @@ def test_no_command_lists_every_command_on_one_line(capsys):
     status, out, err = run_cli(capsys)
     assert status == 0 and err == ""
     commands = [line.split()[0] for line in out.split("commands:\n")[1].split("\n\n")[0].splitlines()]
-    assert commands == ["reproduce", "episode", "experiment", "presets", "sweep", "render", "report", "bench"]
+    assert commands == ["reproduce", "episode", "experiment", "presets", "sweep", "render", "report", "falsify",
+                        "estimate", "bench"]
     assert "cdf-mj COMMAND --help" in out
     # the same list with --debug alone: a flag is not a command
     assert run_cli(capsys, "--debug")[1] == out
