@@ -50,7 +50,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from cdf_mj.analysis.metrics import wilson_interval
+from cdf_mj.analysis.metrics import mcnemar_exact, wilson_interval
 from cdf_mj.analysis.pages import ScriptParser, command_line, markdown_table, write_page
 from cdf_mj.cli.args import _episodes, _int_in, _out_path, _planner_list, _workers
 from cdf_mj.experiments.runner import WorkerDiedError
@@ -125,6 +125,7 @@ class Parts:
     near: tuple[str, Estimate, Estimate]  # planner, importance sampling, Monte Carlo
     rare: tuple[str, float, Estimate, Estimate, Estimate]  # planner, nominal weight, IS, MC, conditional MC
     rare_other: tuple[int, int]  # failures, episodes of the rare runs in which the merged car did not stop
+    paired: dict[str, dict[tuple[int, tuple[float, ...]], bool]]  # planner -> (seed, point) -> failed, Monte Carlo
     budget: int
 
 
@@ -216,6 +217,23 @@ def page(parts: Parts, figure: str | None) -> str:
     lines += markdown_table(["planner", "importance sampling (CE)", "failures in its last stage",
                              "ESS of the failures' weights", "relative s.e.", "Monte Carlo, same budget",
                              "failures", "relative s.e.", "intervals overlap"], rows)
+    first = planners[0]
+    if first in parts.paired and len(parts.paired) > 1:
+        ours = parts.paired[first]
+        lines += ["", f"Seed by seed: every planner's Monte Carlo ran on the same nominal points and seeds, so "
+                      f"`{first}` is compared with each other planner episode by episode (exact McNemar test).", ""]
+        rows = []
+        for other, theirs in parts.paired.items():
+            if other == first:
+                continue
+            common = sorted(set(ours) & set(theirs))
+            only_first = sum(ours[k] and not theirs[k] for k in common)
+            only_other = sum(theirs[k] and not ours[k] for k in common)
+            both = sum(ours[k] and theirs[k] for k in common)
+            rows.append([f"`{first}` / `{other}`", str(len(common)), str(both), str(only_first), str(only_other),
+                         f"{mcnemar_exact(only_first, only_other):.2g}"])
+        lines += markdown_table(["pair", "episodes", "both fail", f"only `{first}` fails", "only the other fails",
+                                 "McNemar p"], rows)
     if parts.validation is not None:
         name, mc, ce = parts.validation
         lo, hi = wilson_interval(mc.failures, mc.n)
@@ -286,8 +304,10 @@ def run(args: argparse.Namespace) -> Parts:
     column, stop = rare_space.keys.index(RARE_KEY), dim.values.index(RARE_VALUE)
     others = [e for part in ("rare-ce", "rare-mc") for e in _journal(out / part)
               if round(e.point[column]) != stop]
+    paired = {planner: {(e.seed, e.point): e.failed for e in _journal(out / f"mc-{planner}") if e.error is None}
+              for planner in args.planners}
     return Parts(space, searches, estimates, validation, near, rare, (sum(e.failed for e in others), len(others)),
-                 args.budget)
+                 paired, args.budget)
 
 
 def _journal(directory: Path) -> list[Evaluation]:

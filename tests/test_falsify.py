@@ -840,3 +840,15 @@ def test_an_episode_that_raises_in_a_replay_is_counted_not_read_as_a_pass(spaces
                              "--budget", str(BUDGET), "--compare", "raising", "--workers", "1", "--quiet",
                              "--no-figure", "--out", str(out))
     assert status == 1 and "raised" in err
+
+
+def test_the_shipped_counterexamples_of_the_page_still_fail(scene):
+    """docs/falsify/cdf (written by scripts/falsify.py with docs/FALSIFY.md): each file is
+    a preset whose seed, in its name, makes ``cdf`` collide. A change that moves them is
+    a change that must remake the page."""
+    files = sorted((Path(__file__).resolve().parents[1] / "docs" / "falsify" / "cdf").glob("*-seed-*.toml"))
+    assert files
+    for path in files:
+        seed = int(path.stem.rsplit("-", 1)[1])
+        record = run_episode(read_preset(path).config(), seed, "cdf", scene, label=False)
+        assert record.collision, f"{path.name} no longer collides: remake docs/FALSIFY.md (python scripts/falsify.py)"

@@ -52,6 +52,7 @@ RESULTS_PAGES: dict[str, str] = {
     "MISMATCH.md": "scripts/mismatch.py",
     "DECISION_RESULTS.md": "scripts/decision.py",
     "STRESS.md": "scripts/stress.py",
+    "FALSIFY.md": "scripts/falsify.py",
 }
 
 #: Options of the page scripts that leave parts out of a page (parts or presets): a page in

@@ -122,7 +122,9 @@ def _refit(space: SearchSpace, nominal: Proposal, old: Proposal, points: np.ndar
     A dimension whose elite does not differ clearly from the nominal (its weighted mean and
     std each within 3 standard errors of the nominal's, a choice's every share within 3
     of its standard errors; the elite's effective size sets them) stays at the nominal, so
-    that the dimensions failure does not depend on add no spread to the weights. Another
+    that the dimensions failure does not depend on add no spread to the weights; a choice
+    keeps each value at 5 % of an equal share at least even then, so that a value the
+    nominal makes rare (an after-merge stop in 1 of 10^4) is still tried. Another
     is fitted by the method of moments of its family (a truncated normal's mean and std
     matched, not its parameters taken as the moments), smoothed towards the last
     proposal's moments by ``smoothing``.
@@ -148,11 +150,9 @@ def _refit(space: SearchSpace, nominal: Proposal, old: Proposal, points: np.ndar
             k = len(p)
             freq = np.bincount(np.clip(np.rint(x).astype(int), 0, k - 1), weights=w, minlength=k)
             bound = 3 * np.sqrt(p0 * (1 - p0) / n_eff) + 1e-12
-            if np.all(np.abs(freq - p0) <= bound):
-                params.append(p0)
-                continue
-            q = smoothing * freq + (1 - smoothing) * p
-            q = np.maximum(q, MIN_CHOICE_SHARE / k)
+            moved = not np.all(np.abs(freq - p0) <= bound)
+            q = smoothing * freq + (1 - smoothing) * p if moved else p0
+            q = np.maximum(q, MIN_CHOICE_SHARE / k)  # every value stays explored, the nominal's rare ones too
             params.append(q / q.sum())
     return Proposal(tuple(params))
 

@@ -38,7 +38,8 @@ def progress_figure(runs: Mapping[str, Sequence[SearchResult]], path: str | Path
             ax.step(xs, ys, where="post", color=colour, alpha=0.85, lw=1.4, label=planner if j == 0 else None)
             if res.first_failure is not None:
                 ax.plot([res.first_failure], [0.0], "o", color=colour, ms=5)
-    ax.set_xlabel("episodes of the search")
+    ax.set_xscale("log")  # the search's early generations, where the failures come, as wide as its end
+    ax.set_xlabel("episodes of the search (log scale)")
     ax.set_ylabel(f"least robustness so far [{_UNIT[margin]}] ({margin}; 0 = failure)")
     ax.set_ylim(bottom=-0.05)
     ax.grid(alpha=0.3)
@@ -68,7 +69,8 @@ def counterexample_table(found: Sequence[Counterexample], compare: Sequence[str]
     lines = [head, rule]
     for i, c in enumerate(found, 1):
         traits = "; ".join(f"`{k}` = {_fmt(v)}" for k, v in c.changed.items()) or "(none)"
-        contact = (f"{c.contact['ego_speed']:.1f} / {c.contact['obstacle_speed']:.1f}" if c.contact else "no touch")
+        contact = (f"{max(c.contact['ego_speed'], 0.0):.1f} / {max(c.contact['obstacle_speed'], 0.0):.1f}"
+                   if c.contact else "no touch")
         row = f"| {i} | {len(c.members)} | {traits} | {c.seed} | {c.summary.get('label')} | {contact} |"
         for p in compare:
             failed, replayed = c.others_members.get(p, (0, 0))
