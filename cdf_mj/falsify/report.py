@@ -69,8 +69,8 @@ def counterexample_table(found: Sequence[Counterexample], compare: Sequence[str]
     lines = [head, rule]
     for i, c in enumerate(found, 1):
         traits = "; ".join(f"`{k}` = {_fmt(v)}" for k, v in c.changed.items()) or "(none)"
-        contact = (f"{max(c.contact['ego_speed'], 0.0):.1f} / {max(c.contact['obstacle_speed'], 0.0):.1f}"
-                   if c.contact else "no touch")
+        speeds = [max(c.contact[k], 0.0) + 0.0 for k in ("ego_speed", "obstacle_speed")] if c.contact else []
+        contact = f"{speeds[0]:.1f} / {speeds[1]:.1f}" if speeds else "no touch"  # + 0.0: no "-0.0"
         row = f"| {i} | {len(c.members)} | {traits} | {c.seed} | {c.summary.get('label')} | {contact} |"
         for p in compare:
             failed, replayed = c.others_members.get(p, (0, 0))
