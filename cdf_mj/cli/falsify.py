@@ -101,7 +101,7 @@ def _common(p: argparse.ArgumentParser, out: str, budget: int) -> None:
 
     p.add_argument("--space", default="default", metavar="NAME|FILE",
                    help=f"the space: a shipped name ({', '.join(space_names())}) or a .toml file of your own "
-                        "(docs/FALSIFY.md says the format) (default: default)")
+                        "(docs/FALSIFICATION.md says the format) (default: default)")
     p.add_argument("--planner", choices=sorted(PLANNERS), default="cdf", help="the planner under test (default cdf)")
     p.add_argument("--budget", type=_episodes, default=budget, help=f"episodes, 1 to 10^7 (default {budget})")
     p.add_argument("--seed", type=_non_negative_int, default=0,
@@ -143,7 +143,7 @@ def _add_estimate(subparsers: argparse._SubParsersAction) -> None:
         subparsers, "estimate", compiles=True,
         summary="a planner's probability of failure per encounter, with its interval",
         description="Estimate P(failure) per encounter under a space's nominal distribution: cross-entropy "
-                    "importance sampling (--method ce: adaptive stages, then a defensive mixture; a 95 %% "
+                    "importance sampling (--method ce: adaptive stages, then a defensive mixture; a 95 % "
                     "interval and the effective sample size) or plain Monte Carlo (--method mc: Wilson "
                     "interval). Writes OUT/estimate.json; killed, the same command goes on.")
     _common(p, "results/estimate", 4000)
