@@ -45,6 +45,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import math
+import os
 import shutil
 import sys
 from collections.abc import Sequence
@@ -339,6 +340,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--workers", type=_workers, default=None, help="worker processes (default: the CPU count)")
     p.add_argument("--out", type=_out_path, default="results/falsify-page", help="result directory")
     p.add_argument("--doc", type=_out_path, default="docs/FALSIFY.md", help="Markdown page written")
+    p.add_argument("--figure", type=_out_path, default=None,
+                   help=f"the progress figure (default {FIGURE} for docs/FALSIFY.md, else beside --doc)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
     args = p.parse_args(argv)
     if len(set(args.planners)) != len(args.planners):
@@ -353,7 +356,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ValueError, OSError, WorkerDiedError) as exc:
         p.error(str(exc))
     official = doc.resolve() == Path("docs/FALSIFY.md").resolve()
-    figure_path = FIGURE if official else doc.with_suffix(".png")
+    figure_path = Path(args.figure) if args.figure else FIGURE if official else doc.with_suffix(".png")
     figure_path.parent.mkdir(parents=True, exist_ok=True)
     progress_figure({k: [r.search for r in v] for k, v in parts.searches.items()}, figure_path,
                     parts.space.failure.margin)
@@ -371,7 +374,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         ("--validate-episodes", None if args.validate_episodes == VALIDATE_EPISODES else args.validate_episodes),
         ("--near-budget", None if args.near_budget == NEAR_BUDGET else args.near_budget),
         ("--rare-budget", None if args.rare_budget == RARE_BUDGET else args.rare_budget)])
-    relative = "img/falsify/progress.png" if official else figure_path.name
+    relative = Path(os.path.relpath(figure_path.resolve(), doc.resolve().parent)).as_posix()
     write_page(doc, page(parts, relative), command)
     _say(args.quiet, f"wrote {doc}, {figure_path}")
     estimates = [*(e for pair in parts.estimates.values() for e in pair), *parts.near[1:], *parts.rare[2:],

@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Regenerate every figure under ``docs/img`` with the commands the docs print.
 
-One command remakes the pictures of README.md, docs/RESULTS.md, docs/ANALYSIS.md and docs/DECISION.md::
+One command remakes the pictures of README.md, docs/RESULTS.md, docs/ANALYSIS.md, docs/DECISION.md
+and docs/FALSIFY.md::
 
     python scripts/make_figures.py                        # everything, a few minutes on 2 cores
     python scripts/make_figures.py --only report,gif      # some groups
@@ -26,6 +27,9 @@ group         writes (under ``--docs``, default ``docs/img``)
               frames/s (the README's top picture)
 ``decision``  ``decision/{anticipate,emergency,follow}.png``: one picture per layer of the
               layered rule (docs/DECISION.md), ``python scripts/decision_figures.py``
+``falsify``   ``falsify/progress.png``: the falsification page's searches,
+              ``python scripts/falsify.py`` (which remakes docs/FALSIFY.md with it: about an
+              hour on 2 cores the first time, seconds from its results after)
 ============  ============================================================================
 
 Experiment directories go under ``--results`` (default ``results/figures``) and are
@@ -51,7 +55,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 PROG = "make_figures"
-GROUPS = ("report", "analysis", "sweeps", "decision", "frame", "gif")  # the renderer's groups last
+GROUPS = ("report", "analysis", "sweeps", "decision", "falsify", "frame", "gif")  # the renderer's groups last
 DECISION_PICTURES = ("anticipate", "emergency", "follow")  # scripts/decision_figures.py's
 ANALYSIS_PLANNERS = "cdf,reactive,cv,imm"
 ANALYSIS_SEED0 = {"dev": 0, "heldout": 100000}  # docs/ANALYSIS.md: seeds 0-999 and 100000-100999
@@ -154,6 +158,20 @@ def make_decision(opts: Options) -> None:
         raise CommandFailed(argv, status, program="python")
 
 
+def make_falsify(opts: Options) -> None:
+    """docs/img/falsify/progress.png: written by the falsification page's script (as its own
+    process), which remakes docs/FALSIFY.md from the same runs."""
+    figure = opts.docs / "falsify" / "progress.png"
+    argv = ["scripts/falsify.py", "--figure", str(figure), "--quiet", *_workers(opts)]
+    print(f"$ python {shlex.join(argv)}  # {figure} and docs/FALSIFY.md", flush=True)
+    if opts.dry_run:
+        return
+    script = Path(__file__).resolve().with_name("falsify.py")
+    status = subprocess.run([sys.executable, str(script), *argv[1:]], check=False).returncode
+    if status:
+        raise CommandFailed(argv, status, program="python")
+
+
 def make_frame(opts: Options) -> None:
     """docs/img/frame.png: one rendered frame (needs an OpenGL backend: EGL or OSMesa)."""
     cdf_mj(["render", "--seed", "1", "--planner", "cdf", "--frame", "3.0", "--width", "480",
@@ -168,7 +186,7 @@ def make_gif(opts: Options) -> None:
 
 MAKERS: dict[str, Callable[[Options], None]] = {
     "report": make_report, "analysis": make_analysis, "sweeps": make_sweeps, "decision": make_decision,
-    "frame": make_frame, "gif": make_gif,
+    "falsify": make_falsify, "frame": make_frame, "gif": make_gif,
 }
 
 
