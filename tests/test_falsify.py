@@ -852,3 +852,11 @@ def test_the_shipped_counterexamples_of_the_page_still_fail(scene):
         seed = int(path.stem.rsplit("-", 1)[1])
         record = run_episode(read_preset(path).config(), seed, "cdf", scene, label=False)
         assert record.collision, f"{path.name} no longer collides: remake docs/FALSIFY.md (python scripts/falsify.py)"
+
+
+def test_a_counterexample_of_a_scene_of_your_own_says_how_to_replay_it(found, tmp_path):
+    """A preset cannot hold a scene or its names: the replay commands in its description do."""
+    space, _, cxs = found
+    write_counterexamples(space, cxs[:1], tmp_path, "--scene my/junction.xml --names my/names.toml")
+    description = " ".join(read_preset(next(tmp_path.glob("01-seed-*.toml"))).description.split())
+    assert "--planner reactive --scene my/junction.xml --names my/names.toml; watch: cdf-mj render" in description

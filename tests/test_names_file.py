@@ -57,11 +57,14 @@ def test_episode_with_a_names_file(own_scene: Path, tmp_path: Path, capsys: pyte
     ["sweep", "beta", "--values", "0.05", "--episodes", "1", "--planners", "constant", "--quiet",
      "--workers", "1", "--no-figure"],
     ["bench", "--only-reproduce", "--reproduce-episodes", "1", "--workers", "1", "--quiet"],
+    ["falsify", "--planner", "reactive", "--budget", "8", "--popsize", "4", "--workers", "1", "--quiet",
+     "--no-figure"],
+    ["estimate", "--planner", "reactive", "--method", "mc", "--budget", "4", "--workers", "1", "--quiet"],
 ])
 def test_other_commands_take_a_names_file(command: list[str], own_scene: Path, tmp_path: Path):
     names = tmp_path / "names.json"
     names.write_text(json.dumps(OWN))
-    out = ["--out", str(tmp_path / "out")] if command[0] in ("experiment", "sweep") else []
+    out = ["--out", str(tmp_path / "out")] if command[0] in ("experiment", "sweep", "falsify", "estimate") else []
     assert main([*command, "--scene", str(own_scene), "--names", str(names), *out]) == 0
 
 

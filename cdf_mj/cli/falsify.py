@@ -4,6 +4,8 @@ estimate``: its probability of failure per encounter (importance sampling or Mon
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import shlex
 import sys
 from typing import TYPE_CHECKING
 
@@ -20,6 +22,7 @@ from cdf_mj.cli.args import (
     _workers,
 )
 from cdf_mj.planners.registry import PLANNERS
+from cdf_mj.sim.checks import read_names
 
 if TYPE_CHECKING:
     from cdf_mj.falsify.search import Generation
@@ -35,7 +38,17 @@ def _space(args: argparse.Namespace) -> SearchSpace:
 
     if args.address is not None and args.backend != "ray":
         raise CLIError("--address is the address of a Ray cluster: it needs --backend ray")
-    return load_space(args.space)  # SpaceError: one line, exit 2
+    space = load_space(args.space)  # SpaceError: one line, exit 2
+    if args.names is not None:  # a scene of your own with its own names (SceneError: one line)
+        space = dataclasses.replace(space, base=space.base.replace(names=read_names(args.names)))
+    return space
+
+
+def _scene_args(args: argparse.Namespace) -> str:
+    """``--scene``/``--names`` for the replay commands of the counterexamples (shell-quoted)."""
+    words = ([] if args.scene == DEFAULT_SCENE else ["--scene", str(args.scene)]) + (
+        [] if args.names is None else ["--names", str(args.names)])
+    return shlex.join(words)
 
 
 def _cmd_falsify(args: argparse.Namespace) -> int:
@@ -56,7 +69,7 @@ def _cmd_falsify(args: argparse.Namespace) -> int:
         result = falsify(space, args.planner, args.budget, args.out, compare=args.compare or (), seed=args.seed,
                          popsize=args.popsize, scene=args.scene, backend=args.backend, workers=args.workers,
                          address=args.address, max_clusters=args.max_clusters, figure=not args.no_figure,
-                         on_generation=generation, on_search_done=counterexamples)
+                         on_generation=generation, on_search_done=counterexamples, scene_args=_scene_args(args))
     s = result.search
     first = f"first after {s.first_failure} episodes" if s.first_failure else "none within the budget"
     print(f"{len(s.failures)} failures of {args.planner} ({space.failure.text}) in {len(s.evaluations)} episodes; "
@@ -109,6 +122,8 @@ def _common(p: argparse.ArgumentParser, out: str, budget: int) -> None:
     p.add_argument("--out", type=_out_path, default=out,
                    help=f"output directory; the same command on it goes on where a run stopped (default {out})")
     p.add_argument("--scene", metavar="PATH", default=DEFAULT_SCENE, help="MJCF scene file (default scene.xml)")
+    p.add_argument("--names", metavar="FILE", default=None,
+                   help="the scene's element names: a .json or .toml object of SceneNames fields (docs/SCENES.md)")
     p.add_argument("--workers", type=_workers, default=None,
                    help="worker processes (default: the CPU count; 1 runs in this process)")
     p.add_argument("--backend", choices=("process", "ray"), default="process",

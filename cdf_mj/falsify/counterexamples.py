@@ -190,9 +190,12 @@ def preset_text(config: ScenarioConfig, description: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_counterexamples(space: SearchSpace, found: Sequence[Counterexample], directory: str | Path) -> None:
+def write_counterexamples(space: SearchSpace, found: Sequence[Counterexample], directory: str | Path,
+                          scene_args: str = "") -> None:
     """Write each counterexample as ``directory/NN-seed-S.toml`` (sets ``path``); files of
-    that form left by an earlier run are removed first, so the directory holds this run's."""
+    that form left by an earlier run are removed first, so the directory holds this run's.
+    ``scene_args`` (``--scene FILE --names FILE`` of a scene of your own, which a preset
+    cannot hold) go into the replay commands of the descriptions."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     for old in directory.glob("[0-9][0-9]-seed-*.toml"):
@@ -204,8 +207,9 @@ def write_counterexamples(space: SearchSpace, found: Sequence[Counterexample], d
         text = (f"Counterexample {i} of a search of space {space.name!r} for planner {c.planner!r}: with seed "
                 f"{c.seed}, the ego {what} (label {c.summary.get('label')}). {len(c.members)} failure(s) of the "
                 f"search share its choices. Traits away from the space's base world ({space.preset}): "
-                f"{traits}. Replay: cdf-mj episode --preset {path} --seed {c.seed} --planner {c.planner}; "
-                f"watch: cdf-mj render --preset {path} --seed {c.seed} --planner {c.planner}.")
+                f"{traits}. Replay: cdf-mj episode --preset {path} --seed {c.seed} --planner {c.planner}"
+                f"{scene_args and ' ' + scene_args}; watch: cdf-mj render --preset {path} --seed {c.seed} "
+                f"--planner {c.planner}{scene_args and ' ' + scene_args}.")
         write_atomic(path, preset_text(space.config(c.point, c.keep), _wrap(text)))
         c.path = str(path)
 

@@ -122,10 +122,12 @@ def falsify(space: SearchSpace, planner: str, budget: int, out: str | Path, *, c
             backend: Backend = "process", workers: int | None = None, address: str | None = None,
             max_clusters: int = 12, figure: bool = True, on_episode: Callable[[int], None] | None = None,
             on_generation: Callable[[Generation], None] | None = None,
-            on_search_done: Callable[[int], None] | None = None) -> FalsifyResult:
+            on_search_done: Callable[[int], None] | None = None, scene_args: str = "") -> FalsifyResult:
     """Search ``space`` for failures of ``planner`` within ``budget`` episodes, cluster and
     minimise them, replay them on ``compare``, and write the run's files into ``out``
-    (see the module docstring). Resumable: the same call goes on from the journal."""
+    (see the module docstring). Resumable: the same call goes on from the journal. A scene
+    of your own: ``scene`` and, with other names, ``space.base.names`` (``scene_args``: how
+    the replay commands in the counterexamples' descriptions should name them)."""
     from cdf_mj.falsify.report import falsify_markdown, progress_figure
 
     wanted = {"kind": "falsify", "version": __version__, "space": space.name, "space_spec": space_spec(space),
@@ -139,7 +141,7 @@ def falsify(space: SearchSpace, planner: str, budget: int, out: str | Path, *, c
             on_search_done(len(search.failures))
         found = find_counterexamples(evaluator, planner, search.failures, [c for c in compare if c != planner],
                                      max_clusters=max_clusters)
-        write_counterexamples(space, found, out_dir / "counterexamples")
+        write_counterexamples(space, found, out_dir / "counterexamples", scene_args)
         result = FalsifyResult(space, search, found, out_dir, evaluator.episodes_run, list(evaluator.errors.values()))
         write_atomic(out_dir / "summary.json", json.dumps(result.to_dict(), indent=2, allow_nan=False) + "\n")
         figure_path = out_dir / "progress.png"
