@@ -137,6 +137,7 @@ def _search(space_path: Path, journal: Path, budget: int = BUDGET, *, workers: i
     try:
         result = run_search(ev, "reactive", budget, seed=seed)
     finally:
+        ev.close()
         ev.journal.close()
     return result, ev.episodes_run
 

@@ -47,8 +47,8 @@ if TYPE_CHECKING:
     from cdf_mj.planners.base import Planner
 
 __all__ = ["BACKENDS", "RAY_ANSWER_TIMEOUT_S", "RAY_CONNECT_TIMEOUT_S", "START_METHOD", "Backend",
-           "ClusterUnreachableError", "SeedJob", "SeedResult", "WorkItem", "WorkerDiedError", "check_backend",
-           "effective_backend", "run_seeds", "worker_count"]
+           "ClusterUnreachableError", "SeedJob", "SeedPool", "SeedResult", "WorkItem", "WorkerDiedError",
+           "check_backend", "effective_backend", "run_seeds", "worker_count"]
 
 Backend = Literal["serial", "process", "ray"]
 BACKENDS: tuple[str, ...] = ("serial", "process", "ray")
@@ -198,28 +198,40 @@ def _run_in_process(*item: Any) -> SeedResult:
     return _WORKER.run(*item)
 
 
-def _serial(job: SeedJob, todo: Sequence[WorkItem], workers: int,
-            address: str | None) -> Iterator[SeedResult]:
-    worker = SeedWorker(job)
-    for item in todo:
-        yield worker.run(*item)
+class _Serial:
+    """Seeds run in this process, one scene loaded once."""
+
+    def __init__(self, job: SeedJob, workers: int, address: str | None) -> None:
+        self.worker = SeedWorker(job)
+
+    def run(self, todo: Sequence[WorkItem]) -> Iterator[SeedResult]:
+        for item in todo:
+            yield self.worker.run(*item)
+
+    def close(self) -> None:
+        pass
 
 
-def _process_pool(job: SeedJob, todo: Sequence[WorkItem], workers: int,
-                  address: str | None) -> Iterator[SeedResult]:
-    # At most 2 seeds in flight per worker keeps memory flat and cancellation prompt.
-    ctx = get_context(START_METHOD)
-    pending: set[Future[SeedResult]] = set()
-    queue = list(todo)[::-1]
-    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_process,
-                             # The death signal follows the thread that forks the workers:
-                             # only the main thread lives as long as the process.
-                             initargs=(job, os.getpid(),
-                                       threading.current_thread() is threading.main_thread())) as pool:
+class _Processes:
+    """A ``concurrent.futures`` process pool, one scene per worker, kept until :meth:`close`."""
+
+    def __init__(self, job: SeedJob, workers: int, address: str | None) -> None:
+        self.workers = workers
+        self.pool = ProcessPoolExecutor(max_workers=workers, mp_context=get_context(START_METHOD),
+                                        initializer=_init_process,
+                                        # The death signal follows the thread that forks the workers:
+                                        # only the main thread lives as long as the process.
+                                        initargs=(job, os.getpid(),
+                                                  threading.current_thread() is threading.main_thread()))
+
+    def run(self, todo: Sequence[WorkItem]) -> Iterator[SeedResult]:
+        # At most 2 seeds in flight per worker keeps memory flat and cancellation prompt.
+        pending: set[Future[SeedResult]] = set()
+        queue = list(todo)[::-1]
         try:
             while queue or pending:
-                while queue and len(pending) < 2 * workers:
-                    pending.add(pool.submit(_run_in_process, *queue.pop()))
+                while queue and len(pending) < 2 * self.workers:
+                    pending.add(self.pool.submit(_run_in_process, *queue.pop()))
                 done, pending = wait(pending, return_when=FIRST_COMPLETED)
                 broken = None
                 for fut in done:  # every finished seed is handed over before a death is reported
@@ -236,6 +248,9 @@ def _process_pool(job: SeedJob, todo: Sequence[WorkItem], workers: int,
         finally:
             for fut in pending:
                 fut.cancel()
+
+    def close(self) -> None:
+        self.pool.shutdown(wait=True, cancel_futures=True)
 
 
 #: What a client sends first on an HTTP/2 connection (RFC 9113, 3.4): the preface, then an
@@ -305,35 +320,102 @@ def _probe_ray_address(address: str, timeout: float = RAY_CONNECT_TIMEOUT_S) -> 
                                       "address (ray start --head prints it)")
 
 
-def _ray(job: SeedJob, todo: Sequence[WorkItem], workers: int,
-         address: str | None) -> Iterator[SeedResult]:
-    ray = require("ray", "ray", "the ray backend")
-    from ray.util import ActorPool
-    started = not ray.is_initialized()
-    if started:
-        kwargs = {"address": address} if address else {"num_cpus": workers}
-        ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False, **kwargs)
-    try:
-        actor = ray.remote(num_cpus=1)(SeedWorker)
-        # One CPU per actor: more actors than the cluster has CPUs would never start and
-        # the pool would wait for them for ever.
-        cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
-        n_actors = min(workers, cpus) if workers else cpus
-        pool = ActorPool([actor.remote(job) for _ in range(n_actors)])
+class _Ray:
+    """Ray actors, one scene each, kept until :meth:`close` (which shuts down a Ray instance
+    it started)."""
+
+    def __init__(self, job: SeedJob, workers: int, address: str | None) -> None:
+        self.ray = ray = require("ray", "ray", "the ray backend")
+        self.started = not ray.is_initialized()
+        if self.started:
+            kwargs = {"address": address} if address else {"num_cpus": workers}
+            ray.init(include_dashboard=False, log_to_driver=False, configure_logging=False, **kwargs)
+        try:
+            actor = ray.remote(num_cpus=1)(SeedWorker)
+            # One CPU per actor: more actors than the cluster has CPUs would never start and
+            # the pool would wait for them for ever.
+            cpus = max(1, int(ray.cluster_resources().get("CPU", 1)))
+            n_actors = min(workers, cpus) if workers else cpus
+            self.actors = [actor.remote(job) for _ in range(n_actors)]
+        except BaseException:
+            self.close()
+            raise
+
+    def run(self, todo: Sequence[WorkItem]) -> Iterator[SeedResult]:
+        from ray.util import ActorPool
+
+        pool = ActorPool(self.actors)
         for item in todo:
             pool.submit(lambda a, item: a.run.remote(*item), item)
         while pool.has_next():
             try:
                 yield pool.get_next_unordered()
-            except ray.exceptions.RayActorError as exc:
+            except self.ray.exceptions.RayActorError as exc:
                 raise WorkerDiedError(f"a Ray actor died ({exc})") from None
+
+    def close(self) -> None:
+        if self.started:
+            self.ray.shutdown()
+            self.started = False
+
+
+_BACKENDS: dict[str, Callable[[SeedJob, int, str | None], _Serial | _Processes | _Ray]] = {
+    "serial": _Serial, "process": _Processes, "ray": _Ray}
+
+
+def _once(kind: str, job: SeedJob, todo: Sequence[WorkItem], workers: int, address: str | None
+          ) -> Iterator[SeedResult]:
+    """Start ``kind``'s workers (on the first result asked for), run ``todo``, stop them."""
+    backend = _BACKENDS[kind](job, workers, address)
+    try:
+        yield from backend.run(todo)
     finally:
-        if started:
-            ray.shutdown()
+        backend.close()
 
 
-_BACKENDS: dict[str, Callable[..., Iterator[SeedResult]]] = {
-    "serial": _serial, "process": _process_pool, "ray": _ray}
+class SeedPool:
+    """Workers kept up across runs, for a caller that runs seeds in many small batches (a
+    search's generations): :meth:`run` is :func:`run_seeds` without starting a process
+    pool or Ray each time (about half a second a start for a pool of 2 on this project's
+    machine). Started on the first run; :meth:`close` (or the ``with`` block's end) stops
+    them. The same backends, worker counts and errors as :func:`run_seeds`; a process pool
+    of one worker is this process. ::
+
+        with SeedPool(job, workers=4) as pool:
+            for batch in batches:
+                results = list(pool.run(batch))
+    """
+
+    def __init__(self, job: SeedJob, backend: Backend = "process", workers: int | None = None,
+                 address: str | None = None) -> None:
+        cluster_default = backend == "ray" and address is not None and workers is None
+        n = check_backend(backend, workers)
+        self._where = effective_backend(backend, n, 2)
+        if self._where == "ray" and address is not None:
+            require("ray", "ray", "the ray backend")
+            _probe_ray_address(address)
+        self._job, self._n, self._address = job, (0 if cluster_default else n), address
+        self._backend: _Serial | _Processes | _Ray | None = None
+
+    def run(self, todo: Sequence[WorkItem]) -> Iterator[SeedResult]:
+        """One :class:`SeedResult` per item, in completion order."""
+        if not todo:
+            return iter(())
+        if self._backend is None:
+            self._backend = _BACKENDS[self._where](self._job, self._n, self._address)
+        return self._backend.run(todo)
+
+    def close(self) -> None:
+        """Stop the workers (nothing if none started); a later :meth:`run` starts them again."""
+        if self._backend is not None:
+            backend, self._backend = self._backend, None
+            backend.close()
+
+    def __enter__(self) -> SeedPool:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
 def run_seeds(job: SeedJob, todo: Sequence[WorkItem], backend: Backend = "process",
@@ -356,7 +438,7 @@ def run_seeds(job: SeedJob, todo: Sequence[WorkItem], backend: Backend = "proces
         require("ray", "ray", "the ray backend")  # a missing extra is told first
         _probe_ray_address(address)
     n = 0 if cluster_default else worker_count(backend, workers, len(todo))  # 0: one actor per cluster CPU
-    return _BACKENDS[where](job, todo, n, address)
+    return _once(where, job, todo, n, address)
 
 
 def worker_count(backend: str, workers: int, n_items: int) -> int:

@@ -25,7 +25,7 @@ from typing import IO, Any
 import numpy as np
 
 from cdf_mj.config import MAX_SEED
-from cdf_mj.experiments.runner import Backend, SeedJob, run_seeds
+from cdf_mj.experiments.runner import Backend, SeedJob, SeedPool
 from cdf_mj.falsify.space import SearchSpace
 from cdf_mj.inputs import RECORDS_MAX_BYTES, read_regular
 from cdf_mj.planners.registry import bind_planner
@@ -144,7 +144,9 @@ def _finite(value: float) -> float:
 class Evaluator:
     """Runs points of ``space`` on planners, each episode once (see the module docstring).
 
-    ``workers``/``backend``/``address`` as :func:`cdf_mj.experiments.runner.run_seeds`;
+    ``workers``/``backend``/``address`` as :func:`cdf_mj.experiments.runner.run_seeds`, the
+    workers kept up between calls (:class:`~cdf_mj.experiments.runner.SeedPool`; close the
+    evaluator, or use it in a ``with`` block, to stop them);
     ``on_episode`` is called with the count of episodes each call settles, run or found in
     the journal (for a progress bar). :attr:`errors` keeps every episode asked for that
     raised (the caller reports them and exits 1).
@@ -157,7 +159,9 @@ class Evaluator:
         self.journal = journal
         self.job = SeedJob(config=space.base, scene=str(scene), planners=tuple(planners),
                            factories={name: bind_planner(name) for name in planners})
-        self.backend, self.workers, self.address = backend, workers, address
+        # The workers stay up from one batch to the next (a search's generation is a dozen
+        # episodes); started on the first batch the journal lacks, stopped by close().
+        self.pool = SeedPool(self.job, backend, workers, address)
         self.on_episode = on_episode
         self.episodes_run = 0  # this process's, not the journal's
         self.errors: dict[str, Evaluation] = {}  # journal key -> an episode that raised
@@ -182,8 +186,7 @@ class Evaluator:
             self.on_episode(found)
         where = {seed: (point, kept) for point, seed, kept in zip(points, seeds, keeps, strict=True)}
         if todo:
-            for result in run_seeds(self.job, todo, backend=self.backend, workers=self.workers,
-                                    address=self.address):
+            for result in self.pool.run(todo):
                 point, kept = where[result.seed]
                 new = [self._evaluation(rec, point, kept) for rec in result.records]
                 self.journal.append(new)
@@ -198,6 +201,16 @@ class Evaluator:
                 if ev is not None and ev.error is not None:
                     self.errors[key_of(p, seed, point, kept)] = ev
         return out
+
+    def close(self) -> None:
+        """Stop the workers (a later evaluate starts them again)."""
+        self.pool.close()
+
+    def __enter__(self) -> Evaluator:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     def _evaluation(self, record: dict[str, Any], point: tuple[float, ...], keep: tuple[str, ...]) -> Evaluation:
         seed, planner = int(record["seed"]), str(record["planner"])

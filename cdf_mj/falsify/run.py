@@ -136,6 +136,7 @@ def falsify(space: SearchSpace, planner: str, budget: int, out: str | Path, *, c
         out_dir, journal = _open(out, wanted, stack)
         evaluator = Evaluator(space, [planner, *compare], journal, scene=scene, backend=backend, workers=workers,
                               address=address, on_episode=on_episode)
+        stack.callback(evaluator.close)
         search = run_search(evaluator, planner, budget, seed=seed, popsize=popsize, on_generation=on_generation)
         if on_search_done is not None:
             on_search_done(len(search.failures))
@@ -168,6 +169,7 @@ def estimate(space: SearchSpace, planner: str, budget: int, out: str | Path, *, 
         out_dir, journal = _open(out, wanted, stack)
         evaluator = Evaluator(space, [planner], journal, scene=scene, backend=backend, workers=workers,
                               address=address, on_episode=on_episode)
+        stack.callback(evaluator.close)
         if method == "mc":
             result = monte_carlo(evaluator, planner, budget, seed=seed)
         else:
