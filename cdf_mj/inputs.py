@@ -52,6 +52,7 @@ __all__ = [
     "kind_of",
     "parse_json",
     "parse_toml",
+    "parse_user_toml",
     "printable",
     "read_regular",
     "read_text",
@@ -275,6 +276,18 @@ def parse_toml(text: str, what: str, max_depth: int = MAX_DEPTH) -> dict[str, An
         raise _too_deep(what, max_depth) from None
     _check_value_depth(data, what, max_depth)
     return data
+
+
+def parse_user_toml(text: str, what: str, error: type[ValueError]) -> dict[str, Any]:
+    """:func:`parse_toml` of a file a user wrote (a preset, a space), every failure an
+    ``error`` of one line: ``"{what}: not valid TOML: ..."`` with the parser's line and
+    column, or the nesting bound's refusal."""
+    try:
+        return parse_toml(text, what)
+    except TOMLDecodeError as exc:
+        raise error(f"{what}: not valid TOML: {' '.join(str(exc).split())}") from None
+    except InputError as exc:
+        raise error(str(exc)) from None
 
 
 # ------------------------------------------------------------------------ output

@@ -143,33 +143,31 @@ def make_sweeps(opts: Options) -> None:
             shutil.copyfile(src, dst)
 
 
-def make_decision(opts: Options) -> None:
-    """docs/img/decision: one picture per layer of the layered rule (scripts/decision_figures.py,
-    run as its own process)."""
-    out = opts.docs / "decision"
-    argv = ["scripts/decision_figures.py", "--out", str(out)]
-    print(f"$ python {shlex.join(argv)}  # " + ", ".join(str(out / f"{n}.png") for n in DECISION_PICTURES),
-          flush=True)
+def python_script(argv: Sequence[str], writes: str, opts: Options) -> None:
+    """Run ``python scripts/NAME.py ARGS`` (``argv``) as its own process, printed first with
+    what it ``writes``; CommandFailed with its exit status if it fails."""
+    print(f"$ python {shlex.join(argv)}  # {writes}", flush=True)
     if opts.dry_run:
         return
-    script = Path(__file__).resolve().with_name("decision_figures.py")
+    script = Path(__file__).resolve().with_name(Path(argv[0]).name)
     status = subprocess.run([sys.executable, str(script), *argv[1:]], check=False).returncode
     if status:
-        raise CommandFailed(argv, status, program="python")
+        raise CommandFailed(list(argv), status, program="python")
+
+
+def make_decision(opts: Options) -> None:
+    """docs/img/decision: one picture per layer of the layered rule (scripts/decision_figures.py)."""
+    out = opts.docs / "decision"
+    python_script(["scripts/decision_figures.py", "--out", str(out)],
+                  ", ".join(str(out / f"{n}.png") for n in DECISION_PICTURES), opts)
 
 
 def make_falsify(opts: Options) -> None:
-    """docs/img/falsify/progress.png: written by the falsification page's script (as its own
-    process), which remakes docs/FALSIFY.md from the same runs."""
+    """docs/img/falsify/progress.png: written by the falsification page's script, which
+    remakes docs/FALSIFY.md from the same runs."""
     figure = opts.docs / "falsify" / "progress.png"
-    argv = ["scripts/falsify.py", "--figure", str(figure), "--quiet", *_workers(opts)]
-    print(f"$ python {shlex.join(argv)}  # {figure} and docs/FALSIFY.md", flush=True)
-    if opts.dry_run:
-        return
-    script = Path(__file__).resolve().with_name("falsify.py")
-    status = subprocess.run([sys.executable, str(script), *argv[1:]], check=False).returncode
-    if status:
-        raise CommandFailed(argv, status, program="python")
+    python_script(["scripts/falsify.py", "--figure", str(figure), "--quiet", *_workers(opts)],
+                  f"{figure} and docs/FALSIFY.md", opts)
 
 
 def make_frame(opts: Options) -> None:

@@ -54,7 +54,7 @@ from typing import Any
 import numpy as np
 
 from cdf_mj.config import SCENARIO_KEYS, ScenarioConfig
-from cdf_mj.inputs import PRESET_MAX_BYTES, InputError, TOMLDecodeError, parse_toml, read_user_text
+from cdf_mj.inputs import PRESET_MAX_BYTES, parse_user_toml, read_user_text
 from cdf_mj.presets import PresetError, read_preset
 
 __all__ = ["MARGINS", "MARGIN_CAP", "MAX_DIMS", "MAX_VALUES", "Choice", "Dim", "FailureSpec", "Range",
@@ -332,12 +332,7 @@ def parse_space(text: str, name: str, source: str, root: Path | None = None) -> 
     """The space in TOML ``text`` read from ``source`` (its preset path, if a path, is
     taken relative to ``root``); SpaceError (one line) for any mistake."""
     where = f"space {source}"
-    try:
-        data = parse_toml(text, where)
-    except TOMLDecodeError as exc:
-        raise SpaceError(f"{where}: not valid TOML: {' '.join(str(exc).split())}") from None
-    except InputError as exc:
-        raise SpaceError(str(exc)) from None
+    data = parse_user_toml(text, where, SpaceError)
     unknown = sorted(set(data) - set(_TOP))
     if unknown:
         raise SpaceError(f"{where}: unknown key {unknown[0]!r}; a space holds {', '.join(_TOP)}")

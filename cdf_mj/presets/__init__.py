@@ -40,7 +40,7 @@ from pathlib import Path
 from typing import Any
 
 from cdf_mj.config import FLAT_KEYS, GROUPS, SCENARIO_KEYS, ScenarioConfig
-from cdf_mj.inputs import PRESET_MAX_BYTES, InputError, TOMLDecodeError, parse_toml, read_user_text
+from cdf_mj.inputs import PRESET_MAX_BYTES, parse_user_toml, read_user_text
 
 __all__ = ["STRESS_PREFIX", "SUFFIX", "Preset", "PresetError", "load_preset", "preset_description", "preset_names",
            "read_preset", "scenario_preset_names"]
@@ -167,12 +167,7 @@ def _dotted(table: dict[str, Any], source: str) -> dict[str, Any]:
 
 def _parse(text: str, name: str, source: str) -> Preset:
     """The preset in the TOML ``text`` read from ``source``."""
-    try:
-        data = parse_toml(text, f"preset {source}")  # nested at most MAX_DEPTH levels
-    except TOMLDecodeError as exc:
-        raise PresetError(f"preset {source}: not valid TOML: {' '.join(str(exc).split())}") from None
-    except InputError as exc:
-        raise PresetError(str(exc)) from None
+    data = parse_user_toml(text, f"preset {source}", PresetError)  # nested at most MAX_DEPTH levels
     unknown = sorted(set(data) - set(_KEYS))
     if unknown:
         raise PresetError(f"preset {source}: unknown key {unknown[0]!r}; a preset holds only 'description' "
