@@ -92,10 +92,10 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     from cdf_mj.falsify.estimate import MIN_CE_BUDGET
     from cdf_mj.falsify.run import estimate
 
+    space = _space(args)
     if args.method == "ce" and args.budget < MIN_CE_BUDGET:  # before a directory is made
         raise CLIError(f"--method ce needs --budget {MIN_CE_BUDGET} or more (an adaptive stage of 50 and a last "
                        f"stage), got {args.budget}; use --method mc below that")
-    space = _space(args)
     with tqdm(total=args.budget, unit="ep", desc=f"estimate {args.planner} ({args.method})",
               disable=args.quiet) as bar:
         result = estimate(space, args.planner, args.budget, args.out, method=args.method, seed=args.seed,
