@@ -33,7 +33,7 @@ from cdf_mj.model.geometry import boxes_overlap
 from cdf_mj.model.layout import Layout
 from cdf_mj.planners import CDFPlanner
 from cdf_mj.planners.base import DecidingPlanner, PlannerContext, PlannerInput, ThresholdRule
-from cdf_mj.planners.decision import GivenFutures, RiskRule, rollout_assessment
+from cdf_mj.planners.decision import GivenFutures, LayeredRule, RiskRule, rollout_assessment
 from cdf_mj.planners.registry import PLANNERS, make_planner
 from cdf_mj.scenario.episode import run_episode
 from cdf_mj.scenario.world import World
@@ -143,6 +143,68 @@ def test_compiled_rollouts_agree_with_the_boxes(layouts: dict[str, Layout]) -> N
                 same += mask == _brute_force_mask(layout, 0.3, tuple(hyp), plans, config.timing.dt)
                 total += 1
         assert same >= 0.95 * total, (name, same, total)
+
+
+def _plain_masses(hyps: np.ndarray, plans: np.ndarray, dt: float, cmap: Any, lazy: int, gate: int) -> np.ndarray:
+    """:func:`collision_masses` as first written (every tick of every hypothesis tested
+    against every open plan, in Python): the reference its faster rolls must equal exactly."""
+    n_plans, n_steps = plans.shape
+    full, out = (1 << n_plans) - 1, np.zeros(1 << n_plans)
+    lazy_bit, gate_bit = (1 << lazy) if lazy >= 0 else 0, (1 << gate) if gate >= 0 else 0
+    q_lo, q_hi, ahead_of = cmap.q_lo, cmap.q_hi, cmap.q_lo_ahead
+    first = next((j for j in range(len(q_lo)) if q_lo[j] <= q_hi[j]), len(q_lo))
+    for w, s, v, a, vm, d in hyps:
+        vm, v_start = max(vm, v), (v if d <= 0.0 else 0.0)
+        v_prev, mask, done = v_start, 0, 0
+        for k in range(n_steps):
+            t = (k + 1) * dt
+            v_now = min(max(v_start + a * (t - d), 0.0), vm) if t > d else 0.0
+            s += (v_prev + v_now) * (0.5 * dt)
+            v_prev = v_now
+            if s < (first - 0.5) * cmap.ds:
+                continue
+            j = int(s * (1.0 / cmap.ds) + 0.5)
+            if j >= len(q_lo):
+                break
+            if j < first:
+                continue
+            for p in range(n_plans):
+                if not done & (1 << p):
+                    if q_lo[j] <= plans[p, k] <= q_hi[j]:
+                        mask, done = mask | (1 << p), done | (1 << p)
+                    elif ahead_of[j] > plans[p, -1]:
+                        done |= 1 << p
+            if (done | lazy_bit if (done & gate_bit) and not (mask & gate_bit) else done) == full:
+                break
+        out[mask] += w
+    return out
+
+
+def test_the_compiled_rolls_equal_the_plain_rolls_exactly(layouts: dict[str, Layout]) -> None:
+    """The kernel's shortcuts (a single plan left open rolls without the table while short of
+    every overlap ahead) leave every mass as the plain tick-by-tick rolls give it, bit for
+    bit, with all plans exact and with going on followed lazily (the risk rule's call)."""
+    rng = np.random.default_rng(11)
+    config = ScenarioConfig()
+    for name, layout in layouts.items():
+        rule = LayeredRule()
+        rule.reset(PlannerContext.of(layout, config))
+        cmap = rule.map
+        q_conflict = float(layout.route_ego.project(layout.conflict)[0])
+        s_conflict = float(layout.route_left.project(layout.conflict)[0])
+        for trial in range(6):
+            ego = route_poses(layout.route_ego, np.array([q_conflict - rng.uniform(-2.0, 45.0)]))[0]
+            ego[3] = rng.uniform(0.0, 15.0)
+            plans = rule.plans(ego)
+            n = 40
+            hyps = np.column_stack([rng.uniform(0.1, 1.0, n), s_conflict + rng.uniform(-20.0, 30.0, n),
+                                    rng.uniform(0.0, 9.0, n), rng.uniform(-2.0, 3.0, n), rng.uniform(3.0, 16.0, n),
+                                    rng.choice([0.0, 0.0, 0.4, 1.5, 9.0], n)])
+            for lazy, gate in ((-1, -1), (GO, DEFER)):
+                got = collision_masses(*(np.ascontiguousarray(c) for c in hyps.T), plans, config.timing.dt, cmap.ds,
+                                       cmap.q_lo, cmap.q_hi, cmap.q_lo_ahead, lazy, gate)
+                assert np.array_equal(got, _plain_masses(hyps, plans, config.timing.dt, cmap, lazy, gate)), (
+                    name, trial, lazy)
 
 
 def test_plans_brake_and_go_as_the_ego_would(scene: Scene) -> None:

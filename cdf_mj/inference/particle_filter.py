@@ -228,6 +228,7 @@ class ParticleFilter:
         self._s_of: np.ndarray | None = None
         self._sight = np.zeros(0, dtype=np.int8)
         self._sight_of: tuple[np.ndarray, np.ndarray] | None = None
+        self._checked: tuple[np.ndarray, ...] | None = None  # the particle arrays of the last check
 
     @classmethod
     def from_layout(cls, layout: Layout, cdf: CDFConfig, rng: np.random.Generator, dt: float) -> ParticleFilter:
@@ -352,7 +353,15 @@ class ParticleFilter:
         """RuntimeError before :meth:`reset`; ValueError if a particle array assigned from
         outside does not have the filter's N rows (the kernels index them unchecked). An
         array assigned from outside in another dtype or layout is converted (and ``pose``,
-        ``logw`` made read-only): each kernel is compiled for one type of each argument."""
+        ``logw`` made read-only): each kernel is compiled for one type of each argument.
+        Arrays already checked (the same objects as at the last check) are not checked again:
+        the filter replaces its arrays, never their type or rows (``pose`` and ``logw`` made
+        writeable again are checked again)."""
+        arrays = (self.pose, self.mode, self.belief, self.has_belief, self.intent, self.theta, self.logw)
+        last = self._checked
+        if (last is not None and all(a is b for a, b in zip(arrays, last, strict=True))
+                and not (self.pose.flags.writeable or self.logw.flags.writeable)):
+            return
         if len(self.pose) == 0:
             raise RuntimeError("the particle filter has no particles yet: call reset(S0) first")
         n = self.n
@@ -364,6 +373,7 @@ class ParticleFilter:
                     name in ("pose", "logw") and value.flags.writeable):
                 value = np.array(value, dtype=dtype, order="C")  # a copy: the caller's array stays theirs
                 setattr(self, name, _published(value) if name in ("pose", "logw") else value)
+        self._checked = (self.pose, self.mode, self.belief, self.has_belief, self.intent, self.theta, self.logw)
 
     def ego_exposed(self) -> bool:
         """Whether the (known) ego could still be cut off: it has not yet cleared the
