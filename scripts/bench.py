@@ -1,5 +1,6 @@
 #!/usr/bin/env python3
-"""Print the benchmark table of docs/PERFORMANCE.md (medians from one run).
+"""Print the benchmark table of docs/PERFORMANCE.md: the targets, then every row, each
+timed in repeats interleaved with the physics floor (least time, spread, x floor).
 
 The same as ``cdf-mj bench``; see ``cdf-mj bench --help``::
 

@@ -1,5 +1,6 @@
 """``cdf-mj bench``: the timing table of docs/PERFORMANCE.md (physics, filter stages,
-planners, startup, reproduction scaling)."""
+planners, startup, reproduction scaling), every row timed in interleaved repeats against
+the physics floor sampled between them, and the targets first."""
 
 from __future__ import annotations
 
@@ -9,12 +10,15 @@ from cdf_mj.cli.args import (
     _comma_list,
     _command,
     _episodes,
+    _int_in,
     _particles,
     _shown,
     _workers,
     add_scenario_arguments,
     config_from_args,
 )
+
+_repeats = _int_in(1, 1000, "run time: every row runs that many times over")
 
 
 def _positive_seconds(text: str) -> float:
@@ -30,6 +34,7 @@ def _positive_seconds(text: str) -> float:
 
 def _cmd_bench(args: argparse.Namespace) -> int:
     from cdf_mj.experiments.bench import (
+        FloorProbe,
         bench_core,
         bench_env,
         bench_filter,
@@ -37,22 +42,22 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         bench_reproduction,
         bench_startup,
         format_rows,
-        physics_floor,
     )
 
     sizes = tuple(args.particles)
     config = config_from_args(args)
     where = {"scene": args.scene, "config": config}
-    floor = physics_floor(**where)  # every row's x floor, from this run
-    rows = [] if args.only_reproduce else [*bench_core(args.episodes, floor=floor, **where),
-                                           *bench_filter(sizes, **where),
-                                           *bench_planners(args.episodes, **where),
-                                           *bench_env(args.env_seconds, **where),
-                                           *bench_startup()]
+    reps = args.repeats
+    probe = FloorProbe(**where, clock=args.clock)  # the floor samples between every row's repeats
+    rows = [] if args.only_reproduce else [*bench_core(args.episodes, probe=probe, repeats=reps, **where),
+                                           *bench_filter(sizes, 3 * reps, probe=probe, **where),
+                                           *bench_planners(args.episodes, probe=probe, repeats=reps, **where),
+                                           *bench_env(args.env_seconds, reps, probe=probe, **where),
+                                           *bench_startup(probe=probe)]
     if args.reproduce or args.only_reproduce:
         rows += bench_reproduction(args.reproduce_episodes, tuple(args.workers), progress=not args.quiet,
-                                   **where)
-    print(format_rows(rows, floor))
+                                   probe=probe, **where)
+    print(format_rows(rows, probe.floor()))
     return 0
 
 
@@ -60,16 +65,29 @@ def _add_bench(subparsers: argparse._SubParsersAction) -> None:
     p = _command(
         subparsers, "bench", compiles=True,
         summary="timing table: physics, filter stages, planners, startup, reproduction scaling",
-        description="Print the benchmark table of docs/PERFORMANCE.md: medians from one run "
-                    "(pin to one core with taskset -c 0 for the single-core rows), each beside its "
-                    "ratio to the physics floor of the same run (x floor), and the startup of fresh "
-                    "processes (Numba compiling or loading its cache, a cold cdf-mj episode).")
-    p.add_argument("--episodes", type=_episodes, default=30,
-                   help="episodes timed per planner (default 30)")
+        description="Print the benchmark table of docs/PERFORMANCE.md, the targets first: every row timed in "
+                    "repeats interleaved with floor samples (20 mj_step, one planner tick of physics), "
+                    "reported as its least time, the median and spread, and its ratio to the least floor "
+                    "sample taken between its repeats (x floor); under the table, a check that the floor "
+                    "stayed under the physics-tick row. Times are CPU seconds of this process unless "
+                    "--clock wall. Pin to one core with taskset -c 0 for the "
+                    "single-core rows; the startup rows time fresh processes (Numba compiling or loading "
+                    "its cache, a cold cdf-mj episode).")
+    p.add_argument("--episodes", type=_episodes, default=10,
+                   help="seeds of each episode row, timed --repeats times over (default 10)")
+    p.add_argument("--repeats", type=_repeats, default=3,
+                   help="interleaved repeats of a row: passes over the seeds of an episode row, runs of "
+                        "--env-seconds of an env row; 3 x that many replays of a filter row, 100 x that "
+                        "many calls of a physics or sight-line row (default 3)")
+    p.add_argument("--clock", choices=("cpu", "wall"), default="cpu",
+                   help="time with the CPU time of this process (default: on a shared core, a row longer than "
+                        "a scheduler slice would otherwise count other processes' turns) or wall time; the "
+                        "reproduction rows are wall times either way")
     p.add_argument("--particles", type=_comma_list(_particles, "positive integers"), default=[250, 1000, 10000],
                    help="filter sizes N to time, each 1 to 10^6, at most 100 of them (default 250,1000,10000)")
     p.add_argument("--env-seconds", type=_positive_seconds, default=1.0,
-                   help="seconds of each of the 3 timed runs of the Gymnasium env per setting (default 1)")
+                   help="seconds of each of the --repeats timed runs of the Gymnasium env per setting "
+                        "(default 1)")
     p.add_argument("--reproduce", action="store_true",
                    help="also time the paper's reproduction with each --workers count (minutes)")
     p.add_argument("--only-reproduce", action="store_true", help="only the reproduction rows")
