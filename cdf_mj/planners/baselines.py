@@ -26,6 +26,13 @@ cdf,reactive,cv,imm`` and worker processes know them::
     from cdf_mj.planners.baselines import IMMConfig, IMMPlanner
     record = run_episode(config, seed=7, planner=IMMPlanner(IMMConfig(threshold=0.8)))
 
+Each tick runs compiled (:mod:`cdf_mj.planners.baseline_kernels`): the IMM's step, the
+predicted paths and their box tests. The IMM is filterpy's ``IMMEstimator`` over
+:class:`RouteKalmanFilter`, computed by the kernels; an instance with ``reference = True``
+runs filterpy itself (:attr:`IMMPlanner.reference`), the reference that
+tests/test_baselines_compiled.py holds the compiled IMM to (states, covariances and mode
+probabilities within 1e-9 every tick, the same records).
+
 Frames and units: world frame (x east, y north), metres, seconds, radians; poses are
 rear-axle ``[x, y, theta, v]``.
 """
@@ -33,6 +40,7 @@ rear-axle ``[x, y, theta, v]``.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -46,7 +54,10 @@ from cdf_mj.config import MAX_SPEED, LayeredConfig, RiskConfig
 from cdf_mj.model.conflict import Futures
 from cdf_mj.model.driver import Intent
 from cdf_mj.model.geometry import Polyline, boxes_overlap, wrap_angle
+from cdf_mj.model.kernels import RouteTable
+from cdf_mj.model.layout import Layout
 from cdf_mj.model.vehicle import CarGeometry
+from cdf_mj.planners import baseline_kernels as kern
 from cdf_mj.planners.base import DecidingPlanner, DecisionRule, PlannerContext, PlannerInput, as_config
 from cdf_mj.planners.decision import LayeredRule, RiskRule, ThresholdRule
 
@@ -175,7 +186,8 @@ def first_conflict(ego_car: CarGeometry, obstacle_car: CarGeometry, ego_path: np
 
 
 def straight_path(pose: np.ndarray, times: np.ndarray) -> np.ndarray:
-    """Poses ``(K, 4)`` of a car holding its heading and speed from ``pose`` at ``times`` [s]."""
+    """Poses ``(K, 4)`` of a car holding its heading and speed from ``pose`` at ``times`` [s]
+    (the planners run its compiled twin, :func:`cdf_mj.planners.baseline_kernels.straight_path`)."""
     x, y, th, v = (float(p) for p in pose)
     d = max(v, 0.0) * np.asarray(times, dtype=float)
     out = np.empty((len(d), 4))
@@ -188,7 +200,8 @@ def straight_path(pose: np.ndarray, times: np.ndarray) -> np.ndarray:
 
 def route_heading(route: Polyline, s: np.ndarray | float, window: float = 0.5) -> np.ndarray:
     """Heading [rad] of ``route`` at arc length(s) ``s`` [m]: the direction of the chord of
-    length ``2 window`` [m] centred on ``s`` (shifted inside the route near its ends)."""
+    length ``2 window`` [m] centred on ``s`` (shifted inside the route near its ends). The
+    planners compute it compiled, in :func:`cdf_mj.planners.baseline_kernels.route_path`."""
     s = np.asarray(s, dtype=float)
     w = min(window, 0.5 * route.length)
     lo = route.point_at(np.clip(s - w, 0.0, route.length - 2 * w))
@@ -246,14 +259,20 @@ class CVPlanner(DecidingPlanner):
         layout = context.layout
         self._ego, self._obstacle, self._dt = layout.ego, layout.obstacle, context.dt
         self._times = _times(self.params.horizon, context.dt)
+        # The kernels' cars (the obstacle's box widened by the margin) and a buffer of the pose.
+        self._cars = (kern.car_vector(layout.ego), kern.car_vector(layout.obstacle, self.params.margin))
+        self._poses = np.zeros((2, 4))
+        self._future_times: np.ndarray | None = None  # ticks 1..K of the rule's horizon [s]
         self.conflict_in: float | None = None
         self._obstacle_pose = np.zeros(4)
 
     def time_to_conflict(self, poses: np.ndarray) -> float | None:
         """Predicted time [s] to the first conflict under constant velocities from the
-        system pose ``(2, 4)`` (ego, obstacle), or None within the horizon."""
-        return first_conflict(self._ego, self._obstacle, straight_path(poses[0], self._times),
-                              straight_path(poses[1], self._times), self.params.margin, self._dt)
+        system pose ``(2, 4)`` (ego, obstacle), or None within the horizon (:func:`first_conflict`
+        of the two :func:`straight_path`, compiled)."""
+        self._poses[:] = poses
+        k = kern.straight_conflict(self._poses, self._times, *self._cars)
+        return round(k * self._dt, 6) if k >= 0 else None
 
     def observe(self, obs: PlannerInput) -> None:
         """Predict the conflict (until the decision, for the threshold rule); keep the
@@ -272,8 +291,11 @@ class CVPlanner(DecidingPlanner):
     def futures(self, react_ticks: int) -> np.ndarray:
         """The obstacle's straight-line path at its measured speed, ticks ``1..K`` of the
         rule's horizon ``(K, 4)``."""
-        n = max(1, math.ceil(self.rule.config.horizon / self._dt - 1e-9))  # type: ignore[attr-defined]
-        return straight_path(self._obstacle_pose, np.arange(1, n + 1) * self._dt)
+        if self._future_times is None:
+            n = max(1, math.ceil(self.rule.config.horizon / self._dt - 1e-9))  # type: ignore[attr-defined]
+            self._future_times = np.arange(1, n + 1) * self._dt
+        x, y, th, v = (float(p) for p in self._obstacle_pose)
+        return kern.straight_path(x, y, th, v, self._future_times)
 
     def summary(self) -> dict[str, Any]:
         """Rule, decision and release times [s], the brakes, the time to conflict [s]
@@ -318,16 +340,16 @@ class RouteKalmanFilter(KalmanFilter):  # type: ignore[misc]  # filterpy has no 
     the predicted ``s`` on every update (an extended Kalman update) and the heading
     residual is wrapped to [-pi, pi). Its ``likelihood`` is that of this residual, which
     is what :class:`filterpy.kalman.IMMEstimator` compares between intents.
+
+    The reference of the compiled IMM (:func:`cdf_mj.planners.baseline_kernels.imm_step`),
+    which :class:`IMMPlanner` runs unless its ``reference`` is set.
     """
 
     def __init__(self, route: Polyline, dt: float, params: IMMConfig) -> None:
         super().__init__(dim_x=3, dim_z=4)
         self.route = route
         self.window = params.heading_window
-        self.F = np.array([[1.0, dt, 0.5 * dt * dt], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
-        self.Q = Q_discrete_white_noise(dim=3, dt=dt, var=params.accel_change_std ** 2)
-        self.R = np.diag(np.square([params.pos_std, params.pos_std, params.heading_std,
-                                    params.speed_std]))
+        self.F, self.Q, self.R = _imm_model(dt, params)
         self.P = np.diag(np.square(params.init_std))
 
     def measurement(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -355,6 +377,43 @@ class RouteKalmanFilter(KalmanFilter):  # type: ignore[misc]  # filterpy has no 
         super().update(resid + Hj @ np.ravel(self.x), R=R)
 
 
+def _imm_model(dt: float, params: IMMConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(F, Q, R)`` of a route filter: the constant-acceleration motion over ``dt`` [s], its
+    process noise (white jerk: the variance of the acceleration's change over one tick) and
+    the measurement noise of ``[x, y, theta, v]``."""
+    F = np.array([[1.0, dt, 0.5 * dt * dt], [0.0, 1.0, dt], [0.0, 0.0, 1.0]])
+    Q: np.ndarray = Q_discrete_white_noise(dim=3, dt=dt, var=params.accel_change_std ** 2)
+    R = np.diag(np.square([params.pos_std, params.pos_std, params.heading_std, params.speed_std]))
+    return F, Q, R
+
+
+@functools.lru_cache(maxsize=16)
+def _route_table(layout: Layout) -> RouteTable:
+    """The obstacle's routes (left, right) packed for the kernels, cached per layout."""
+    return kern.slope_table(layout.obstacle_routes)
+
+
+class _CompiledIMM:
+    """The state of the compiled IMM (:func:`cdf_mj.planners.baseline_kernels.imm_step`): per
+    intent the route filter's state ``x[i] = [s m, v m/s, a m/s^2]`` and covariance ``P[i]``,
+    the mode probabilities ``mu`` and the IMM's ``cbar``, ``omega`` and ``likelihood``, as the
+    attributes of filterpy's ``IMMEstimator`` and its filters hold them; ``M``, ``F``, ``Q``,
+    ``R`` its models."""
+
+    def __init__(self, x: np.ndarray, P: np.ndarray, mu: np.ndarray, M: np.ndarray,
+                 model: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+        self.x, self.P, self.M = x, P, M
+        self.F, self.Q, self.R = model
+        self.mu = mu
+        self.likelihood = np.zeros(len(mu))
+        # IMMEstimator's _compute_mixing_probabilities, as it does it at its start.
+        self.cbar = np.dot(mu, M)
+        self.omega = np.zeros((len(mu), len(mu)))
+        for i in range(len(mu)):
+            for j in range(len(mu)):
+                self.omega[i, j] = (M[i, j] * mu[i]) / self.cbar[j]
+
+
 class IMMPlanner(DecidingPlanner):
     """Intent-only planner: an IMM over per-intent route filters; brake when
     P(conflict) >= ``threshold``.
@@ -372,6 +431,9 @@ class IMMPlanner(DecidingPlanner):
     (arc length, speed, acceleration, speed capped at ``max_speed``) weighted by P(left)
     is its one hypothesis; it models no yielding, so a left-turner on its way goes on.
 
+    The IMM runs compiled (:func:`cdf_mj.planners.baseline_kernels.imm_step`); with
+    :attr:`reference` set it runs filterpy's ``IMMEstimator`` over :class:`RouteKalmanFilter`.
+
     Args:
         params: filter models, horizon and threshold (default :class:`IMMConfig`).
         risk: run with the risk rule of these parameters instead of the threshold rule.
@@ -379,6 +441,11 @@ class IMMPlanner(DecidingPlanner):
 
     name = "imm"
     history_keys = ("p_left", "p_conflict")
+    #: Run filterpy's ``IMMEstimator`` over :class:`RouteKalmanFilter` and the NumPy paths and
+    #: box tests (the code the compiled IMM was written from: the reference that
+    #: tests/test_baselines_compiled.py holds it to) instead of the compiled IMM. Set it on an
+    #: instance before its ``reset`` (it holds for the episode); the same records, several times slower.
+    reference: bool = False
 
     def __init__(self, params: IMMConfig | Mapping[str, Any] | None = None,
                  risk: RiskConfig | Mapping[str, Any] | None = None,
@@ -398,26 +465,67 @@ class IMMPlanner(DecidingPlanner):
         self._max_speed = p.max_speed
         self._p_left = p.p_left
         self._p_conflict = 0.0
-        self.imm: IMMEstimator | None = None
+        # The kernels' routes and cars (the obstacle's box widened by the margin), buffers of
+        # the measured pose, the ego's pose and the intents' conflicts.
+        self._table = _route_table(layout)
+        self._cars = (kern.car_vector(layout.ego), kern.car_vector(layout.obstacle, p.margin))
+        self._z, self._ego_pose, self._hits = np.zeros(4), np.zeros(4), np.zeros(2)
+        self._reference = bool(self.reference)  # for the whole episode
+        #: The running IMM: filterpy's ``IMMEstimator`` (``reference``) or the compiled IMM's
+        #: state; None before the first measurement.
+        self.imm: Any = None
 
-    def _start(self, obstacle_pose: np.ndarray) -> IMMEstimator:
+    def _start(self, obstacle_pose: np.ndarray) -> Any:
         p = self.params
-        filters = []
-        for intent in (Intent.LEFT, Intent.RIGHT):
-            kf = RouteKalmanFilter(self._routes[intent], self._dt, p)
-            s, _ = kf.route.project(obstacle_pose[:2])
-            kf.x = np.array([[float(s)], [float(obstacle_pose[3])], [0.0]])
-            filters.append(kf)
         # Clip the prior away from 0 and 1 so that the IMM's mixing stays defined.
         prior = min(max(self._p_left, 1e-6), 1 - 1e-6)
         e = p.switch_prob
-        return IMMEstimator(filters, np.array([prior, 1 - prior]), np.array([[1 - e, e], [e, 1 - e]]))
+        M = np.array([[1 - e, e], [e, 1 - e]])
+        if self._reference:
+            filters = []
+            for intent in (Intent.LEFT, Intent.RIGHT):
+                kf = RouteKalmanFilter(self._routes[intent], self._dt, p)
+                s, _ = kf.route.project(obstacle_pose[:2])
+                kf.x = np.array([[float(s)], [float(obstacle_pose[3])], [0.0]])
+                filters.append(kf)
+            return IMMEstimator(filters, np.array([prior, 1 - prior]), M)
+        x = np.zeros((2, 3))
+        for intent in (Intent.LEFT, Intent.RIGHT):
+            s, _ = self._routes[intent].project(obstacle_pose[:2])
+            x[intent] = (float(s), float(obstacle_pose[3]), 0.0)
+        P = np.stack([np.diag(np.square(p.init_std))] * 2)
+        mu = np.array([prior, 1 - prior])
+        return _CompiledIMM(x, P, mu / np.sum(mu), M, _imm_model(self._dt, p))
 
-    def _imm(self) -> IMMEstimator:
+    def _imm(self) -> Any:
         """The running IMM; RuntimeError before the first measurement."""
         if self.imm is None:
             raise RuntimeError("the IMM starts at the first measurement: call brake() first")
         return self.imm
+
+    def _step(self, measured: bool) -> None:
+        """One step of the compiled IMM on the measured pose in ``_z`` (predict only without one)."""
+        m = self.imm
+        t = self._table
+        kern.imm_step(m.x, m.P, m.mu, m.cbar, m.omega, m.likelihood, m.M, m.F, m.Q, m.R, t.table, t.nseg, t.ends,
+                      self._z, measured, self.params.heading_window)
+
+    def estimates(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Copies of the running IMM's per-intent filter states ``(2, 3)`` ``[s m, v m/s, a
+        m/s^2]``, their covariances ``(2, 3, 3)`` and the mode probabilities ``(2,)`` (left,
+        right); RuntimeError before the first measurement."""
+        imm = self._imm()
+        if self._reference:
+            return (np.array([np.ravel(f.x) for f in imm.filters]), np.array([f.P for f in imm.filters]),
+                    np.array(imm.mu, dtype=float))
+        return imm.x.copy(), imm.P.copy(), imm.mu.copy()
+
+    def _state(self, intent: Intent) -> tuple[float, float, float]:
+        """``(s m, v m/s, a m/s^2)`` of this intent's filter."""
+        imm = self._imm()
+        x = np.ravel(imm.filters[int(intent)].x) if self._reference else imm.x[int(intent)]
+        s, v, a = (float(q) for q in x)
+        return s, v, a
 
     @property
     def mode_probabilities(self) -> np.ndarray:
@@ -430,25 +538,37 @@ class IMMPlanner(DecidingPlanner):
     def predicted_path(self, intent: Intent) -> np.ndarray:
         """Poses ``(K, 4)`` of the obstacle over the horizon if it has this intent: its filter's
         state extrapolated along the route at constant acceleration, speed in [0, max_speed]."""
-        kf = self._imm().filters[int(intent)]
-        s, v, a = (float(q) for q in np.ravel(kf.x))
+        s, v, a = self._state(intent)
+        if not self._reference:
+            t = self._table
+            return kern.route_path(t.table, t.nseg, t.ends, int(intent), s, v, a,
+                                   self._times, self._dt, self._max_speed, self.params.heading_window)
+        route = self._routes[intent]
         speed = np.clip(v + a * self._times, 0.0, self._max_speed)
         arc = s + np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * self._dt)])
-        xy = kf.route.point_at(arc)
+        xy = route.point_at(arc)
         out = np.empty((len(arc), 4))
         out[:, :2] = xy
-        out[:, 2] = route_heading(kf.route, arc, self.params.heading_window)
+        out[:, 2] = route_heading(route, arc, self.params.heading_window)
         out[:, 3] = speed
         return out
 
     def conflict_probability(self, ego_pose: np.ndarray) -> float:
         """P(conflict within the horizon) = sum over intents of P(intent) x conflict(intent)."""
-        ego_path = straight_path(ego_pose, self._times)
+        mus = self._imm().mu
+        if self._reference:
+            ego_path = straight_path(ego_pose, self._times)
+            hits = [first_conflict(self._ego, self._obstacle, ego_path, self.predicted_path(intent),
+                                   self.params.margin, self._dt) is not None for intent in (Intent.LEFT, Intent.RIGHT)]
+        else:
+            self._ego_pose[:] = ego_pose
+            t = self._table
+            kern.imm_conflicts(self.imm.x, t.table, t.nseg, t.ends, self._ego_pose, self._times, self._dt,
+                               self._max_speed, self.params.heading_window, *self._cars, self._hits)
+            hits = [bool(h) for h in self._hits]
         total = 0.0
-        for intent, mu in zip((Intent.LEFT, Intent.RIGHT), self._imm().mu, strict=True):
-            hit = first_conflict(self._ego, self._obstacle, ego_path, self.predicted_path(intent),
-                                 self.params.margin, self._dt)
-            total += float(mu) if hit is not None else 0.0
+        for mu, hit in zip(mus, hits, strict=True):
+            total += float(mu) if hit else 0.0
         return min(max(total, 0.0), 1.0)
 
     def observe(self, obs: PlannerInput) -> None:
@@ -461,10 +581,14 @@ class IMMPlanner(DecidingPlanner):
                 self.record(obs.t, p_left=self._p_left, p_conflict=0.0)
                 return
             self.imm = self._start(z)
-        else:
+        elif self._reference:
             self.imm.predict()
             if measured:  # a missing measurement (a dropout): prediction only
                 self.imm.update(z)
+        else:
+            if measured:
+                self._z[:] = z
+            self._step(measured)
         self._p_conflict = self.conflict_probability(obs.poses[0])
         self.record(obs.t, p_left=self.imm.mu[Intent.LEFT], p_conflict=self._p_conflict)
 
@@ -477,11 +601,10 @@ class IMMPlanner(DecidingPlanner):
         the first measurement of the obstacle."""
         if self.imm is None:
             return Futures.empty()
-        kf = self._imm().filters[int(Intent.LEFT)]
-        s, v, a = (float(q) for q in np.ravel(kf.x))
-        one = np.ones(1)
-        return Futures(weight=one * float(self._imm().mu[Intent.LEFT]), s=one * s, v=one * max(v, 0.0),
-                       accel=one * a, v_max=one * self._max_speed, delay=np.zeros(1))
+        s, v, a = self._state(Intent.LEFT)
+        return Futures(weight=np.array([float(self._imm().mu[Intent.LEFT])]), s=np.array([s]),
+                       v=np.array([max(v, 0.0)]), accel=np.array([a]), v_max=np.array([float(self._max_speed)]),
+                       delay=np.zeros(1))
 
 
 class IMMLayeredPlanner(IMMPlanner):

@@ -41,6 +41,7 @@ import copy
 import dataclasses
 import math
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -146,6 +147,7 @@ class RiskRule:
                              f"config, {2 * half / CarGeometry.ours().width:.2g}): its width / our car's)")
         self.map: ConflictMap = conflict_map(layout, cfg.margin)
         self._layout = layout
+        self._path_packed: tuple[Any, ...] | None = None  # what _path_masses packs, at its first call
         self._dt = dt
         self._steps = max(1, math.ceil(cfg.horizon / dt - 1e-9))
         self._defer = 1 + math.ceil(cfg.latency / dt - 1e-9)
@@ -185,18 +187,30 @@ class RiskRule:
                           inside=self.map.inside(q), go=_unit(m[_GOES].sum()) if exact else math.nan)
 
     def _path_masses(self, plans: np.ndarray, path: np.ndarray) -> np.ndarray:
-        """:func:`collision_masses` for one predicted obstacle path ``(K', 4)`` at ticks 1..K'."""
+        """:func:`collision_masses` for one predicted obstacle path ``(K', 4)`` at ticks 1..K':
+        1 at the bit mask of the plans whose ego box (on :func:`route_poses` of its arc
+        lengths) overlaps the obstacle's at one of the ticks, both widened by the margin;
+        one compiled call (:func:`cdf_mj.planners.baseline_kernels.path_mask`), its route
+        and cars packed at the first call after :meth:`reset`."""
+        from cdf_mj.planners import baseline_kernels as kern  # only cv-risk and cv-layered come here
+
         k = min(len(path), plans.shape[1])
         out = np.zeros(1 << len(plans))
         if k == 0:
             return out
         lay, margin = self._layout, self.config.margin
-        obstacle = widened(lay.obstacle, margin).footprint(path[:k])
-        ego_car = widened(lay.ego, margin)
-        mask = 0
-        for p, q in enumerate(plans[:, :k]):
-            if boxes_overlap(ego_car.footprint(route_poses(lay.route_ego, q, self.map.window)), obstacle).any():
-                mask |= 1 << p
+        packed = self._path_packed
+        if packed is None:  # once per reset: the ego's route and both widened cars as arrays
+            route = lay.route_ego
+            last = route.points[-1] - route.points[-2]
+            last = last / np.hypot(*last)
+            packed = self._path_packed = (kern.slope_table((route,)), last, math.atan2(last[1], last[0]),
+                                          kern.car_vector(widened(lay.ego, margin)),
+                                          kern.car_vector(widened(lay.obstacle, margin)))
+        table, last, heading, ego_car, obstacle_car = packed
+        mask = kern.path_mask(np.ascontiguousarray(plans, dtype=np.float64),
+                              np.ascontiguousarray(path, dtype=np.float64), k, table.table, table.nseg, table.ends,
+                              last, heading, self.map.window, ego_car, obstacle_car)
         out[mask] = 1.0
         return out
 
