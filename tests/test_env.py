@@ -137,6 +137,51 @@ def test_out_of_range_actions_are_clipped_and_bad_ones_refused(scene):
     assert applied[0][0] == scene.layout().ego.accel_range[0] == -4.877
 
 
+@pytest.mark.parametrize("normalized", [False, True])
+def test_the_action_space_samples_what_gymnasiums_box_samples(scene, normalized):
+    env = cdf_mj.TIntersectionEnv(scene=scene, run_filter=False, label=False, normalized_actions=normalized)
+    box = gym.spaces.Box(env.action_space.low, env.action_space.high, dtype=np.float32)
+    assert isinstance(env.action_space, gym.spaces.Box) and env.action_space == box
+    env.action_space.seed(11)
+    box.seed(11)
+    for _ in range(500):
+        ours, theirs = env.action_space.sample(), box.sample()
+        assert ours.dtype == theirs.dtype == np.float32 and ours.shape == theirs.shape == (2,)
+        assert ours.tobytes() == theirs.tobytes()
+    assert env.action_space.np_random.bit_generator.state == box.np_random.bit_generator.state
+    with pytest.raises(gym.error.Error, match="mask"):
+        env.action_space.sample(mask=np.ones(2))
+
+
+def test_an_action_steps_the_same_whatever_holds_it(scene):
+    """A float64 or float32 array, a strided view, a list, a tuple: the same steps; a
+    non-finite one is refused in any of them, before anything is stepped."""
+    forms = (np.array, lambda v: np.array(v, dtype=np.float32), lambda v: np.c_[v, v][:, 0], list, tuple)
+    results = []
+    for form in forms:
+        env = cdf_mj.TIntersectionEnv(scene=scene, run_filter=False, label=False)
+        env.reset(seed=4)
+        with pytest.raises(ValueError, match="action must be 2 finite numbers"):
+            env.step(form([np.inf, 0.0]))
+        assert env.world.t == 0.0
+        steps = [env.step(form([1.5, -0.125])) for _ in range(3)]
+        results.append([(o.tobytes(), r, te, tr, sorted(info.items())) for o, r, te, tr, info in steps])
+    assert all(r == results[0] for r in results[1:])
+
+
+def test_an_observation_is_a_new_array_clipped_to_its_box(scene):
+    env = cdf_mj.TIntersectionEnv(scene=scene, run_filter=False, label=False)
+    env.reset(seed=1)
+    poses = env.world.measure().poses
+    obs = env._observation(poses)
+    assert not np.shares_memory(obs, poses)
+    np.testing.assert_array_equal(obs, poses.reshape(8))
+    far = poses.copy()
+    far[0, 3], far[1, 0] = 1e3, -1e9  # a speed kicked past its bound, a car far off
+    box = env.observation_space
+    np.testing.assert_array_equal(env._observation(far), np.clip(far.reshape(8), box.low, box.high))
+
+
 @pytest.mark.parametrize("penalty", [float("nan"), float("inf"), -1.0, 1e300, "100", True])
 def test_a_collision_penalty_that_is_not_a_bounded_number_is_refused(scene, penalty):
     with pytest.raises(ValueError, match=r"collision_penalty=.*must be a finite number in \[0, 1e\+06\]"):

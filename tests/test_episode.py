@@ -88,6 +88,36 @@ def test_nan_pose_raises_a_clear_error(scene):
         run_episode(seed=0, planner=_Corrupting(scene), scene=scene, label=False)
 
 
+@pytest.mark.parametrize("car", ["ego", "obstacle"])
+@pytest.mark.parametrize(("kind", "i", "bad"), [("qpos", 0, math.nan), ("qpos", 1, math.inf), ("qpos", 2, math.nan),
+                                               ("qvel", 0, -math.inf), ("qvel", 1, math.nan)])
+def test_a_non_finite_pose_entry_is_refused_and_huge_finite_ones_are_not(scene, car, kind, i, bad):
+    from cdf_mj.scenario.world import World
+
+    world = World(scene)
+    world.reset(3)
+    world.step(np.zeros(2))
+    getattr(scene.data, kind)[getattr(scene.car(car), kind)[i]] = bad
+    with pytest.raises(NonFiniteStateError, match=r"non-finite system pose at t=0\.1 s"):
+        world.measure()
+    world.reset(3)
+    world.step(np.zeros(2))
+    scene.data.qpos[scene.ego.qpos[0]] = scene.data.qpos[scene.obstacle.qpos[0]] = 1e308  # their sum overflows
+    assert world.measure().poses[:, 0].tolist() == [1e308, 1e308]
+
+
+def test_world_ticks_the_same_whatever_holds_the_ego_controls(scene):
+    from cdf_mj.scenario.world import World
+
+    runs = []
+    for form in (np.array, lambda v: np.array(v, dtype=np.float32), lambda v: np.c_[v, v][:, 0], list, tuple):
+        world = World(scene)
+        world.reset(9)
+        ticks = [world.step(form([0.75, 0.03125])) for _ in range(12)]
+        runs.append(([(t.poses.tolist(), t.mode, t.gap, t.belief.tolist()) for t in ticks], scene.data.qpos.tolist()))
+    assert all(r == runs[0] for r in runs[1:])
+
+
 @pytest.mark.parametrize(("field", "value", "fragment"), [
     ("obstacle.beta", 1.5, "in [0, 1]"),
     ("obstacle.beta", float("nan"), "in [0, 1]"),

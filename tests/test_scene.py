@@ -414,3 +414,44 @@ def test_car_dimensions(scene: Scene):
         np.testing.assert_allclose(corners[:, 0].min(), -0.95, atol=1e-9)
         np.testing.assert_allclose(corners[:, 0].max(), 3.65, atol=1e-9)
         assert car.eye(np.zeros((3, 4))).shape == (3, 3)
+
+
+def _pose_of(scene: Scene, car) -> list[float]:
+    """A car's pose by the formula of Scene.pose, from its own joints (a copy of the Car:
+    not the scene's own object, so none of its kept views)."""
+    return scene._pose(dataclasses.replace(car))
+
+
+@pytest.mark.parametrize("span", [64, 0])  # one slice of both cars' joints; a gather of them
+def test_both_poses_of_one_read_are_each_cars_own(scene: Scene, span: int, monkeypatch):
+    import cdf_mj.sim.scene as scene_module
+
+    monkeypatch.setattr(scene_module, "_SPAN", span)
+    scene._bound = None  # views made again with this span
+    try:
+        scene.reset(ego=np.array([-30.0, -1.85, 0.3, 10.0]), obstacle=scene.layout().obstacle_start)
+        scene.set_controls("ego", 1.0, 0.2)
+        scene.set_controls("obstacle", 2.0, -0.3)
+        scene.step(37)
+        want = [_pose_of(scene, scene.ego), _pose_of(scene, scene.obstacle)]
+        assert scene.poses().tolist() == want  # the same operations: the same floats
+        assert scene.pose(scene.ego).tolist() == want[0] and scene.pose(scene.obstacle).tolist() == want[1]
+    finally:
+        scene._bound = None
+
+
+def test_a_scene_reads_and_drives_the_data_it_holds_now(scene: Scene):
+    """Scene keeps views of its MjData's arrays; given another MjData it reads and commands that one."""
+    first = scene.data
+    scene.reset(ego=np.array([-30.0, -1.85, 0.0, 10.0]), obstacle=scene.layout().obstacle_start)
+    moved = scene.poses()
+    other = mujoco.MjData(scene.model)  # every car at qpos0
+    try:
+        scene.data = other
+        assert scene.poses().tolist() != moved.tolist()
+        assert scene.poses().tolist() == [_pose_of(scene, scene.ego), _pose_of(scene, scene.obstacle)]
+        scene.set_controls("ego", 1.5, 0.1)
+        assert other.ctrl[scene.ego.accel] == 1.5 and first.ctrl[scene.ego.accel] == 0.0
+    finally:
+        scene.data = first
+    np.testing.assert_array_equal(scene.poses(), moved)

@@ -52,6 +52,23 @@ _FREE_VIEW = 70.0  # [m] what the free camera over the junction shows, top to bo
 _MAX_PENALTY = 1e6
 
 
+class _ActionBox(spaces.Box):
+    """The action space: a bounded float32 :class:`gymnasium.spaces.Box` whose :meth:`sample`
+    draws what ``Box.sample`` draws (one uniform per entry, from ``low`` to ``high``, from
+    the same ``np_random`` stream), on Python floats instead of its masks and fancy
+    indexing: about 3 µs instead of 18."""
+
+    def sample(self, mask: None = None, probability: None = None) -> np.ndarray:
+        """A uniform sample of the box (``Box.sample``'s values); masks are refused as there."""
+        if mask is not None or probability is not None:
+            return super().sample(mask, probability)
+        # Generator.uniform(low, high) is low + (high - low) * random(), in float64: the same
+        # operations on Python floats.
+        low, high = self.low.tolist(), self.high.tolist()
+        u = self.np_random.random(len(low)).tolist()
+        return np.array([lo + (hi - lo) * x for lo, hi, x in zip(low, high, u, strict=True)], dtype=self.dtype)
+
+
 class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
     """The ego car at the T-intersection, with the obstacle driver of the CDF scenario.
 
@@ -225,15 +242,20 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         self._ctrl_high = np.array([ego.accel_range[1], ego.steer_range[1]])
         self.normalized_actions = normalized_actions
         if normalized_actions:
-            self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+            self.action_space = _ActionBox(-1.0, 1.0, shape=(2,), dtype=np.float32)
         else:
-            self.action_space = spaces.Box(self._ctrl_low.astype(np.float32),
+            self.action_space = _ActionBox(self._ctrl_low.astype(np.float32),
                                            self._ctrl_high.astype(np.float32), dtype=np.float32)
+        # The action's bounds and the observation's as Python floats (checked every step).
+        self._ctrl_py = (*self._ctrl_low.tolist(), *self._ctrl_high.tolist(),
+                         *(self._ctrl_high - self._ctrl_low).tolist())
         self._obs_box = self._observation_box()
+        self._obs_bounds = tuple(zip(self._obs_box.low.tolist(), self._obs_box.high.tolist(), strict=True))
         self.observation_space = self._obs_box
         self._monitor: CDFMonitor | None = None
         self._label: str | None = None
         self._episode_seed: int | None = None
+        self._intent_name = ""
 
     # ------------------------------------------------------------------ gymnasium API
     def reset(self, *, seed: int | None = None,
@@ -246,11 +268,12 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         self._episode_seed = episode_seed
         self._label = episode_label(self.config, episode_seed, self.scene) if self.label else None
         m = self.world.reset(episode_seed)
+        self._intent_name = Intent(self.world.intent).name.lower()
         self._monitor = None
-        if self.run_filter:
+        if self.run_filter:  # its trace is not kept: nothing reads it
             self._monitor = CDFMonitor(self.scene, self.config, self.cdf,
-                                       rng=self.world.rng["planner"])
-            self._monitor.step()
+                                       rng=self.world.rng["planner"], record_trace=False)
+            self._observe(m.poses)
         self._s = self._progress(m.poses[0])
         return self._observation(m.poses), self._info(m.obstacle_in_lane, gap=None)
 
@@ -258,22 +281,29 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         """Apply the ego's ``[acceleration m/s^2, steering rad]`` for one tick of ``dt``."""
         if self._episode_seed is None:
             raise RuntimeError("call reset() before step()")
-        a = np.asarray(action, dtype=float)
-        if a.shape != (2,) or not np.all(np.isfinite(a)):
+        # Two floats: an array of two floats directly (the per-step call), anything else as
+        # NumPy reads it; then every check on those two numbers.
+        if type(action) is np.ndarray and action.shape == (2,) and action.dtype.char in "fd":
+            a0, a1 = action.tolist()
+        else:
+            a = np.asarray(action, dtype=float)
+            a0, a1 = a.tolist() if a.shape == (2,) else (math.nan, math.nan)
+        if not (math.isfinite(a0) and math.isfinite(a1)):
             raise ValueError(f"action must be 2 finite numbers [acceleration m/s^2, steering "
                              f"rad], got {np.asarray(action).tolist()!r}")
+        lo0, lo1, hi0, hi1, w0, w1 = self._ctrl_py
         if self.normalized_actions:  # [-1, 1] -> [ctrl low, ctrl high], affinely
-            a = np.clip(a, -1.0, 1.0)
-            a = self._ctrl_low + 0.5 * (a + 1.0) * (self._ctrl_high - self._ctrl_low)
+            a0, a1 = min(max(a0, -1.0), 1.0), min(max(a1, -1.0), 1.0)
+            a0, a1 = lo0 + 0.5 * (a0 + 1.0) * w0, lo1 + 0.5 * (a1 + 1.0) * w1
         else:  # the model's own limits in float64 (the float32 box would round -4.877 to -4.87699985)
-            a = np.clip(a, self._ctrl_low, self._ctrl_high)
+            a0, a1 = min(max(a0, lo0), hi0), min(max(a1, lo1), hi1)
         world = self.world
-        tick = world.step(a)
+        tick = world.step(np.array([a0, a1]))
         m = world.measure() if tick.collision is None else None
         poses = m.poses if m is not None else self.scene.poses()
         if self._monitor is not None and tick.collision is None:
-            self._monitor.step()
-        s = self._progress(poses[0])
+            self._observe(poses)
+        s = world.ego_arc  # the ego's progress along its route, as _progress(poses[0]) gives it
         reward = (s - self._s) / (self.config.ego.speed * self.config.timing.dt)
         self._s = s
         if tick.collision is not None:
@@ -350,12 +380,25 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
             low, high = np.r_[low, -ego.max_brake], np.r_[high, ego.max_accel]
         return spaces.Box(low=low, high=high, dtype=np.float64)
 
+    def _observe(self, poses: np.ndarray) -> None:
+        """The filter's tick on the poses just measured (what ``CDFMonitor.step`` reads from the
+        scene: the simulated time and ``Scene.poses()``, already at hand)."""
+        assert self._monitor is not None
+        self._monitor.observe(float(self.scene.data.time), poses[0], poses[1])
+
     def _progress(self, ego_pose: np.ndarray) -> float:
         return float(self.world.layout.route_ego.project(ego_pose[:2])[0])
 
     def _observation(self, poses: np.ndarray) -> np.ndarray:
         obs = poses.reshape(8)
-        if self.posterior_in_observation or self.command_in_observation:
+        if not (self.posterior_in_observation or self.command_in_observation):
+            # Within the box (every step but a contact's kick), clipping changes nothing.
+            for v, (lo, hi) in zip(obs.tolist(), self._obs_bounds, strict=True):
+                if not lo <= v <= hi:
+                    break
+            else:
+                return obs.copy()
+        else:
             decision = self._monitor.decision if self._monitor is not None else None
             if decision is None:
                 raise RuntimeError("the CDF monitor has not run: call reset() first")
@@ -375,6 +418,6 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
                 "brake": bool(d.brake) if d is not None else False,
                 "accel": float(d.accel) if d is not None else None,
                 "collision": collision, "label": self._label,
-                "intent": Intent(w.intent).name.lower(), "t": w.end_time,
+                "intent": self._intent_name, "t": w.end_time,
                 "obstacle_in_lane": bool(in_lane), "gap": gap,
                 "episode_seed": self._episode_seed}

@@ -165,6 +165,8 @@ class CarGeometry:
                 object.__setattr__(self, name, pair)
         if bad:
             raise ValueError(f"CarGeometry: {'; '.join(bad)}")
+        # The box as Python floats for footprint_one (read every tick; the arrays are read-only).
+        object.__setattr__(self, "_hull_floats", (*self.hull_offset.tolist(), *self.hull_half.tolist()))
 
     @classmethod
     def ours(cls) -> CarGeometry:
@@ -239,9 +241,8 @@ class CarGeometry:
         floats (the same operations, so the same values, without NumPy's per-call
         overhead: the per-tick calls on one car): four corners ``(x, y)`` [m]."""
         c, s = math.cos(theta), math.sin(theta)
-        ox, oy = float(self.hull_offset[0]), float(self.hull_offset[1])
-        return box_corners_one(x + c * ox - s * oy, y + s * ox + c * oy, c, s, float(self.hull_half[0]),
-                               float(self.hull_half[1]))
+        ox, oy, hx, hy = self.__dict__["_hull_floats"]  # kept by __post_init__
+        return box_corners_one(x + c * ox - s * oy, y + s * ox + c * oy, c, s, hx, hy)
 
     def eye(self, pose: np.ndarray | Sequence[float]) -> np.ndarray:
         """World position(s) ``(..., 3)`` [m] of the driver's eye for pose(s) ``(..., 4)``

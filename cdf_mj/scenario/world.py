@@ -21,9 +21,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from cdf_mj.config import ScenarioConfig, check_seed
+from cdf_mj.model import kernels
 from cdf_mj.model.conflict import right_turn_overlap
-from cdf_mj.model.driver import DriverModel, Intent, Mode, obstacle_control, road_clear, update_belief
-from cdf_mj.model.following import follow_accel, in_lane_ahead
+from cdf_mj.model.driver import DriverModel, Intent, Mode, road_clear
+from cdf_mj.model.following import FOLLOW_HEADING, follow_accel, in_lane_ahead
 from cdf_mj.model.geometry import box_gap
 from cdf_mj.scenario.after_merge import AfterMergeOverride
 from cdf_mj.scenario.drivers import WorldDriver, make_driver
@@ -36,6 +37,12 @@ __all__ = ["Measurement", "NonFiniteStateError", "Tick", "World"]
 
 _HELD_BACK = frozenset((int(Mode.YIELDING), int(Mode.WAITING)))  # plain ints: a cheap test per tick
 _MOVING = frozenset((int(Mode.GOING), int(Mode.COMMITTED)))
+_GOING, _WAITING, _YIELDING = int(Mode.GOING), int(Mode.WAITING), int(Mode.YIELDING)
+#: Below this cosine of the two cars' heading difference the obstacle follows no ego
+#: (:func:`cdf_mj.model.following.ahead_in_lane`'s first test, the same expression).
+_FOLLOW_COS = math.cos(FOLLOW_HEADING) - 1e-12
+#: The per-car traits of a driver's parameter row that :func:`cdf_mj.model.kernels.control` takes, in its order.
+_CONTROL_TRAITS = (kernels.P_ACCEL, kernels.P_TURN, kernels.P_YIELD, kernels.P_GAP, kernels.P_CLEAR)
 
 
 class NonFiniteStateError(FloatingPointError):
@@ -136,6 +143,11 @@ class World:
         seen = config.observation
         self._obs_std = np.array([seen.pos, seen.pos, seen.heading, seen.speed])
         self._nu_std = np.array([config.noise.accel, config.noise.steer])
+        # The same as Python floats (the per-tick products on floats: the same values).
+        self._obs_std_py: list[float] = self._obs_std.tolist()
+        self._nu_std_py: list[float] = self._nu_std.tolist()
+        self._dt = config.timing.dt
+        self._control_of: DriverModel | None = None  # the driver whose kernel arguments are kept
         self._s0 = layout.route_ego.project(layout.ego_start[:2])[0]
         self._s_conflict = layout.route_ego.project(layout.conflict)[0]
         lo, hi = config.ego.start_spread
@@ -206,6 +218,8 @@ class World:
         self._belief = np.zeros((1, 4))
         self._has_belief = np.zeros(1, dtype=bool)
         self._intents = np.array([int(self.intent)])
+        # The per-tick draws' streams, looked up once (the same Generators as in rng).
+        self._draws = (rng["obstacle"], rng["ego"], rng["departure"])
         self.first_seen: float | None = None
         self.departed: float | None = None
         self.yielded = False
@@ -221,12 +235,22 @@ class World:
         self.label_time: float | None = None  # [s] when that outcome was decided
         self._k = 0
         self._measured: Measurement | None = None
+        self._ego_arc: float | None = None  # [m] kept by step()
         return self.measure()
 
     @property
     def t(self) -> float:
         """[s] episode time at the start of the current tick."""
         return round(self._k * self.config.timing.dt, 6)
+
+    @property
+    def ego_arc(self) -> float:
+        """[m] the ego's arc length along its route now (its rear axle projected on it): kept
+        by :meth:`step`, which needs it for the episode's end."""
+        if self._ego_arc is None:
+            x, y = self.scene.pose_values()[0][:2]
+            self._ego_arc = self.layout.route_ego.project_point(x, y)[0]
+        return self._ego_arc
 
     @property
     def end_time(self) -> float:
@@ -246,17 +270,20 @@ class World:
         and whether the obstacle is in the ego lane. NonFiniteStateError on a NaN pose."""
         if self._measured is not None:
             return self._measured
-        scene = self.scene
-        poses = scene.poses()
-        (ex, ey, eth, _), (ox, oy, oth, _) = values = poses.tolist()
-        if not all(math.isfinite(v) for v in (*values[0], *values[1])):
+        values = self.scene.pose_values()
+        (ex, ey, eth, ev), (ox, oy, oth, ov) = values
+        # One sum is finite exactly when every value is, bar an overflow of huge values: the
+        # value-by-value test decides then.
+        if not math.isfinite(ex + ey + eth + ev + ox + oy + oth + ov) and \
+                not all(math.isfinite(v) for v in (*values[0], *values[1])):
             raise NonFiniteStateError(f"non-finite system pose at t={self.t:.1f} s "
                                       f"(seed {self.seed}): {values}")
         # Both collision boxes: the obstacle's for the lane test, both for the gap in step().
         self._hull = self.layout.obstacle.footprint_one(ox, oy, oth)
         self._ego_hull = self.layout.ego.footprint_one(ex, ey, eth)
+        self._values = values
         in_lane = self.layout.ego_lane.contains_any(self._hull)
-        self._measured = Measurement(t=self.t, poses=poses, obstacle_in_lane=in_lane)
+        self._measured = Measurement(t=round(self._k * self._dt, 6), poses=np.array(values), obstacle_in_lane=in_lane)
         return self._measured
 
     def step(self, ego_controls: np.ndarray) -> Tick:
@@ -267,19 +294,33 @@ class World:
         """
         if self.done:
             raise RuntimeError("the episode is over: call reset(seed) before step()")
-        scene, rng, layout = self.scene, self.rng, self.layout
-        behaviour = self.config.obstacle
+        scene, layout = self.scene, self.layout
+        config = self.config
+        behaviour = config.obstacle
         m = self.measure()
         t, poses = m.t, m.poses
         ego, obs = poses[0], poses[1]
-        dt = self.config.timing.dt
+        ego_v, obs_v = self._values  # the same poses as Python floats
+        dt = self._dt
+        # The ego's controls as two floats: an array of two (the per-tick call) directly, anything
+        # else as NumPy takes it (whose errors are then NumPy's, as they were).
+        if type(ego_controls) is np.ndarray and ego_controls.shape == (2,) and ego_controls.dtype.kind == "f":
+            ego_u: list[float] | None = ego_controls.tolist()
+        else:
+            ego_u = None
 
-        # The obstacle looks (draws are made every tick, whatever is visible: CRN).
-        u_look = rng["obstacle"].random()
-        noise = rng["obstacle"].standard_normal(4) * self._obs_std
-        nu1 = rng["obstacle"].standard_normal(2) * self._nu_std
-        nu2 = rng["ego"].standard_normal(2) * self._nu_std
-        u_depart = rng["departure"].random()
+        # The obstacle looks (draws are made every tick, whatever is visible: CRN). Drawn as
+        # before: uniform, 4 observation normals, 2 control normals from "obstacle" (one call
+        # of 6 normals gives the same numbers as calls of 4 and 2), 2 from "ego", a uniform
+        # from "departure".
+        g_obstacle, g_ego, g_departure = self._draws
+        u_look = g_obstacle.random()
+        z = g_obstacle.standard_normal(6).tolist()
+        z_ego = g_ego.standard_normal(2).tolist()
+        u_depart = g_departure.random()
+        sa, ss = self._nu_std_py
+        nu1 = (z[4] * sa, z[5] * ss)
+        nu2 = (z_ego[0] * sa, z_ego[1] * ss)
         visible: bool | None = None  # the line of sight, cast at most once a tick
 
         def sees_ego() -> bool:
@@ -289,60 +330,86 @@ class World:
                 visible = ego_visible(scene, obs, ego)
             return visible
 
+        def observe() -> None:
+            # update_belief of one driver that observed: the ego's pose with the observation noise.
+            std = self._obs_std_py
+            self._belief[0] = [ego_v[0] + z[0] * std[0], ego_v[1] + z[1] * std[1], ego_v[2] + z[2] * std[2],
+                               ego_v[3] + z[3] * std[3]]
+            self._has_belief[0] = True
+
         if self.family is None:  # the traits' state machine, the filter's own model
             observed = bool(u_look < behaviour.beta) and sees_ego()
-            self._belief, self._has_belief = update_belief(
-                self._belief, self._has_belief, np.array([observed]), (ego + noise)[None], dt,
-                layout.obstacle.wheelbase)
-            if (self.hesitates and self.hesitated is None and int(self._mode[0]) == Mode.GOING
-                    and math.dist(obs[:2], self._line) >= behaviour.hesitation_creep):
+            # The belief update g(B, O) of one driver (update_belief's: the observation, else
+            # dead reckoning of a belief held), in place: self._belief is this world's own.
+            if observed:
+                observe()
+            elif self._has_belief[0]:
+                kernels.dead_reckon(self._belief, 0, float(dt))
+            mode = int(self._mode[0])
+            if (self.hesitates and self.hesitated is None and mode == _GOING
+                    and math.dist(obs_v[:2], self._line.tolist()) >= behaviour.hesitation_creep):
                 # It has nosed out and stops again: it stands its pause, then may go on.
                 self.hesitated = t
-                self._mode[0] = Mode.WAITING
+                self._mode[0] = mode = _WAITING
                 self._go_after = t + self.hesitation_pause
             may_go = t >= self._go_after - 1e-9
             if (not observed and may_go and u_depart < behaviour.departure_look
-                    and int(self._mode[0]) == Mode.WAITING
+                    and mode == _WAITING
                     and road_clear(self.driver, self._belief, self._has_belief, self._intents)[0]
                     and sees_ego()):
                 # It would leave now: it looks once more, and sees the ego.
                 observed = True
-                self._belief, self._has_belief = update_belief(
-                    self._belief, self._has_belief, np.array([True]), (ego + noise)[None], dt,
-                    layout.obstacle.wheelbase)
+                observe()
             if observed and self.first_seen is None:
                 self.first_seen = t
 
-            # The obstacle decides.
-            u1, self._mode = obstacle_control(self.driver, obs[None], self._mode, self._belief,
-                                              self._has_belief, self._intents, may_go=may_go)
-            mode = int(self._mode[0])
+            # The obstacle decides (obstacle_control of one car: its kernel, from the full
+            # route search, with this tick's pose, mode and belief).
+            drv = self.driver
+            if drv is not self._control_of:
+                row = drv.param_rows(1)[0].tolist()
+                self._control_args = tuple(row[i] for i in _CONTROL_TRAITS)
+                self._control_of = drv
+            tab = drv.table
+            bx, by, bth, bv = self._belief[0].tolist()
+            a1, steer1, mode, _ = kernels.control(tab.table, tab.nseg, tab.ends, drv.cfg, int(self._intents[0]),
+                                                  obs_v[0], obs_v[1], obs_v[2], obs_v[3], -1, mode,
+                                                  bool(self._has_belief[0]), bx, by, bth, bv, may_go,
+                                                  *self._control_args)
+            self._mode[0] = mode  # this world's own array (obstacle_control returned a new one)
         else:  # a driver written apart from it: it looks whenever it looks, and acts on what it sees
             observed = self.family.looking and sees_ego()
             if observed and self.first_seen is None:
                 self.first_seen = t
             a1, steer1 = self.family.control(t, obs, ego if observed else None, dt)
-            u1, mode, may_go = np.array([[a1, steer1]]), int(self.family.mode), True
+            a1 = float(np.float64(a1))  # what it was as an entry of the (1, 2) controls array
+            steer1 = float(np.float64(steer1))
+            mode, may_go = int(self.family.mode), True
         # Once in the ego's lane, what it does next is the world's option (keep by default),
         # and behind the ego it keeps its distance (after_merge.follows).
-        u1[0, 0] = self.after_merge.accel(t, obs, m.obstacle_in_lane, float(u1[0, 0]))
-        if self.config.after_merge.follows:
-            behind = follow_accel(layout, layout.obstacle, obs, layout.ego, ego, self.config.ego)
+        a1 = float(self.after_merge.accel(t, obs, m.obstacle_in_lane, a1))
+        # follow_accel is None unless the ego is ahead in the lane heading the obstacle's way
+        # (ahead_in_lane): its first test here, on the floats, spares the call on most ticks.
+        if config.after_merge.follows and math.cos(ego_v[2] - obs_v[2]) >= _FOLLOW_COS:
+            behind = follow_accel(layout, layout.obstacle, obs, layout.ego, ego, config.ego)
             if behind is not None:
-                u1[0, 0] = min(float(u1[0, 0]), behind)
+                a1 = float(min(a1, behind))
         if mode in _MOVING and self.departed is None:
             self.departed = t
         # Held back by what it believes: braking to yield, or still waiting once its dwell
         # is over (waiting out the dwell itself is not yielding).
-        self.yielded |= mode in _HELD_BACK and (may_go or mode != Mode.WAITING) if self.family is None \
-            else mode == Mode.YIELDING
+        self.yielded |= mode in _HELD_BACK and (may_go or mode != _WAITING) if self.family is None \
+            else mode == _YIELDING
         if m.obstacle_in_lane and self.entered_lane is None:
             self.entered_lane = t
         gap = box_gap(self._ego_hull, self._hull)
         self.min_gap = min(self.min_gap, gap)
 
-        scene.set_controls("obstacle", *(u1[0] + nu1))
-        scene.set_controls("ego", *(np.asarray(ego_controls, dtype=float) + nu2))
+        if ego_u is None:  # as NumPy adds them (and refuses what it cannot)
+            scene.set_controls("obstacle", a1 + nu1[0], steer1 + nu1[1])
+            scene.set_controls("ego", *(np.asarray(ego_controls, dtype=float) + np.array(nu2)))
+        else:
+            scene.drive(ego_u[0] + nu2[0], ego_u[1] + nu2[1], a1 + nu1[0], steer1 + nu1[1])
         self._measured = None
         try:
             hit = scene.step(self.n_sub)
@@ -351,8 +418,10 @@ class World:
             raise NonFiniteStateError(f"non-finite system pose between t={t:.1f} s and "
                                       f"t={t + dt:.1f} s (seed {self.seed}): {exc}") from None
         self._k += 1
-        timing = self.config.timing
-        past = layout.route_ego.project_point(*scene.pose(scene.ego)[:2].tolist())[0] - self._s_conflict
+        timing = config.timing
+        ex, ey = scene.pose_values()[0][:2]
+        self._ego_arc = s_ego = layout.route_ego.project_point(ex, ey)[0]
+        past = s_ego - self._s_conflict
         if hit is not None:
             self.collision = hit
             self.collision_time = self.end_time
@@ -363,7 +432,7 @@ class World:
         # is ahead of it in its lane): nothing more can happen to it.
         elif past > timing.end_distance and not (timing.until_clear and self.car_ahead()):
             self.end_reason = "passed"
-        elif self._k >= self.config.n_ticks:
+        elif self._k >= config.n_ticks:
             self.end_reason = "duration"
         if self.label_outcome is None and (hit == "obstacle" or past > timing.label_distance):
             self.label_outcome, self.label_time = hit == "obstacle", self.end_time

@@ -39,6 +39,9 @@ __all__ = ["DEFAULT_SCENE", "Car", "Scene", "SceneError", "SimulationDivergedErr
 # Where data.warning counts MuJoCo's "unstable simulation" warnings (plain ints: read every tick).
 _BADQPOS, _BADQVEL, _BADQACC = (int(w) for w in (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
                                                  mujoco.mjtWarning.mjWARN_BADQACC))
+_TWO_PI = 2 * math.pi
+#: Widest run of qpos/qvel addresses that a pose read takes as one slice (else it gathers them).
+_SPAN = 64
 
 
 class SimulationDivergedError(FloatingPointError):
@@ -222,6 +225,10 @@ class Scene:
                 raise SceneError(f"scene {source}: the MjData given does not belong to this "
                                  f"model (nq, na, nbody, ngeom, nsite: {have} vs {want})")
             self.data = data
+        # Both cars' joint addresses and frames as Python numbers, for the per-tick pose read.
+        self._frames = tuple((float(c.frame_pos[0]), float(c.frame_pos[1]), math.cos(c.frame_yaw),
+                              math.sin(c.frame_yaw), c.frame_yaw) for c in (self.ego, self.obstacle))
+        self._bound: mujoco.MjData | None = None  # the data whose array views are kept (see _bind)
 
     # ----------------------------------------------------------------- loading
     @classmethod
@@ -334,24 +341,76 @@ class Scene:
 
     def poses(self) -> np.ndarray:
         """System pose ``S_t`` as ``(2, 4)``: row 0 the ego, row 1 the obstacle."""
-        return np.array([self._pose(self.ego), self._pose(self.obstacle)])
+        return np.array(self.pose_values())
 
     def _pose(self, car: Car) -> list[float]:
         """:meth:`pose` as Python floats (read every tick: NumPy scalars would cost more)."""
+        if car is self.ego or car is self.obstacle:
+            return self.pose_values()[car is self.obstacle]
         d = self.data
         qx, qy, qyaw = d.qpos[car.qpos].tolist()
         vx, vy, _ = d.qvel[car.qvel].tolist()
         fx, fy = car.frame_pos.tolist()
         c, s = math.cos(car.frame_yaw), math.sin(car.frame_yaw)
         v = vx * math.cos(qyaw) + vy * math.sin(qyaw)
-        return [fx + c * qx - s * qy, fy + s * qx + c * qy, math.remainder(car.frame_yaw + qyaw, 2 * math.pi), v]
+        return [fx + c * qx - s * qy, fy + s * qx + c * qy, math.remainder(car.frame_yaw + qyaw, _TWO_PI), v]
+
+    def _bind(self) -> None:
+        """Keep views of ``self.data``'s arrays that the per-tick calls read and write (an
+        MjData never moves its buffers): the cars' joints (one slice where their addresses
+        lie within a few entries, else a gather), the controls and the warning counters.
+        Called again whenever ``self.data`` is another object."""
+        d = self.data
+        reads: list[tuple[np.ndarray, np.ndarray | None, list[int]]] = []
+        for arr, addrs in ((d.qpos, [int(a) for c in (self.ego, self.obstacle) for a in c.qpos]),
+                           (d.qvel, [int(a) for c in (self.ego, self.obstacle) for a in c.qvel[:2]])):
+            lo, hi = min(addrs), max(addrs) + 1
+            if hi - lo <= _SPAN:
+                reads.append((arr[lo:hi], None, [a - lo for a in addrs]))
+            else:
+                reads.append((arr, np.array(addrs), list(range(len(addrs)))))
+        self._reads = reads
+        self._ctrl = d.ctrl
+        self._warnings = d.warning.number  # a view: (mjNWARNING,) counts
+        self._bound = d
+
+    def pose_values(self) -> list[list[float]]:
+        """Both poses ``[[x, y, theta, v] ego, [...] obstacle]`` (world frame [m], heading
+        [rad] in (-pi, pi], speed along the heading [m/s]) as Python floats: :meth:`poses`
+        without its array, from one read of both cars' joints (the per-tick read)."""
+        if self._bound is not self.data:
+            self._bind()
+        (qsrc, qidx, qo), (vsrc, vidx, vo) = self._reads
+        q = qsrc.tolist() if qidx is None else qsrc[qidx].tolist()
+        w = vsrc.tolist() if vidx is None else vsrc[vidx].tolist()
+        out = []
+        for i, (fx, fy, c, s, yaw) in enumerate(self._frames):
+            qx, qy, qyaw = q[qo[3 * i]], q[qo[3 * i + 1]], q[qo[3 * i + 2]]
+            vx, vy = w[vo[2 * i]], w[vo[2 * i + 1]]
+            v = vx * math.cos(qyaw) + vy * math.sin(qyaw)
+            out.append([fx + c * qx - s * qy, fy + s * qx + c * qy, math.remainder(yaw + qyaw, _TWO_PI), v])
+        return out
 
     def set_controls(self, which: str, accel: float, steer: float) -> None:
         """Command a car: acceleration [m/s^2] and steering angle [rad], clipped to the
         actuator ranges as MuJoCo does."""
         car = self.car(which)
-        self.data.ctrl[car.accel] = accel
-        self.data.ctrl[car.steer] = steer
+        if self._bound is not self.data:
+            self._bind()
+        ctrl = self._ctrl
+        ctrl[car.accel] = accel
+        ctrl[car.steer] = steer
+
+    def drive(self, ego_accel: float, ego_steer: float, obstacle_accel: float, obstacle_steer: float) -> None:
+        """:meth:`set_controls` of both cars at once (the per-tick call): accelerations
+        [m/s^2] and steering angles [rad], clipped to the actuator ranges by MuJoCo."""
+        if self._bound is not self.data:
+            self._bind()
+        ctrl, ego, obstacle = self._ctrl, self.ego, self.obstacle
+        ctrl[obstacle.accel] = obstacle_accel
+        ctrl[obstacle.steer] = obstacle_steer
+        ctrl[ego.accel] = ego_accel
+        ctrl[ego.steer] = ego_steer
 
     def step(self, nstep: int) -> str | None:
         """Advance ``nstep`` physics steps; stop at the first contact of the ego.
@@ -363,8 +422,9 @@ class Scene:
         """
         m, d = self.model, self.data
         bad_before = self._instability_count()
+        mj_step = mujoco.mj_step
         for _ in range(nstep):
-            mujoco.mj_step(m, d)
+            mj_step(m, d)
             if d.ncon:  # after a reset the cars overlap: rule that out before reporting
                 self._check_stable(bad_before)
                 hit = self._ego_contact()
@@ -380,8 +440,10 @@ class Scene:
                 f"qvel or qacc) in {self.source}; it reset the state, so the run is void")
 
     def _instability_count(self) -> int:
-        n = self.data.warning.number  # (mjNWARNING,) counts, one array read
-        return int(n[_BADQPOS] + n[_BADQVEL] + n[_BADQACC])
+        if self._bound is not self.data:
+            self._bind()
+        n = self._warnings.tolist()  # (mjNWARNING,) counts, one array read
+        return n[_BADQPOS] + n[_BADQVEL] + n[_BADQACC]
 
     def _ego_contact(self) -> str | None:
         d = self.data
