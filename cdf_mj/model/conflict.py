@@ -41,7 +41,6 @@ import numba
 import numpy as np
 
 from cdf_mj.model.geometry import Polyline, _box_gap
-from cdf_mj.model.kernels import helper
 from cdf_mj.model.layout import Layout
 from cdf_mj.model.vehicle import CarGeometry
 
@@ -310,7 +309,7 @@ def collision_masses(weight: np.ndarray, s0: np.ndarray, v0: np.ndarray, accel: 
     Once a single plan is left open (most often going on, behind a car that has merged
     ahead), its roll skips the table while the plan's arc length is short of ``q_lo_ahead``
     where the hypothesis last was (no overlap can come before it: the hypothesis only moves
-    on): the same masks, about a fifth less time at N = 1000 (docs/PERFORMANCE.md)."""
+    on): the same masks, a quarter less time in CDF episodes at N = 1000 (docs/PERFORMANCE.md)."""
     n_plans, n_steps = plans.shape
     full = (1 << n_plans) - 1
     lazy_bit = (1 << lazy) if lazy >= 0 else 0
@@ -325,7 +324,7 @@ def collision_masses(weight: np.ndarray, s0: np.ndarray, v0: np.ndarray, accel: 
     furthest = np.empty(n_plans)  # [m] each plan's last arc length
     for p in range(n_plans):
         furthest[p] = plans[p, n_steps - 1]
-    single = np.full(1 << n_plans, -1, dtype=np.int64)  # by settled mask: the one plan left open
+    single = np.full(1 << n_plans, -1, dtype=np.int64)
     for p in range(n_plans):
         single[full ^ (1 << p)] = p
     for i in range(weight.shape[0]):
@@ -339,20 +338,17 @@ def collision_masses(weight: np.ndarray, s0: np.ndarray, v0: np.ndarray, accel: 
         v_prev = v_start
         mask = 0
         done = 0  # plans that collided or no longer can
-        k = 0
-        while k < n_steps:
+        for k in range(n_steps):
             t = (k + 1) * dt
             v_now = min(max(v_start + a * (t - d), 0.0), vm) if t > d else 0.0
             s += (v_prev + v_now) * half_dt
             v_prev = v_now
             if s < s_first:
-                k += 1
                 continue
             j = int(s * inv_ds + 0.5)
             if j >= n_table:
                 break
             if j < first:
-                k += 1
                 continue
             ahead = q_lo_ahead[j]
             lo, hi = q_lo[j], q_hi[j]
@@ -369,49 +365,36 @@ def collision_masses(weight: np.ndarray, s0: np.ndarray, v0: np.ndarray, accel: 
             settled = done | lazy_bit if (done & gate_bit) and not (mask & gate_bit) else done
             if settled == full:
                 break
-            k += 1
             p = single[done]  # (not while a lazy plan is left open: its bit is still read)
-            if p >= 0 and settled == done:
-                mask |= _one_plan(plans[p], k, ahead, furthest[p], s, v_prev, v_start, a, vm, d, dt, half_dt,
-                                  inv_ds, q_lo, q_hi, q_lo_ahead) << p
+            if p >= 0 and settled == done:  # one plan left: the same ticks and tests, for it alone
+                far = furthest[p]
+                kk = k + 1
+                while kk < n_steps:
+                    # Short of the least overlap ahead, no tick can overlap (plan and
+                    # hypothesis only move on): the table is not read.
+                    while kk < n_steps and plans[p, kk] < ahead:
+                        t = (kk + 1) * dt
+                        v_now = min(max(v_start + a * (t - d), 0.0), vm) if t > d else 0.0
+                        s += (v_prev + v_now) * half_dt
+                        v_prev = v_now
+                        kk += 1
+                    if kk >= n_steps:
+                        break
+                    t = (kk + 1) * dt
+                    v_now = min(max(v_start + a * (t - d), 0.0), vm) if t > d else 0.0
+                    s += (v_prev + v_now) * half_dt
+                    v_prev = v_now
+                    j = int(s * inv_ds + 0.5)
+                    if j >= n_table:
+                        break
+                    q = plans[p, kk]
+                    if q_lo[j] <= q <= q_hi[j]:
+                        mask |= 1 << p
+                        break
+                    ahead = q_lo_ahead[j]
+                    if ahead > far:
+                        break
+                    kk += 1
                 break
         out[mask] += w
     return out
-
-
-@helper
-def _one_plan(plan: np.ndarray, k: int, ahead: float, far: float, s: float, v_prev: float, v_start: float,
-              a: float, vm: float, d: float, dt: float, half_dt: float, inv_ds: float, q_lo: np.ndarray,
-              q_hi: np.ndarray, q_lo_ahead: np.ndarray) -> int:  # pragma: no cover - compiled
-    """1 if one hypothesis of :func:`collision_masses` (at arc length ``s`` [m] after tick
-    ``k``, the least ``q_lo`` ahead of it ``ahead`` [m]) collides with ``plan`` from tick
-    ``k`` on, else 0: the same ticks and tests as there, without the table while the
-    plan's arc length is short of ``ahead`` (an overlap needs ``plan[k] >= q_lo[j] >=
-    q_lo_ahead[j]`` and both only grow)."""
-    n_steps, n_table = plan.shape[0], q_lo.shape[0]
-    if ahead > far:
-        return 0
-    while k < n_steps:
-        while k < n_steps and plan[k] < ahead:
-            t = (k + 1) * dt
-            v_now = min(max(v_start + a * (t - d), 0.0), vm) if t > d else 0.0
-            s += (v_prev + v_now) * half_dt
-            v_prev = v_now
-            k += 1
-        if k >= n_steps:
-            return 0
-        t = (k + 1) * dt
-        v_now = min(max(v_start + a * (t - d), 0.0), vm) if t > d else 0.0
-        s += (v_prev + v_now) * half_dt
-        v_prev = v_now
-        j = int(s * inv_ds + 0.5)
-        if j >= n_table:
-            return 0
-        q = plan[k]
-        if q_lo[j] <= q <= q_hi[j]:
-            return 1
-        ahead = q_lo_ahead[j]
-        if ahead > far:
-            return 0
-        k += 1
-    return 0
