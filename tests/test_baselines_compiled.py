@@ -176,3 +176,18 @@ def test_path_masses_match_numpy(where, scene, junction):
         assert mask.tolist() == want.tolist(), trial
         seen.update(mask.tolist())  # empty for an empty path
     assert len(seen) >= 4  # several different masks, not only "no collision"
+
+
+def test_poses_and_paths_of_the_wrong_shape_are_one_clear_error(scene):
+    """The compiled calls read their arrays unchecked: a pose or a path of another shape is
+    refused before them, in one line (not broadcast, not read out of bounds)."""
+    context = PlannerContext.of(scene.layout(), ScenarioConfig())
+    cv = make_planner("cv")
+    cv.reset(context, np.random.default_rng(0))
+    with pytest.raises(ValueError, match=r"must be \(2, 4\) rows.*got shape \(4,\)"):
+        cv.time_to_conflict(np.zeros(4))
+    rule = RiskRule()
+    rule.reset(context)
+    ego = scene.layout().ego_start.copy()
+    with pytest.raises(ValueError, match=r"must be \(K, 4\) rows.*got shape \(10, 2\)"):
+        rule.assess(ego, np.zeros((10, 2)))

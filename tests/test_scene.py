@@ -455,3 +455,19 @@ def test_a_scene_reads_and_drives_the_data_it_holds_now(scene: Scene):
     finally:
         scene.data = first
     np.testing.assert_array_equal(scene.poses(), moved)
+
+
+def test_a_copied_scene_reads_and_drives_its_own_data():
+    """A deep copy (or a pickle) of a scene that has read and driven its cars reads and drives
+    its own MjData, not views of the original's."""
+    import copy
+    import pickle
+
+    original = Scene.load()
+    original.pose_values()  # binds the original's views
+    for other in (copy.deepcopy(original), pickle.loads(pickle.dumps(original))):
+        other.drive(1.0, 0.1, 0.5, 0.0)
+        for _ in range(20):
+            mujoco.mj_step(other.model, other.data)
+        assert other.data.ctrl.tolist() != original.data.ctrl.tolist()
+        assert other.pose_values() == np.array(other.poses()).tolist() != original.pose_values()

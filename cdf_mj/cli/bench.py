@@ -34,6 +34,7 @@ def _positive_seconds(text: str) -> float:
 
 def _cmd_bench(args: argparse.Namespace) -> int:
     from cdf_mj.experiments.bench import (
+        DEFAULT_CLOCK,
         FloorProbe,
         bench_core,
         bench_env,
@@ -48,7 +49,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     where = {"scene": args.scene, "config": config}
     reps = args.repeats
-    probe = FloorProbe(**where, clock=args.clock)  # the floor samples between every row's repeats
+    # The floor samples between every row's repeats, on the chosen clock.
+    probe = FloorProbe(**where, clock=args.clock or DEFAULT_CLOCK)
     rows = [] if args.only_reproduce else [*bench_core(args.episodes, probe=probe, repeats=reps, **where),
                                            *bench_filter(sizes, 3 * reps, probe=probe, **where),
                                            *bench_planners(args.episodes, probe=probe, repeats=reps, **where),
@@ -79,10 +81,11 @@ def _add_bench(subparsers: argparse._SubParsersAction) -> None:
                    help="interleaved repeats of a row: passes over the seeds of an episode row, runs of "
                         "--env-seconds of an env row; 3 x that many replays of a filter row, 100 x that "
                         "many calls of a physics or sight-line row (default 3)")
-    p.add_argument("--clock", choices=("cpu", "wall"), default="cpu",
-                   help="time with the CPU time of this process (default: on a shared core, a row longer than "
-                        "a scheduler slice would otherwise count other processes' turns) or wall time; the "
-                        "reproduction rows are wall times either way")
+    p.add_argument("--clock", choices=("cpu", "wall"), default=None,
+                   help="time with the CPU time of this process (the default where it ticks in microseconds or "
+                        "finer: on a shared core, a row longer than a scheduler slice would otherwise count other "
+                        "processes' turns) or wall time; the reproduction and cold-start rows are wall times "
+                        "either way")
     p.add_argument("--particles", type=_comma_list(_particles, "positive integers"), default=[250, 1000, 10000],
                    help="filter sizes N to time, each 1 to 10^6, at most 100 of them (default 250,1000,10000)")
     p.add_argument("--env-seconds", type=_positive_seconds, default=1.0,

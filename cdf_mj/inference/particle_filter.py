@@ -373,6 +373,12 @@ class ParticleFilter:
                     name in ("pose", "logw") and value.flags.writeable):
                 value = np.array(value, dtype=dtype, order="C")  # a copy: the caller's array stays theirs
                 setattr(self, name, _published(value) if name in ("pose", "logw") else value)
+        self._mark_checked()
+
+    def _mark_checked(self) -> None:
+        """Take the particle arrays as they are now as checked: after :meth:`_check_particles`,
+        and after a stage that replaced checked arrays by its kernels' own (the types and
+        rows the kernels take; ``pose`` and ``logw`` read-only)."""
         self._checked = (self.pose, self.mode, self.belief, self.has_belief, self.intent, self.theta, self.logw)
 
     def ego_exposed(self) -> bool:
@@ -446,6 +452,7 @@ class ParticleFilter:
         self.mode, self.belief, self.has_belief = mode, belief, has_belief
         self._s, self._seg, self._s_route = s, seg, route
         self.pose = self._s_of = _published(pose)  # the arcs now are those of the new poses
+        self._mark_checked()
 
     def set_ego(self, system_pose: np.ndarray | None) -> None:
         """Take the ego's pose from ``system_pose[0]`` where it is finite."""
@@ -485,6 +492,7 @@ class ParticleFilter:
             self.reinitialise(meas)
             return self.posterior()
         self.logw = _published(logw)
+        self._mark_checked()
         self._ess = ess
         self._set_weights(w, logw)
         return self.posterior()
@@ -528,3 +536,4 @@ class ParticleFilter:
         self._s_of = self.pose
         self._sight_of = (self.pose, self._ego_targets)
         self._uniform()
+        self._mark_checked()

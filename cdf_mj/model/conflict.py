@@ -365,8 +365,8 @@ def collision_masses(weight: np.ndarray, s0: np.ndarray, v0: np.ndarray, accel: 
             settled = done | lazy_bit if (done & gate_bit) and not (mask & gate_bit) else done
             if settled == full:
                 break
-            p = single[done]  # (not while a lazy plan is left open: its bit is still read)
-            if p >= 0 and settled == done:  # one plan left: the same ticks and tests, for it alone
+            p = single[done]
+            if p >= 0:  # one plan left (a lazy one only if its gate collided): its ticks and tests alone
                 far = furthest[p]
                 kk = k + 1
                 while kk < n_steps:

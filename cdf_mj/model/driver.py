@@ -32,7 +32,7 @@ draws its own from the filter's prior (:class:`cdf_mj.config.DriverPrior`).
 from __future__ import annotations
 
 import operator
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import TYPE_CHECKING
@@ -55,9 +55,11 @@ __all__ = [
     "bicycle_step",
     "ego_control",
     "obstacle_control",
+    "obstacle_control_one",
     "pure_pursuit",
     "road_clear",
     "update_belief",
+    "update_belief_one",
 ]
 
 
@@ -132,6 +134,17 @@ class DriverModel:
             row.flags.writeable = False
             object.__setattr__(self, "_param_row", row)
         return row
+
+    def control_traits(self) -> tuple[float, ...]:
+        """The traits of the model's one driver that :func:`cdf_mj.model.kernels.control`
+        takes (acceleration, turn speed, yield brake, critical gap, clear distance), as
+        Python floats, kept (the world's car reads them every tick). ValueError as
+        :meth:`param_rows`."""
+        kept: tuple[float, ...] | None = self.__dict__.get("_control_traits")
+        if kept is None:
+            kept = tuple(_CONTROL_ARGS(self.param_rows(1)[0].tolist()))
+            object.__setattr__(self, "_control_traits", kept)
+        return kept
 
     @classmethod
     def from_layout(cls, layout: Layout, driver: ObstacleDriver | DriverPrior, pursuit: Pursuit, dt: float, *,
@@ -303,13 +316,29 @@ def _one_obstacle(model: DriverModel, pose: np.ndarray, mode: np.ndarray, belief
     """:func:`obstacle_control` of one car: the per-car kernel that ``obstacle_control_rows``
     loops over (:func:`cdf_mj.model.kernels.control`), called from Python (the row loop is
     not compiled for one car)."""
-    tab = model.table
-    x, y, th, v = pose[0].tolist()
-    bx, by, bth, bv = belief[0].tolist()
-    a, steer, new, segment[0] = kernels.control(tab.table, tab.nseg, tab.ends, model.cfg, int(intent[0]), x, y, th,
-                                                v, int(segment[0]), int(mode[0]), bool(has_belief[0]), bx, by, bth,
-                                                bv, bool(may_go[0]), *_CONTROL_ARGS(params[0].tolist()))
+    a, steer, new, segment[0] = obstacle_control_one(
+        model, pose[0].tolist(), int(mode[0]), belief[0].tolist(), bool(has_belief[0]), int(intent[0]),
+        bool(may_go[0]), _CONTROL_ARGS(params[0].tolist()), int(segment[0]))
     return np.array([[a, steer]]), np.array([new], dtype=np.int64)
+
+
+def obstacle_control_one(model: DriverModel, pose: Sequence[float], mode: int, belief: Sequence[float],
+                         has_belief: bool, intent: int, may_go: bool, traits: Sequence[float] | None = None,
+                         segment: int = -1) -> tuple[float, float, int, int]:
+    """:func:`obstacle_control` of one car on Python numbers (the world's car, every tick):
+    its pose ``[x m, y m, theta rad, v m/s]``, :class:`Mode`, believed ego pose (read where
+    ``has_belief``), :class:`Intent`, whether its stop is over, and its traits (default:
+    the model's own driver, :meth:`DriverModel.control_traits`); ``segment`` is its route
+    segment from the last call (-1: the full search). Returns the acceleration [m/s^2],
+    steering [rad], new mode and segment: the per-car kernel that ``obstacle_control_rows``
+    loops over (:func:`cdf_mj.model.kernels.control`), called from Python."""
+    tab = model.table
+    x, y, th, v = pose
+    bx, by, bth, bv = belief
+    a, steer, new, seg = kernels.control(tab.table, tab.nseg, tab.ends, model.cfg, intent, x, y, th, v, segment,
+                                         mode, has_belief, bx, by, bth, bv, may_go,
+                                         *(model.control_traits() if traits is None else traits))
+    return a, steer, new, seg
 
 
 def update_belief(belief: np.ndarray, has_belief: np.ndarray, observed: np.ndarray,
@@ -327,13 +356,22 @@ def update_belief(belief: np.ndarray, has_belief: np.ndarray, observed: np.ndarr
     obs = _rows(np.broadcast_to(np.asarray(observation, dtype=float), (n, 4)), 4)
     seen = _per_row(observed, n, np.bool_)
     if n == 1:  # the simulated car, every tick: believe_rows' step, its per-car helper called from Python
-        if seen[0]:
-            new[0], has[0] = obs[0], True
-        elif has[0]:
-            kernels.dead_reckon(new, 0, float(dt))
+        update_belief_one(new, has, obs[0] if seen[0] else None, dt)
         return new, has
     kernels.believe_rows(new, has, seen, obs, float(dt))
     return new, has
+
+
+def update_belief_one(belief: np.ndarray, has_belief: np.ndarray, observation: Sequence[float] | np.ndarray | None,
+                      dt: float) -> None:
+    """:func:`update_belief` of one driver in place: row 0 of ``belief`` ``(1, 4)`` takes
+    ``observation`` (the ego's pose as observed) if there is one and ``has_belief[0]``
+    becomes True; else a belief held is dead-reckoned one tick of ``dt`` [s]."""
+    if observation is not None:
+        belief[0] = observation
+        has_belief[0] = True
+    elif has_belief[0]:
+        kernels.dead_reckon(belief, 0, float(dt))
 
 
 def _ego_vector(model: DriverModel, car: CarGeometry) -> np.ndarray:

@@ -11,6 +11,7 @@ cost more than the arithmetic: the same operations, the same values.
 from __future__ import annotations
 
 import bisect
+import functools
 import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
@@ -171,10 +172,11 @@ class OrientedBox:
     heading: float
     half: np.ndarray  # (2,) half length along local x, half width along local y
 
-    def __post_init__(self) -> None:
-        # The numbers contains_any reads, as Python floats (it runs every tick).
-        object.__setattr__(self, "_floats", (float(self.center[0]), float(self.center[1]), math.cos(self.heading),
-                                             math.sin(self.heading), float(self.half[0]), float(self.half[1])))
+    @functools.cached_property
+    def _floats(self) -> tuple[float, float, float, float, float, float]:
+        """The numbers :meth:`contains_any` reads, as Python floats (it runs every tick)."""
+        return (float(self.center[0]), float(self.center[1]), math.cos(self.heading), math.sin(self.heading),
+                float(self.half[0]), float(self.half[1]))
 
     def contains(self, xy: np.ndarray) -> np.ndarray:
         """Whether point(s) ``(..., 2)`` lie inside (boundary included)."""
@@ -189,7 +191,7 @@ class OrientedBox:
         """Whether any of a few points ``(x, y)`` [m] lies inside (boundary included): on
         Python floats, ``contains(points).any()`` without NumPy's per-call overhead (the
         same operations, so the same answer)."""
-        cx, cy, c, s, hx, hy = self.__dict__["_floats"]  # kept by __post_init__
+        cx, cy, c, s, hx, hy = self._floats
         for x, y in points:
             dx, dy = x - cx, y - cy
             if abs(c * dx + s * dy) <= hx and abs(-s * dx + c * dy) <= hy:

@@ -18,6 +18,7 @@ planners use it without MuJoCo. ::
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -165,8 +166,6 @@ class CarGeometry:
                 object.__setattr__(self, name, pair)
         if bad:
             raise ValueError(f"CarGeometry: {'; '.join(bad)}")
-        # The box as Python floats for footprint_one (read every tick; the arrays are read-only).
-        object.__setattr__(self, "_hull_floats", (*self.hull_offset.tolist(), *self.hull_half.tolist()))
 
     @classmethod
     def ours(cls) -> CarGeometry:
@@ -236,12 +235,19 @@ class CarGeometry:
         return rotated_corners(pose[..., 0] + c * ox - s * oy, pose[..., 1] + s * ox + c * oy, c, s,
                                self.hull_half)
 
+    @functools.cached_property
+    def _hull_floats(self) -> tuple[float, float, float, float]:
+        """The collision box's offset and half sizes [m] as Python floats (footprint_one's)."""
+        ox, oy = self.hull_offset.tolist()
+        hx, hy = self.hull_half.tolist()
+        return ox, oy, hx, hy
+
     def footprint_one(self, x: float, y: float, theta: float) -> list[tuple[float, float]]:
         """:meth:`footprint` of one rear-axle pose ``x, y`` [m], ``theta`` [rad] on Python
         floats (the same operations, so the same values, without NumPy's per-call
         overhead: the per-tick calls on one car): four corners ``(x, y)`` [m]."""
         c, s = math.cos(theta), math.sin(theta)
-        ox, oy, hx, hy = self.__dict__["_hull_floats"]  # kept by __post_init__
+        ox, oy, hx, hy = self._hull_floats
         return box_corners_one(x + c * ox - s * oy, y + s * ox + c * oy, c, s, hx, hy)
 
     def eye(self, pose: np.ndarray | Sequence[float]) -> np.ndarray:

@@ -271,7 +271,7 @@ def path_mask(plans: np.ndarray, path: np.ndarray, k: int, table: np.ndarray, ns
 
 
 # ----------------------------------------------------------------- the IMM
-@numba.njit(cache=True, nogil=True)
+@numba.njit(cache=True, nogil=True, error_model="numpy")  # a zero total gives NaN, as filterpy's
 def imm_step(x: np.ndarray, P: np.ndarray, mu: np.ndarray, cbar: np.ndarray, omega: np.ndarray,
              likelihood: np.ndarray, M: np.ndarray, F: np.ndarray, Q: np.ndarray, R: np.ndarray, table: np.ndarray,
              nseg: np.ndarray, ends: np.ndarray, z: np.ndarray, measured: bool,

@@ -270,6 +270,10 @@ class CVPlanner(DecidingPlanner):
         """Predicted time [s] to the first conflict under constant velocities from the
         system pose ``(2, 4)`` (ego, obstacle), or None within the horizon (:func:`first_conflict`
         of the two :func:`straight_path`, compiled)."""
+        poses = np.asarray(poses, dtype=float)
+        if poses.shape != (2, 4):
+            raise ValueError(f"time_to_conflict: poses must be (2, 4) rows [x, y, theta, v] of the ego and the "
+                             f"obstacle, got shape {poses.shape}")
         self._poses[:] = poses
         k = kern.straight_conflict(self._poses, self._times, *self._cars)
         return round(k * self._dt, 6) if k >= 0 else None
@@ -561,6 +565,10 @@ class IMMPlanner(DecidingPlanner):
             hits = [first_conflict(self._ego, self._obstacle, ego_path, self.predicted_path(intent),
                                    self.params.margin, self._dt) is not None for intent in (Intent.LEFT, Intent.RIGHT)]
         else:
+            ego_pose = np.asarray(ego_pose, dtype=float)
+            if ego_pose.shape != (4,):
+                raise ValueError(f"conflict_probability: the ego's pose must be [x, y, theta, v], got shape "
+                                 f"{ego_pose.shape}")
             self._ego_pose[:] = ego_pose
             t = self._table
             kern.imm_conflicts(self.imm.x, t.table, t.nseg, t.ends, self._ego_pose, self._times, self._dt,

@@ -194,6 +194,9 @@ class RiskRule:
         and cars packed at the first call after :meth:`reset`."""
         from cdf_mj.planners import baseline_kernels as kern  # only cv-risk and cv-layered come here
 
+        if path.ndim != 2 or path.shape[1] != 4:
+            raise ValueError(f"a predicted path must be (K, 4) rows [x, y, theta, v] at ticks 1..K, got shape "
+                             f"{path.shape}")
         k = min(len(path), plans.shape[1])
         out = np.zeros(1 << len(plans))
         if k == 0:

@@ -21,9 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from cdf_mj.config import ScenarioConfig, check_seed
-from cdf_mj.model import kernels
 from cdf_mj.model.conflict import right_turn_overlap
-from cdf_mj.model.driver import DriverModel, Intent, Mode, road_clear
+from cdf_mj.model.driver import DriverModel, Intent, Mode, obstacle_control_one, road_clear, update_belief_one
 from cdf_mj.model.following import FOLLOW_HEADING, follow_accel, in_lane_ahead
 from cdf_mj.model.geometry import box_gap
 from cdf_mj.scenario.after_merge import AfterMergeOverride
@@ -41,8 +40,6 @@ _GOING, _WAITING, _YIELDING = int(Mode.GOING), int(Mode.WAITING), int(Mode.YIELD
 #: Below this cosine of the two cars' heading difference the obstacle follows no ego
 #: (:func:`cdf_mj.model.following.ahead_in_lane`'s first test, the same expression).
 _FOLLOW_COS = math.cos(FOLLOW_HEADING) - 1e-12
-#: The per-car traits of a driver's parameter row that :func:`cdf_mj.model.kernels.control` takes, in its order.
-_CONTROL_TRAITS = (kernels.P_ACCEL, kernels.P_TURN, kernels.P_YIELD, kernels.P_GAP, kernels.P_CLEAR)
 
 
 class NonFiniteStateError(FloatingPointError):
@@ -147,7 +144,6 @@ class World:
         self._obs_std_py: list[float] = self._obs_std.tolist()
         self._nu_std_py: list[float] = self._nu_std.tolist()
         self._dt = config.timing.dt
-        self._control_of: DriverModel | None = None  # the driver whose kernel arguments are kept
         self._s0 = layout.route_ego.project(layout.ego_start[:2])[0]
         self._s_conflict = layout.route_ego.project(layout.conflict)[0]
         lo, hi = config.ego.start_spread
@@ -283,7 +279,7 @@ class World:
         self._ego_hull = self.layout.ego.footprint_one(ex, ey, eth)
         self._values = values
         in_lane = self.layout.ego_lane.contains_any(self._hull)
-        self._measured = Measurement(t=round(self._k * self._dt, 6), poses=np.array(values), obstacle_in_lane=in_lane)
+        self._measured = Measurement(t=self.t, poses=np.array(values), obstacle_in_lane=in_lane)
         return self._measured
 
     def step(self, ego_controls: np.ndarray) -> Tick:
@@ -304,7 +300,7 @@ class World:
         dt = self._dt
         # The ego's controls as two floats: an array of two (the per-tick call) directly, anything
         # else as NumPy takes it (whose errors are then NumPy's, as they were).
-        if type(ego_controls) is np.ndarray and ego_controls.shape == (2,) and ego_controls.dtype.kind == "f":
+        if type(ego_controls) is np.ndarray and ego_controls.shape == (2,) and ego_controls.dtype.char in "fd":
             ego_u: list[float] | None = ego_controls.tolist()
         else:
             ego_u = None
@@ -330,21 +326,13 @@ class World:
                 visible = ego_visible(scene, obs, ego)
             return visible
 
-        def observe() -> None:
-            # update_belief of one driver that observed: the ego's pose with the observation noise.
-            std = self._obs_std_py
-            self._belief[0] = [ego_v[0] + z[0] * std[0], ego_v[1] + z[1] * std[1], ego_v[2] + z[2] * std[2],
-                               ego_v[3] + z[3] * std[3]]
-            self._has_belief[0] = True
+        std = self._obs_std_py
+        seen_as = [ego_v[i] + z[i] * std[i] for i in range(4)]  # the ego's pose with the observation noise
 
         if self.family is None:  # the traits' state machine, the filter's own model
             observed = bool(u_look < behaviour.beta) and sees_ego()
-            # The belief update g(B, O) of one driver (update_belief's: the observation, else
-            # dead reckoning of a belief held), in place: self._belief is this world's own.
-            if observed:
-                observe()
-            elif self._has_belief[0]:
-                kernels.dead_reckon(self._belief, 0, float(dt))
+            # The belief update g(B, O), in place: self._belief is this world's own.
+            update_belief_one(self._belief, self._has_belief, seen_as if observed else None, dt)
             mode = int(self._mode[0])
             if (self.hesitates and self.hesitated is None and mode == _GOING
                     and math.dist(obs_v[:2], self._line.tolist()) >= behaviour.hesitation_creep):
@@ -359,23 +347,14 @@ class World:
                     and sees_ego()):
                 # It would leave now: it looks once more, and sees the ego.
                 observed = True
-                observe()
+                update_belief_one(self._belief, self._has_belief, seen_as, dt)
             if observed and self.first_seen is None:
                 self.first_seen = t
 
             # The obstacle decides (obstacle_control of one car: its kernel, from the full
             # route search, with this tick's pose, mode and belief).
-            drv = self.driver
-            if drv is not self._control_of:
-                row = drv.param_rows(1)[0].tolist()
-                self._control_args = tuple(row[i] for i in _CONTROL_TRAITS)
-                self._control_of = drv
-            tab = drv.table
-            bx, by, bth, bv = self._belief[0].tolist()
-            a1, steer1, mode, _ = kernels.control(tab.table, tab.nseg, tab.ends, drv.cfg, int(self._intents[0]),
-                                                  obs_v[0], obs_v[1], obs_v[2], obs_v[3], -1, mode,
-                                                  bool(self._has_belief[0]), bx, by, bth, bv, may_go,
-                                                  *self._control_args)
+            a1, steer1, mode, _ = obstacle_control_one(self.driver, obs_v, mode, self._belief[0].tolist(),
+                                                       bool(self._has_belief[0]), int(self._intents[0]), may_go)
             self._mode[0] = mode  # this world's own array (obstacle_control returned a new one)
         else:  # a driver written apart from it: it looks whenever it looks, and acts on what it sees
             observed = self.family.looking and sees_ego()

@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -354,6 +355,13 @@ class Scene:
         c, s = math.cos(car.frame_yaw), math.sin(car.frame_yaw)
         v = vx * math.cos(qyaw) + vy * math.sin(qyaw)
         return [fx + c * qx - s * qy, fy + s * qx + c * qy, math.remainder(car.frame_yaw + qyaw, _TWO_PI), v]
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Copies and pickles leave out the kept array views (:meth:`_bind`): a copy binds
+        to its own ``data`` at its first read."""
+        state = {k: v for k, v in self.__dict__.items() if k not in ("_reads", "_ctrl", "_warnings")}
+        state["_bound"] = None
+        return state
 
     def _bind(self) -> None:
         """Keep views of ``self.data``'s arrays that the per-tick calls read and write (an
