@@ -6,7 +6,16 @@ import numpy as np
 import pytest
 
 from cdf_mj.config import ScenarioConfig
-from cdf_mj.model.driver import DriverModel, Intent, Mode, obstacle_control, road_clear, update_belief
+from cdf_mj.model.driver import (
+    DriverModel,
+    Intent,
+    Mode,
+    obstacle_control,
+    obstacle_control_one,
+    road_clear,
+    update_belief,
+    update_belief_one,
+)
 from cdf_mj.records import Label
 from cdf_mj.scenario.episode import run_episode
 
@@ -68,6 +77,10 @@ def test_vectorised_controller_equals_one_at_a_time(scene):
                                   has[i:i + 1], intent[i:i + 1])
         np.testing.assert_allclose(ui[0], u[i])
         assert ni[0] == new[i]
+        # The world car's per-tick call, on Python numbers: the same numbers exactly.
+        a, steer, m, _ = obstacle_control_one(model, pose[i].tolist(), int(mode[i]), belief[i].tolist(),
+                                              bool(has[i]), int(intent[i]), True)
+        assert [a, steer, m] == [*u[i].tolist(), int(new[i])]
 
 
 def test_mode_transitions(scene):
@@ -104,3 +117,7 @@ def test_belief_update_takes_observation_or_dead_reckons():
     np.testing.assert_allclose(new[1], obs[1])  # replaced
     np.testing.assert_allclose(new[2], belief[2])  # still nothing
     assert new_has.tolist() == [True, True, False]
+    for i in range(3):  # one driver in place: the same rows
+        one, one_has = belief[i:i + 1].copy(), has[i:i + 1].copy()
+        update_belief_one(one, one_has, obs[i] if observed[i] else None, dt)
+        assert one[0].tolist() == new[i].tolist() and bool(one_has[0]) == bool(new_has[i])
