@@ -357,11 +357,11 @@ class ParticleFilter:
         Arrays already checked (the same objects as at the last check) are not checked again:
         the filter replaces its arrays, never their type or rows (``pose`` and ``logw`` made
         writeable again are checked again)."""
-        arrays = (self.pose, self.mode, self.belief, self.has_belief, self.intent, self.theta, self.logw)
         last = self._checked
-        if (last is not None and all(a is b for a, b in zip(arrays, last, strict=True))
-                and not (self.pose.flags.writeable or self.logw.flags.writeable)):
-            return
+        if (last is not None and last[0] is self.pose and last[1] is self.mode and last[2] is self.belief
+                and last[3] is self.has_belief and last[4] is self.intent and last[5] is self.theta
+                and last[6] is self.logw and not (self.pose.flags.writeable or self.logw.flags.writeable)):
+            return  # (five times a tick: no generator expression)
         if len(self.pose) == 0:
             raise RuntimeError("the particle filter has no particles yet: call reset(S0) first")
         n = self.n
