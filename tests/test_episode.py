@@ -116,6 +116,14 @@ def test_world_ticks_the_same_whatever_holds_the_ego_controls(scene):
         ticks = [world.step(form([0.75, 0.03125])) for _ in range(12)]
         runs.append(([(t.poses.tolist(), t.mode, t.gap, t.belief.tolist()) for t in ticks], scene.data.qpos.tolist()))
     assert all(r == runs[0] for r in runs[1:])
+    # Controls of another shape are one ValueError, before the tick draws or moves anything.
+    world = World(scene)
+    world.reset(9)
+    before = (world.rng["obstacle"].bit_generator.state, scene.data.qpos.tolist())
+    for bad in ([0.5], [[0.5, 0.0]], [0.5, 0.0, 0.0]):
+        with pytest.raises(ValueError, match=r"^World.step: ego_controls must be \[acceleration"):
+            world.step(bad)
+    assert (world.rng["obstacle"].bit_generator.state, scene.data.qpos.tolist()) == before
 
 
 @pytest.mark.parametrize(("field", "value", "fragment"), [

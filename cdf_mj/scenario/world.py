@@ -268,10 +268,7 @@ class World:
             return self._measured
         values = self.scene.pose_values()
         (ex, ey, eth, ev), (ox, oy, oth, ov) = values
-        # One sum is finite exactly when every value is, bar an overflow of huge values: the
-        # value-by-value test decides then.
-        if not math.isfinite(ex + ey + eth + ev + ox + oy + oth + ov) and \
-                not all(math.isfinite(v) for v in (*values[0], *values[1])):
+        if not all(map(math.isfinite, (ex, ey, eth, ev, ox, oy, oth, ov))):
             raise NonFiniteStateError(f"non-finite system pose at t={self.t:.1f} s "
                                       f"(seed {self.seed}): {values}")
         # Both collision boxes: the obstacle's for the lane test, both for the gap in step().
@@ -286,7 +283,8 @@ class World:
         """One tick of ``config.timing.dt`` with the ego's controls ``[accel m/s^2, steer rad]``
         (process noise is added; MuJoCo clips them to the actuator ranges).
 
-        RuntimeError after the episode is over (call :meth:`reset`).
+        RuntimeError after the episode is over (call :meth:`reset`); ValueError for controls
+        that are not two numbers (nothing of the tick happens then).
         """
         if self.done:
             raise RuntimeError("the episode is over: call reset(seed) before step()")
@@ -298,12 +296,12 @@ class World:
         ego, obs = poses[0], poses[1]
         ego_v, obs_v = self._values  # the same poses as Python floats
         dt = self._dt
-        # The ego's controls as two floats: an array of two (the per-tick call) directly, anything
-        # else as NumPy takes it (whose errors are then NumPy's, as they were).
-        if type(ego_controls) is np.ndarray and ego_controls.shape == (2,) and ego_controls.dtype.char in "fd":
-            ego_u: list[float] | None = ego_controls.tolist()
-        else:
-            ego_u = None
+        # The ego's controls as two floats, checked before anything of the tick is drawn or moved.
+        u = np.asarray(ego_controls, dtype=float)
+        if u.shape != (2,):
+            raise ValueError(f"World.step: ego_controls must be [acceleration m/s^2, steering rad], got shape "
+                             f"{u.shape}")
+        ego_a, ego_steer = u.tolist()
 
         # The obstacle looks (draws are made every tick, whatever is visible: CRN). Drawn as
         # before: uniform, 4 observation normals, 2 control normals from "obstacle" (one call
@@ -384,11 +382,7 @@ class World:
         gap = box_gap(self._ego_hull, self._hull)
         self.min_gap = min(self.min_gap, gap)
 
-        if ego_u is None:  # as NumPy adds them (and refuses what it cannot)
-            scene.set_controls("obstacle", a1 + nu1[0], steer1 + nu1[1])
-            scene.set_controls("ego", *(np.asarray(ego_controls, dtype=float) + np.array(nu2)))
-        else:
-            scene.drive(ego_u[0] + nu2[0], ego_u[1] + nu2[1], a1 + nu1[0], steer1 + nu1[1])
+        scene.drive(ego_a + nu2[0], ego_steer + nu2[1], a1 + nu1[0], steer1 + nu1[1])
         self._measured = None
         try:
             hit = scene.step(self.n_sub)

@@ -41,8 +41,6 @@ __all__ = ["DEFAULT_SCENE", "Car", "Scene", "SceneError", "SimulationDivergedErr
 _BADQPOS, _BADQVEL, _BADQACC = (int(w) for w in (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL,
                                                  mujoco.mjtWarning.mjWARN_BADQACC))
 _TWO_PI = 2 * math.pi
-#: Widest run of qpos/qvel addresses that a pose read takes as one slice (else it gathers them).
-_SPAN = 64
 
 
 class SimulationDivergedError(FloatingPointError):
@@ -359,25 +357,20 @@ class Scene:
     def __getstate__(self) -> dict[str, Any]:
         """Copies and pickles leave out the kept array views (:meth:`_bind`): a copy binds
         to its own ``data`` at its first read."""
-        state = {k: v for k, v in self.__dict__.items() if k not in ("_reads", "_ctrl", "_warnings")}
+        state = {k: v for k, v in self.__dict__.items() if k not in ("_qpos", "_qvel", "_ctrl", "_warnings")}
         state["_bound"] = None
         return state
 
     def _bind(self) -> None:
         """Keep views of ``self.data``'s arrays that the per-tick calls read and write (an
-        MjData never moves its buffers): the cars' joints (one slice where their addresses
-        lie within a few entries, else a gather), the controls and the warning counters.
-        Called again whenever ``self.data`` is another object."""
+        MjData never moves its buffers): the joint positions and velocities, the controls
+        and the warning counters; and the addresses of both cars' planar joints (x, y, yaw
+        and the two planar velocities of each, ego first). Called again whenever
+        ``self.data`` is another object."""
         d = self.data
-        reads: list[tuple[np.ndarray, np.ndarray | None, list[int]]] = []
-        for arr, addrs in ((d.qpos, [int(a) for c in (self.ego, self.obstacle) for a in c.qpos]),
-                           (d.qvel, [int(a) for c in (self.ego, self.obstacle) for a in c.qvel[:2]])):
-            lo, hi = min(addrs), max(addrs) + 1
-            if hi - lo <= _SPAN:
-                reads.append((arr[lo:hi], None, [a - lo for a in addrs]))
-            else:
-                reads.append((arr, np.array(addrs), list(range(len(addrs)))))
-        self._reads = reads
+        self._qpos, self._qvel = d.qpos, d.qvel
+        self._qaddr = np.array([int(a) for c in (self.ego, self.obstacle) for a in c.qpos])
+        self._vaddr = np.array([int(a) for c in (self.ego, self.obstacle) for a in c.qvel[:2]])
         self._ctrl = d.ctrl
         self._warnings = d.warning.number  # a view: (mjNWARNING,) counts
         self._bound = d
@@ -388,13 +381,12 @@ class Scene:
         without its array, from one read of both cars' joints (the per-tick read)."""
         if self._bound is not self.data:
             self._bind()
-        (qsrc, qidx, qo), (vsrc, vidx, vo) = self._reads
-        q = qsrc.tolist() if qidx is None else qsrc[qidx].tolist()
-        w = vsrc.tolist() if vidx is None else vsrc[vidx].tolist()
+        q = self._qpos[self._qaddr].tolist()
+        w = self._qvel[self._vaddr].tolist()
         out = []
         for i, (fx, fy, c, s, yaw) in enumerate(self._frames):
-            qx, qy, qyaw = q[qo[3 * i]], q[qo[3 * i + 1]], q[qo[3 * i + 2]]
-            vx, vy = w[vo[2 * i]], w[vo[2 * i + 1]]
+            qx, qy, qyaw = q[3 * i], q[3 * i + 1], q[3 * i + 2]
+            vx, vy = w[2 * i], w[2 * i + 1]
             v = vx * math.cos(qyaw) + vy * math.sin(qyaw)
             out.append([fx + c * qx - s * qy, fy + s * qx + c * qy, math.remainder(yaw + qyaw, _TWO_PI), v])
         return out
