@@ -112,15 +112,15 @@ def test_a_rows_ratio_is_over_the_floor_sampled_between_its_repeats():
 def test_format_rows_shows_the_least_time_the_spread_and_the_ratio():
     floor = PhysicsFloor.of([100e-6, 120e-6], 20)
     row = Row("per tick", (300e-6, 200e-6, 250e-6), "a note", floor=(100e-6, 80e-6, 125e-6))
-    table = format_rows([row, ("legacy episode", 0.1, "", 300e-6)], floor)
+    table = format_rows([row, Row("one-run episode", (0.1,), "", (300e-6,))], floor)
     assert "| what | min | median (IQR, n) | x floor (median, IQR) | note |" in table
     assert "| per tick | 200.0 µs | 250.0 µs (20 %, n 3) | 2.50x (2.50x, 20 %) | a note |" in table
-    assert "| legacy episode | 100.00 ms | one run | 3.00x (one run) |  |" in table  # per tick, run floor
+    assert "| one-run episode | 100.00 ms | one run | 3.00x (one run) |  |" in table  # per tick, run floor
     assert "floor of this run: 2 samples, least 100.0 µs (5.0 µs an mj_step), median 110.0 µs" in table
     assert "Targets" not in table  # no row reads a target
     assert "Clock: CPU time of this process (time.process_time" in table  # the floor's clock, said first
     assert "Clock: wall time" in format_rows([row], PhysicsFloor.of([100e-6], 20, "wall"))
-    plain = format_rows([("per tick", 250e-6, "a note")])  # no floor: no column, no footnote
+    plain = format_rows([Row("per tick", (250e-6,), "a note")])  # no floor: no column, no footnote
     assert "| per tick | 250.0 µs | one run | a note |" in plain and "x floor" not in plain
 
 
@@ -134,7 +134,7 @@ def test_the_floor_check_reports_a_floor_above_the_physics_tick():
                            "physics-tick row (97.0 µs)")
     assert "the floor of the run (120.0 µs)" in floor_check([ok], PhysicsFloor.of([120e-6], 20))
     assert line in format_rows([slow_floor], PhysicsFloor.of([94e-6], 20))  # said under the table
-    assert "no physics-tick row" in floor_check([("other", 1.0, "")])
+    assert "no physics-tick row" in floor_check([Row("other", (1.0,))])
 
 
 def test_targets_are_judged_on_the_interleaved_figures():

@@ -68,7 +68,6 @@ __all__ = [
     "GOALS",
     "FloorProbe",
     "Goal",
-    "LegacyRow",
     "PhysicsFloor",
     "Reading",
     "Row",
@@ -81,14 +80,9 @@ __all__ = [
     "floor_check",
     "format_rows",
     "format_targets",
-    "median_time",
     "physics_floor",
 ]
 
-# A row as earlier versions made it: (what, seconds, note), or with a fourth item, the
-# seconds per planner tick that the "x floor" column divides by the floor (without it,
-# the time itself). format_rows takes these too (one run each, against the run's floor).
-LegacyRow = tuple[str, float, str] | tuple[str, float, str, float]
 _T = TypeVar("_T")
 
 PHYSICS_TICK_ROW = "planner tick of physics"  # the start of the row the floor must stay under
@@ -101,17 +95,6 @@ CLOCKS: dict[str, Callable[[], float]] = {"cpu": time.process_time, "wall": time
 DEFAULT_CLOCK: Clock = "cpu" if time.get_clock_info("process_time").resolution <= 1e-6 else "wall"
 _CLOCK_WORDS = {"cpu": "CPU time of this process (time.process_time; the startup rows: of their child processes)",
                 "wall": "wall time (time.perf_counter)"}
-
-
-def median_time(fn: Callable[[int], object], repeats: int) -> float:
-    """Median wall time [s] of ``fn(i)`` for i in range(repeats), after one warm-up call."""
-    fn(-1)
-    times = []
-    for i in range(repeats):
-        t0 = time.perf_counter()
-        fn(i)
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def _quartiles(xs: Sequence[float]) -> tuple[float, float, float]:
@@ -246,13 +229,6 @@ class Row:
         for name in ("per_tick", "floor"):
             if getattr(self, name) and len(getattr(self, name)) != len(self.times):
                 raise ValueError(f"row {self.what!r}: {len(getattr(self, name))} {name} for {len(self.times)} times")
-
-    @classmethod
-    def of(cls, row: Row | LegacyRow) -> Row:
-        """``row`` as a Row (a tuple of earlier versions: one run, no floor of its own)."""
-        if isinstance(row, Row):
-            return row
-        return cls(row[0], (row[1],), row[2], (row[3],) if len(row) > 3 else ())
 
     @property
     def seconds(self) -> float:
@@ -538,13 +514,13 @@ def _ratio_cell(row: Row, floor: PhysicsFloor | None) -> str:
     return f"{_times(row.ratio(floor))} ({_times(statistics.median(paired))}, {100 * _iqr(paired):.0f} %)"
 
 
-def floor_check(rows: Sequence[Row | LegacyRow], floor: PhysicsFloor | None = None) -> str:
+def floor_check(rows: Sequence[Row], floor: PhysicsFloor | None = None) -> str:
     """The footnote on the floor against the physics-tick row (``planner tick of physics
     ...``), which runs the floor's steps and more and so can never be cheaper: ``floor
     check: ok ...``, or ``floor check: VIOLATED ...`` where the least floor sample taken
     between that row's repeats, or the run's floor ``floor``, exceeds the row's least time
     (a slow moment, or a floor that measures something else)."""
-    found = [r for r in map(Row.of, rows) if r.what.startswith(PHYSICS_TICK_ROW)]
+    found = [r for r in rows if r.what.startswith(PHYSICS_TICK_ROW)]
     if not found:
         return "floor check: no physics-tick row in this run, nothing to check."
     row = found[0]
@@ -571,7 +547,7 @@ _NOT_RUN = {  # how to get a target's row where this run had none
 }
 
 
-def format_targets(rows: Sequence[Row | LegacyRow], floor: PhysicsFloor | None = None) -> str:
+def format_targets(rows: Sequence[Row], floor: PhysicsFloor | None = None) -> str:
     """Markdown table of the targets (:data:`GOALS`, in order), one line each: what, the
     measured figure (least over the interleaved repeats, with the median and IQR), the
     ``x floor`` of the row it is read off, the target, and ``met``, ``MISSED`` or ``not
@@ -579,7 +555,7 @@ def format_targets(rows: Sequence[Row | LegacyRow], floor: PhysicsFloor | None =
     (memory per worker), the worst reading counts."""
     out = ["| target | measured: min (median, IQR, repeats) | x floor | goal | verdict |", "|---|---|---|---|---|"]
     for goal in GOALS:
-        found = [(row, reading) for row in map(Row.of, rows) for reading in row.readings if reading.goal == goal.what]
+        found = [(row, reading) for row in rows for reading in row.readings if reading.goal == goal.what]
         if not found:
             out.append(f"| {goal.what} | {_NOT_RUN.get(goal.what, 'not run (--only-reproduce)')} | - | {goal.text} "
                        "| not run |")
@@ -601,7 +577,7 @@ def format_targets(rows: Sequence[Row | LegacyRow], floor: PhysicsFloor | None =
     return "\n".join(out)
 
 
-def format_rows(rows: Sequence[Row | LegacyRow], floor: PhysicsFloor | None = None) -> str:
+def format_rows(rows: Sequence[Row], floor: PhysicsFloor | None = None) -> str:
     """Markdown tables of benchmark rows, times in the most readable unit.
 
     First, where any row carries a :class:`Reading`, the targets (:func:`format_targets`);
@@ -612,7 +588,7 @@ def format_rows(rows: Sequence[Row | LegacyRow], floor: PhysicsFloor | None = No
     paired ratios); over the tables, ``floor``'s clock, and under them, what x floor divides
     by, the run's floor and :func:`floor_check`.
     """
-    table = [Row.of(r) for r in rows]
+    table = list(rows)
     out = [f"Machine: {platform.processor() or platform.machine()}, Python {platform.python_version()}, "
            f"MuJoCo {mujoco.__version__}, NumPy {np.__version__}", ""]
     if floor:
