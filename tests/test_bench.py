@@ -66,6 +66,7 @@ def test_bench_prints_the_targets_first_then_every_row_against_its_floor(capsys)
         assert f"| episode, {name} (no counterfactual) |" in out
     for what in ("no filter", "with the filter", "defaults: filter and labels"):
         assert re.search(rf"\| env step, {what} \| {_TIME} \| one run \| {_RATIO} \| \d+ steps/s", out), what
+    assert "| env reset, no filter |" in out  # the resets of the same runs, apart
     assert re.search(rf"\| physics floor: 20 mj_step per planner tick of 0.1 s \| {_TIME} \| {_TIME} \(\d+ %, "
                      r"n 100\) \| 1.00x \(1.00x, 0 %\) \|", out)
     assert re.search(r"\| planner tick of physics \(20 steps \+ contact check\) \| .* n 100\) \|", out)
