@@ -861,3 +861,38 @@ def test_a_counterexample_of_a_scene_of_your_own_says_how_to_replay_it(found, tm
     write_counterexamples(space, cxs[:1], tmp_path, "--scene my/junction.xml --names my/names.toml")
     description = " ".join(read_preset(next(tmp_path.glob("01-seed-*.toml"))).description.split())
     assert "--planner reactive --scene my/junction.xml --names my/names.toml; watch: cdf-mj render" in description
+
+
+def test_ctrl_c_is_one_line_and_a_missing_scene_is_refused_before_anything_is_written(spaces, tmp_path, capsys):
+    """Ctrl-C (SIGINT to the command and its workers, as a terminal sends it) is one line,
+    exit 130, and the journal so far kept; a scene that cannot be loaded is one error line
+    before the run directory is made (once, not per worker), so the right command then
+    starts there."""
+    out = tmp_path / "interrupted"
+    command = [sys.executable, "-m", "cdf_mj", "estimate", "--method", "mc", "--planner", "reactive", "--space",
+               str(spaces["small"]), "--budget", "100000", "--workers", "2", "--out", str(out), "--quiet"]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}
+    journal = out / JOURNAL_FILE
+    proc = subprocess.Popen(command, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    try:
+        deadline = time.monotonic() + 120
+        while not (journal.exists() and journal.read_bytes().count(b"\n") >= 4):
+            assert proc.poll() is None and time.monotonic() < deadline
+            time.sleep(0.02)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130
+    assert err.strip().splitlines() == [f"cdf-mj: interrupted; what finished is saved in {out}: run the same "
+                                        "command again to continue"]
+    assert journal.read_bytes().count(b"\n") >= 4
+
+    missing = tmp_path / "missing"
+    status, stdout, stderr = run_cli(capsys, "falsify", "--planner", "reactive", "--space", str(spaces["small"]),
+                                     "--budget", "3", "--workers", "2", "--scene", str(tmp_path / "nope.xml"),
+                                     "--out", str(missing), "--quiet", "--no-figure")
+    assert_one_line_error(status, stdout, stderr, "nope.xml")
+    assert not missing.exists()

@@ -127,6 +127,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except BrokenPipeError:  # `cdf-mj episode | head`: the reader left; no traceback
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # Python's flush at exit
         return 1
+    except KeyboardInterrupt:  # Ctrl-C: a command that keeps a journal says how it resumes itself
+        if args.debug:
+            raise
+        out = getattr(args, "out", None)
+        print(f"{PROG}: interrupted" + (f"; what finished is saved in {out}: run the same command again to "
+                                        "continue" if out and args.command in _RESUMABLE else ""), file=sys.stderr)
+        return 130
     # ValueError: bad parameters or seed (SceneError, CLIError are ValueErrors too);
     # FloatingPointError: a diverged simulation (NonFiniteStateError, SimulationDivergedError);
     # WorkerDiedError: a worker process died (the finished episodes are saved);
@@ -152,6 +159,10 @@ def _note_first_compile() -> None:
         print(f"cdf-mj: first run here: compiling the simulation's kernels (about 10 s, once; "
               f"cached in {folder})", file=sys.stderr, flush=True)
 
+
+#: Commands whose runs go on from their --out directory when given again (experiment says
+#: so itself, with the file).
+_RESUMABLE = frozenset({"falsify", "estimate", "sweep"})
 
 #: Errors of a write that names no file (``[Errno 28] No space left on device``): reported
 #: with the command's output path (``--out``), the only place a command writes.

@@ -35,7 +35,7 @@ from cdf_mj.falsify.search import Generation, SearchResult, run_search
 from cdf_mj.falsify.space import SearchSpace
 from cdf_mj.inputs import SETTINGS_MAX_BYTES, InputError, parse_json, read_text
 from cdf_mj.records import jsonable, write_atomic
-from cdf_mj.sim.scene import DEFAULT_SCENE
+from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
 
 __all__ = ["SETTINGS", "FalsifyResult", "estimate", "falsify"]
 
@@ -70,10 +70,24 @@ def space_spec(space: SearchSpace) -> dict[str, Any]:
 _NOT_COMPARED = ("space", "space_text")
 
 
+def _scene_settings(scene: str | Path, space: SearchSpace) -> dict[str, Any]:
+    """The scene a run is bound to: its resolved path and every file it is made from with
+    its hash (:func:`cdf_mj.experiments.experiment.scene_files`), after loading it once here
+    with the space's names (a missing or wrong scene is one error before anything is
+    written, not one per worker)."""
+    from cdf_mj.experiments.experiment import scene_files
+
+    Scene.load(scene, names=space.base.names)
+    return {"scene": str(Path(scene).resolve()), "scene_files": scene_files(scene)}
+
+
 def _settings(out: Path, wanted: dict[str, Any]) -> None:
-    """Write ``wanted`` to ``out/settings.json``, or check it against what is there."""
+    """Write ``wanted`` to ``out/settings.json``, or check it against what is there; a
+    directory whose journal holds no episode yet takes the new settings (it binds nothing).
+    Keys a directory made by an earlier version lacks (``scene_files``) are not compared."""
     path = out / SETTINGS
-    if path.exists():
+    journal = out / JOURNAL_FILE
+    if path.exists() and journal.exists() and journal.stat().st_size > 0:
         try:
             have = parse_json(read_text(path, "settings file", SETTINGS_MAX_BYTES), f"settings file {path}")
         except (InputError, ValueError, OSError) as exc:
@@ -83,7 +97,7 @@ def _settings(out: Path, wanted: dict[str, Any]) -> None:
             raise ValueError(f"{out} holds another kind of run ({have.get('kind') if isinstance(have, dict) else '?'}"
                              f"), not {_article(kind)} {kind}; choose another directory")
         for key, value in wanted.items():
-            if key in _NOT_COMPARED or have.get(key) == value:
+            if key in _NOT_COMPARED or (key not in have and key == "scene_files") or have.get(key) == value:
                 continue
             if key == "space_spec":
                 what = "space (its base world, failure or dimensions differ from the run's)"
@@ -131,7 +145,8 @@ def falsify(space: SearchSpace, planner: str, budget: int, out: str | Path, *, c
     from cdf_mj.falsify.report import falsify_markdown, progress_figure
 
     wanted = {"kind": "falsify", "version": __version__, "space": space.name, "space_spec": space_spec(space),
-              "space_text": space.text, "planner": planner, "seed": seed, "popsize": popsize, "scene": str(scene)}
+              "space_text": space.text, "planner": planner, "seed": seed, "popsize": popsize,
+              **_scene_settings(scene, space)}
     with ExitStack() as stack:
         out_dir, journal = _open(out, wanted, stack)
         evaluator = Evaluator(space, [planner, *compare], journal, scene=scene, backend=backend, workers=workers,
@@ -164,7 +179,7 @@ def estimate(space: SearchSpace, planner: str, budget: int, out: str | Path, *, 
         raise ValueError(f"method must be 'ce' or 'mc', got {method!r}")
     wanted = {"kind": "estimate", "version": __version__, "space": space.name, "space_spec": space_spec(space),
               "space_text": space.text, "planner": planner, "seed": seed, "method": method, "stage": stage,
-              "scene": str(scene)}
+              **_scene_settings(scene, space)}
     with ExitStack() as stack:
         out_dir, journal = _open(out, wanted, stack)
         evaluator = Evaluator(space, [planner], journal, scene=scene, backend=backend, workers=workers,
