@@ -95,10 +95,6 @@ def space_table(space: SearchSpace) -> list[str]:
     return markdown_table(["option", "range or choices", "nominal"], rows)
 
 
-def _rate(e: Estimate) -> str:
-    return e.text() + ("" if e.reliable else " (not reliable: few heavy weights)")
-
-
 def _stages(e: Estimate, unit: str = "s") -> str:
     return "; ".join(f"level {s['level']:.3g} {unit}, {s['failures']} failures of {s['episodes']}"
                      for s in e.stages)
@@ -143,28 +139,29 @@ def targets(parts: Parts) -> list[str]:
         name, mc, ce = parts.validation
         ok = agree(mc, ce) and ce.episodes * 5 <= mc.episodes and ce.reliable
         lines.append(f"- **Importance sampling against {mc.episodes}-episode Monte Carlo** (`{name}`, a rate of "
-                     f"{mc.p:.2%}): {_rate(ce)} from {ce.episodes} episodes against {_rate(mc)}: intervals "
+                     f"{mc.p:.2%}): {ce.text()} from {ce.episodes} episodes against {mc.text()}: intervals "
                      f"{'overlap' if agree(mc, ce) else 'do not overlap'} with {mc.episodes / ce.episodes:.0f}x "
                      f"fewer episodes ({'met' if ok else 'missed'}). At this rate importance sampling buys little: "
-                     f"its relative standard error {ce.rel_error or math.inf:.2f} against plain Monte Carlo's "
-                     f"{_mc_rel_error(mc.p, ce.episodes):.2f} on the same {ce.episodes} episodes.")
+                     f"its relative standard error {ce.rel_error or math.inf:.2f} against the "
+                     f"{_mc_rel_error(mc.p, ce.episodes):.2f} plain Monte Carlo would have at that rate on "
+                     f"{ce.episodes} episodes.")
     name, weight, ce, mc, cond = parts.rare
     lo, hi = wilson_interval(cond.failures, cond.n)
     ref = (weight * lo, weight * hi)
     bounded = not ce.upper_only and ce.ci[1] < 1e-4 and ce.reliable
     overlap = not ce.upper_only and ce.ci[0] <= ref[1] and ref[0] <= ce.ci[1]
     other_fail, other_n = parts.rare_other
-    lines.append(f"- **Below 1e-4** (`{name}` on space `{RARE_SPACE}`): importance sampling {_rate(ce)}, Monte "
-                 f"Carlo on the same {mc.episodes} episodes {_rate(mc)}; the reference {weight:g} x P(failure | "
+    lines.append(f"- **Below 1e-4** (`{name}` on space `{RARE_SPACE}`): importance sampling {ce.text()}, Monte "
+                 f"Carlo on the same {mc.episodes} episodes {mc.text()}; the reference {weight:g} x P(failure | "
                  f"the stop) = [{ref[0]:.2g}, {ref[1]:.2g}] ({cond.failures}/{cond.n} with the stop pinned): "
                  f"{'a bounded estimate below 1e-4' if bounded else 'no reliable bounded estimate below 1e-4'}, "
-                 f"{'inside' if overlap else 'outside'} the reference, Monte Carlo "
+                 f"{'overlapping' if overlap else 'not overlapping'} the reference's interval, Monte Carlo "
                  f"{'sees no failure' if mc.failures == 0 else f'sees {mc.failures}'} "
                  f"({'met' if bounded and overlap and mc.failures == 0 else 'missed'}). The reference assumes "
                  f"that failures without the stop are far rarer than 1e-4: the runs' {other_n} episodes in which "
                  f"the merged car kept going had {other_fail} failures (which bounds that share only below about "
-                 f"{3 / max(other_n, 1):.0e}; `{name}` had no collision on the 1000 held-out seeds of the default "
-                 "world either, docs/DECISION_RESULTS.md).")
+                 f"{3 / max(other_n, 1):.0e}; see docs/DECISION_RESULTS.md for `{name}` on 1000 held-out seeds of "
+                 "the default world).")
     return lines
 
 
@@ -212,8 +209,8 @@ def page(parts: Parts, figure: str | None) -> str:
               "sample size; Monte Carlo: Wilson).", ""]
     rows = []
     for p, (ce, mc) in parts.estimates.items():
-        rows.append([f"`{p}`", _rate(ce), str(ce.failures), "-" if ce.ess is None else f"{ce.ess:.1f}",
-                     "-" if ce.rel_error is None else f"{ce.rel_error:.2f}", _rate(mc), str(mc.failures),
+        rows.append([f"`{p}`", ce.text(), str(ce.failures), "-" if ce.ess is None else f"{ce.ess:.1f}",
+                     "-" if ce.rel_error is None else f"{ce.rel_error:.2f}", mc.text(), str(mc.failures),
                      "-" if mc.rel_error is None else f"{mc.rel_error:.2f}", "yes" if agree(ce, mc) else "**no**"])
     lines += markdown_table(["planner", "importance sampling (CE)", "failures in its last stage",
                              "ESS of the failures' weights", "relative s.e.", "Monte Carlo, same budget",
@@ -246,14 +243,14 @@ def page(parts: Parts, figure: str | None) -> str:
     unit = "m" if space.failure.margin == "gap" else "s"
     name, ce, mc = parts.near
     lines += ["", f"### Near the default world: `{name}` on space `{NEAR_SPACE}`", "",
-              f"Importance sampling {_rate(ce)} from {ce.episodes} episodes ({ce.failures} failures in its last "
+              f"Importance sampling {ce.text()} from {ce.episodes} episodes ({ce.failures} failures in its last "
               f"stage of {ce.n}, ESS {ce.ess or 0:.1f}; stages: {_stages(ce, unit)}); Monte Carlo "
-              f"{mc.failures}/{mc.n}: {_rate(mc)}."]
+              f"{mc.failures}/{mc.n}: {mc.text()}."]
     name, weight, ce, mc, cond = parts.rare
     lines += ["", f"### A rare case with a reference: `{name}` on space `{RARE_SPACE}`", "",
-              f"Importance sampling {_rate(ce)} from {ce.episodes} episodes ({ce.failures} failures in its last "
+              f"Importance sampling {ce.text()} from {ce.episodes} episodes ({ce.failures} failures in its last "
               f"stage of {ce.n}, ESS {ce.ess or 0:.1f}; stages: {_stages(ce, unit)}); Monte Carlo "
-              f"{mc.failures}/{mc.n}: {_rate(mc)}; with the stop pinned (nominal weight {weight:g}): "
+              f"{mc.failures}/{mc.n}: {mc.text()}; with the stop pinned (nominal weight {weight:g}): "
               f"{cond.failures}/{cond.n}."]
     lines += ["", "## The default space", "", space.description, "", *space_table(space)]
     return "\n".join(lines) + "\n"

@@ -31,7 +31,7 @@ from cli_helpers import assert_one_line_error, run_cli
 from cdf_mj.config import ScenarioConfig
 from cdf_mj.experiments.store import locked
 from cdf_mj.falsify.counterexamples import cluster_failures, find_counterexamples, write_counterexamples
-from cdf_mj.falsify.estimate import Proposal, agree, cross_entropy, monte_carlo
+from cdf_mj.falsify.estimate import Estimate, Proposal, agree, cross_entropy, monte_carlo
 from cdf_mj.falsify.evaluate import JOURNAL_FILE, Evaluator, Journal
 from cdf_mj.falsify.run import estimate, falsify
 from cdf_mj.falsify.search import run_search
@@ -896,3 +896,15 @@ def test_ctrl_c_is_one_line_and_a_missing_scene_is_refused_before_anything_is_wr
                                      "--out", str(missing), "--quiet", "--no-figure")
     assert_one_line_error(status, stdout, stderr, "nope.xml")
     assert not missing.exists()
+
+
+def test_an_estimate_that_is_not_reliable_says_why_on_its_line():
+    """What `cdf-mj estimate` prints and the page shows: a reliable estimate bare, else the
+    reason (too few failures to weigh, or one carrying more than a quarter of it)."""
+    def ce(ess: float, top: float) -> Estimate:
+        return Estimate("ce", "cdf", 2000, 400, 12, 0.01, (0.005, 0.015), ess=ess, top_share=top)
+
+    assert ce(12.0, 0.2).text() == "0.01 [0.005, 0.015]"
+    assert ce(9.5, 0.2).text() == "0.01 [0.005, 0.015] (not reliable: effective sample size 9.5 < 10)"
+    assert ce(12.0, 0.4).text() == "0.01 [0.005, 0.015] (not reliable: one failure carries 40% of it)"
+    assert Estimate("mc", "cdf", 400, 400, 4, 0.01, (0.004, 0.025)).text() == "0.01 [0.004, 0.025]"

@@ -193,10 +193,17 @@ class Estimate:
         return (self.ess or 0.0) >= 10 and (self.top_share or 0.0) <= 0.25
 
     def text(self) -> str:
-        """The estimate and its interval (or the bound), for a line of output."""
+        """The estimate and its interval (or the bound), for a line of output; where it is not
+        :attr:`reliable`, why: too few failures to weigh (effective sample size under 10), or
+        one failure carrying more than a quarter of it."""
         if self.upper_only:
             return f"< {self.ci[1]:.2g} (0 failures in {self.n})"
-        return f"{self.p:.3g} [{self.ci[0]:.2g}, {self.ci[1]:.2g}]"
+        shown = f"{self.p:.3g} [{self.ci[0]:.2g}, {self.ci[1]:.2g}]"
+        if self.reliable:
+            return shown
+        if (self.ess or 0.0) < 10:
+            return f"{shown} (not reliable: effective sample size {self.ess or 0.0:.1f} < 10)"
+        return f"{shown} (not reliable: one failure carries {self.top_share or 0.0:.0%} of it)"
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-serialisable view (estimate.json)."""
