@@ -309,7 +309,7 @@ def collision_masses(weight: np.ndarray, s0: np.ndarray, v0: np.ndarray, accel: 
     Once a single plan is left open (most often going on, behind a car that has merged
     ahead), its roll skips the table while the plan's arc length is short of ``q_lo_ahead``
     where the hypothesis last was (no overlap can come before it: the hypothesis only moves
-    on): the same masks, a quarter less time in CDF episodes at N = 1000 (docs/PERFORMANCE.md)."""
+    on): the same masks, about a fifth less time in CDF episodes at N = 1000 (docs/PERFORMANCE.md)."""
     n_plans, n_steps = plans.shape
     full = (1 << n_plans) - 1
     lazy_bit = (1 << lazy) if lazy >= 0 else 0
