@@ -907,3 +907,15 @@ def test_an_estimate_that_is_not_reliable_says_why_on_its_line():
     assert ce(9.5, 0.2).text() == "0.01 [0.005, 0.015] (not reliable: effective sample size 9.5 < 10)"
     assert ce(12.0, 0.4).text() == "0.01 [0.005, 0.015] (not reliable: one failure carries 40% of it)"
     assert Estimate("mc", "cdf", 400, 400, 4, 0.01, (0.004, 0.025)).text() == "0.01 [0.004, 0.025]"
+
+
+@pytest.mark.parametrize(("extra", "needle"), [
+    (["--method", "mc", "--stage", "20"], "--stage is for --method ce"),
+    (["--method", "ce", "--budget", "100", "--stage", "90"], "leaves no adaptive stage"),
+])
+def test_an_estimate_refuses_a_stage_it_would_not_use(spaces, tmp_path, capsys, extra, needle):
+    out = tmp_path / "e"
+    argv = ["estimate", "--planner", "reactive", "--space", str(spaces["small"]), "--budget", "100", "--out",
+            str(out), "--quiet", *extra]
+    assert_one_line_error(*run_cli(capsys, *argv), needle)
+    assert not out.exists()

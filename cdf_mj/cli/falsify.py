@@ -96,6 +96,11 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     if args.method == "ce" and args.budget < MIN_CE_BUDGET:  # before a directory is made
         raise CLIError(f"--method ce needs --budget {MIN_CE_BUDGET} or more (an adaptive stage of 50 and a last "
                        f"stage), got {args.budget}; use --method mc below that")
+    if args.stage is not None and args.method == "mc":
+        raise CLIError("--stage is for --method ce (its adaptive stages); Monte Carlo has none")
+    if args.stage is not None and args.stage > args.budget - args.budget // 5:
+        raise CLIError(f"--stage {args.stage} leaves no adaptive stage before the last fifth of --budget "
+                       f"{args.budget}: give at most {args.budget - args.budget // 5}")
     with tqdm(total=args.budget, unit="ep", desc=f"estimate {args.planner} ({args.method})",
               disable=args.quiet) as bar:
         result = estimate(space, args.planner, args.budget, args.out, method=args.method, seed=args.seed,
