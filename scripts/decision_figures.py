@@ -39,10 +39,10 @@ from pathlib import Path
 import numpy as np
 
 from cdf_mj.analysis.pages import ScriptParser
-from cdf_mj.analysis.safety import SafetyParams, closing_speed, rss_distance
+from cdf_mj.analysis.safety import SafetyParams, closing_speed
 from cdf_mj.config import LayeredConfig, RiskConfig, ScenarioConfig
-from cdf_mj.model.following import in_lane_ahead
 from cdf_mj.model.geometry import box_gap
+from cdf_mj.model.road import in_lane_ahead
 from cdf_mj.presets import load_preset
 from cdf_mj.records import EpisodeRecord
 from cdf_mj.scenario.episode import run_episode
@@ -112,7 +112,7 @@ def series(rec: EpisodeRecord, scene: Scene) -> dict[str, np.ndarray]:
             ttc[k] = gap / closing
         if in_lane_ahead(layout, obs, layout.obstacle, ego) and math.cos(obs[2] - ego[2]) >= 0.0:
             gap_ahead[k] = gap
-            rss[k] = rss_distance(ego[3], obs[3] * math.cos(obs[2] - ego[2]), params)
+            rss[k] = params.rss_distance(ego[3], obs[3] * math.cos(obs[2] - ego[2]))
     h = rec.planner_info["history"]
     speed = poses[:, 0, 3]
     applied = np.r_[np.diff(speed) / np.diff(t), np.nan]

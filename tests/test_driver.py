@@ -106,6 +106,16 @@ def test_mode_transitions(scene):
     assert road_clear(model, gone, np.array([True]), left)[0]
 
 
+def test_mode_and_intent_are_the_shared_vocabulary():
+    """Mode and Intent live in cdf_mj.model.modes (which the world's driver families read
+    without loading the filter); this module re-exports them and the kernels read their ints."""
+    from cdf_mj.model import modes
+
+    assert Mode is modes.Mode and Intent is modes.Intent
+    assert (modes.WAITING, modes.GOING, modes.YIELDING, modes.COMMITTED) == tuple(Mode) == (0, 1, 2, 3)
+    assert (modes.LEFT, modes.RIGHT) == tuple(Intent) == (0, 1)
+
+
 def test_belief_update_takes_observation_or_dead_reckons():
     dt, wheelbase = 0.1, 2.7
     belief = np.array([[0.0, 0.0, 0.0, 10.0], [5.0, 1.0, np.pi / 2, 2.0], [0.0, 0.0, 0.0, 0.0]])

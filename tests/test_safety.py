@@ -9,15 +9,16 @@ import math
 import numpy as np
 import pytest
 
+from cdf_mj.analysis import safety
 from cdf_mj.analysis.safety import (
     SafetyMetrics,
     SafetyParams,
     SafetyRecorder,
     closing_speed,
-    rss_distance,
     safety_summary,
 )
 from cdf_mj.config import ScenarioConfig
+from cdf_mj.model import road
 from cdf_mj.scenario.episode import run_episode
 
 LANE_Y = -1.85  # [m] the ego lane's centre line in scene.xml (heading east)
@@ -83,20 +84,29 @@ def test_rss_distance_against_a_hand_computation():
     p = SafetyParams()
     b = 16 * 0.3048
     hand = 13.4 * 0.2 + 0.5 * 3.0 * 0.2**2 + (13.4 + 0.2 * 3.0) ** 2 / (2 * b) - 8.0**2 / (2 * b)
-    assert rss_distance(13.4, 8.0, p) == pytest.approx(hand, rel=1e-12)
+    assert p.rss_distance(13.4, 8.0) == pytest.approx(hand, rel=1e-12)
     assert hand == pytest.approx(16.2735, abs=1e-4)
-    assert rss_distance(0.0, 13.4, p) == 0.0  # [.]^+: a fast car ahead needs no distance
-    assert rss_distance(13.4, -5.0, p) == rss_distance(13.4, 0.0, p)  # a car coming back counts as standing
+    assert p.rss_distance(0.0, 13.4) == 0.0  # [.]^+: a fast car ahead needs no distance
+    assert p.rss_distance(13.4, -5.0) == p.rss_distance(13.4, 0.0)  # a car coming back counts as standing
     q = SafetyParams(rho=0.5, a_acc=0.0, b_min=4.0, b_max=8.0)
-    assert rss_distance(10.0, 10.0, q) == pytest.approx(5.0 + 100 / 8 - 100 / 16)
+    assert q.rss_distance(10.0, 10.0) == pytest.approx(5.0 + 100 / 8 - 100 / 16)
+    assert q.rss_distance(10.0, 10.0) == road.rss_distance(10.0, 10.0, 0.5, 0.0, 4.0, 8.0)  # the road's, bit for bit
+
+
+def test_the_module_rss_distance_is_deprecated_for_the_params_method():
+    with pytest.warns(DeprecationWarning, match=r"params\.rss_distance\(v_r, v_f\)"):
+        from cdf_mj.analysis.safety import rss_distance
+    assert rss_distance(13.4, 8.0, SafetyParams()) == SafetyParams().rss_distance(13.4, 8.0)
+    with pytest.raises(AttributeError, match="no attribute 'nothing'"):
+        _ = safety.nothing
 
 
 def test_rss_share_counts_following_ticks_closer_than_the_safe_distance(layout):
-    d = rss_distance(13.4, 8.0, SafetyParams())
+    d = SafetyParams().rss_distance(13.4, 8.0)
     m = _ticks(SafetyRecorder(layout=layout), [_behind(d - 1.0, 13.4, 8.0), _behind(d + 1.0, 13.4, 8.0)])
     assert (m.following_ticks, m.rss_ticks, m.rss_share) == (2, 1, 0.5)
     # A lead heading the other way counts with speed 0 along the ego's direction.
-    poses = _behind(rss_distance(13.4, 0.0, SafetyParams()) - 0.5, 13.4, 0.0)
+    poses = _behind(SafetyParams().rss_distance(13.4, 0.0) - 0.5, 13.4, 0.0)
     poses[1][2:] = [math.pi, 8.0]
     poses[1][0] += FRONT - REAR  # the same bumper gap, turned round about its box centre
     m = _ticks(SafetyRecorder(layout=layout), [poses])

@@ -11,12 +11,15 @@ from __future__ import annotations
 import ast
 import dataclasses
 import math
+import subprocess
+import sys
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from cdf_mj.model.modes import COMMITTED, GOING, LEFT, RIGHT, WAITING, YIELDING, Intent, Mode
 from cdf_mj.scenario import drivers
 from cdf_mj.scenario.drivers import (
     FAMILIES,
@@ -29,8 +32,6 @@ from cdf_mj.scenario.drivers import (
 
 DT = 0.1  # [s]
 EGO_SPEED = 13.4  # [m/s]
-LEFT, RIGHT = 0, 1
-WAITING, GOING, YIELDING, COMMITTED = 0, 1, 2, 3
 
 
 def always(t: float) -> bool:
@@ -117,6 +118,20 @@ def test_written_apart_from_the_filter_model():
     imported |= {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
     banned = ("cdf_mj.model.driver", "cdf_mj.model.kernels", "cdf_mj.inference")
     assert not [m for m in imported if m and m.startswith(banned)], imported
+    # Nor does what it imports (the modes, the road) load them: a fresh interpreter.
+    code = ("import sys, cdf_mj.scenario.drivers\n"
+            f"print(sorted(m for m in sys.modules if m.startswith({banned!r})))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=False)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "[]"
+
+
+def test_modes_and_intents_are_the_shared_ints():
+    """The records share one vocabulary: the families' modes are cdf_mj.model.modes' ints
+    (the filter's Mode and Intent; tests/test_driver.py checks its side)."""
+    assert (WAITING, GOING, YIELDING, COMMITTED) == tuple(Mode) == (0, 1, 2, 3)
+    assert (LEFT, RIGHT) == tuple(Intent) == (0, 1)
+    assert all(type(v) is int for v in (WAITING, GOING, YIELDING, COMMITTED, LEFT, RIGHT))
 
 
 # ---------------------------------------------------------------------------- at the line

@@ -26,8 +26,12 @@ Definitions in brief (frames and names as :class:`cdf_mj.model.layout.Layout`):
   velocities ``v (cos theta, sin theta)``, which equals ``(v_ego - v_obs) . n`` with ``n``
   the unit vector from the ego's closest point to the obstacle's; TTC = gap / closing speed
   where that is > 0;
-- *in the lane*: the obstacle's box meets the ego lane's box; *ahead in the lane*: in the
-  lane, and its box centre's arc length on the ego's route is greater than the ego's;
+- *in the lane*: the obstacle's box meets the ego lane's box
+  (:func:`cdf_mj.model.road.in_lane` ``by="overlap"``); *ahead in the lane*: in the lane,
+  and its box centre's arc length on the ego's route is greater than the ego's
+  (:func:`cdf_mj.model.road.ahead` ``by="centre"``); the RSS distance is
+  :func:`cdf_mj.model.road.rss_distance` with :class:`SafetyParams`
+  (:meth:`SafetyParams.rss_distance`);
 - *conflict area*: the square of the ego lane's width centred on the point of the ego's
   route nearest ``layout.conflict``, sides along and across the route there.
 """
@@ -37,7 +41,8 @@ from __future__ import annotations
 import dataclasses
 import math
 import statistics
-from collections.abc import Iterable, Mapping
+import warnings
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -45,15 +50,15 @@ import numpy as np
 
 from cdf_mj.analysis.metrics import Rate
 from cdf_mj.config import MAX_BRAKE
-from cdf_mj.model import following
-from cdf_mj.model.geometry import OrientedBox, Polyline, box_gap
+from cdf_mj.model import road
+from cdf_mj.model.geometry import OrientedBox, box_gap
 from cdf_mj.model.layout import Layout
 from cdf_mj.model.vehicle import CarGeometry
 from cdf_mj.records import EpisodeRecord, completed
 from cdf_mj.traits import MAX_ACCEL, MAX_DURATION, bounded, check, validate
 
 __all__ = ["CLOSING_STEP", "CONFLICT_FIRST", "SUMMARY_FIELDS", "SafetyMetrics", "SafetyParams", "SafetyRecorder",
-           "StepLike", "closing_speed", "rss_distance", "safety_summary"]
+           "StepLike", "closing_speed", "safety_summary"]
 
 #: [s] Step of the one-sided difference that gives the closing speed: the boxes moved this long
 #: along their velocities (1 µs: the difference's error is below 1e-4 m/s even at a 1 cm gap).
@@ -102,13 +107,20 @@ class SafetyParams:
         """JSON-serialisable view."""
         return dataclasses.asdict(self)
 
+    def rss_distance(self, v_r: float, v_f: float) -> float:
+        """[m] The RSS safe distance (:func:`cdf_mj.model.road.rss_distance`) with these
+        parameters: ``v_r`` the rear (ego) car's speed, ``v_f`` the front car's along the
+        ego's direction [m/s], each taken as 0 where negative."""
+        return road.rss_distance(v_r, v_f, self.rho, self.a_acc, self.b_min, self.b_max)
 
-def rss_distance(v_r: float, v_f: float, params: SafetyParams) -> float:
-    """[m] The RSS longitudinal safe distance behind a car ahead:
-    ``[v_r rho + a_acc rho^2 / 2 + (v_r + rho a_acc)^2 / (2 b_min) - v_f^2 / (2 b_max)]^+``
-    with ``v_r`` the rear (ego) car's speed and ``v_f`` the front car's speed along the
-    ego's direction [m/s], each taken as 0 where negative."""
-    return following.rss_distance(v_r, v_f, params.rho, params.a_acc, params.b_min, params.b_max)
+
+def __getattr__(name: str) -> Callable[[float, float, SafetyParams], float]:
+    """The deprecated ``rss_distance(v_r, v_f, params)`` (one is exported: the road's)."""
+    if name != "rss_distance":
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    warnings.warn("cdf_mj.analysis.safety.rss_distance(v_r, v_f, params) is deprecated; use "
+                  "params.rss_distance(v_r, v_f) or cdf_mj.model.road.rss_distance", DeprecationWarning, stacklevel=2)
+    return lambda v_r, v_f, params: params.rss_distance(v_r, v_f)
 
 
 def _moved(car: CarGeometry, pose: list[float], dt: float) -> list[tuple[float, float]]:
@@ -130,8 +142,7 @@ def closing_speed(layout: Layout, poses: np.ndarray) -> float:
     ``(v_ego - v_obs) . n`` with ``n`` the unit vector between their closest points. The
     cars' turning is left out (a pose has no yaw rate)."""
     e, o = np.asarray(poses, dtype=float).tolist()
-    gap = box_gap(layout.ego.footprint_one(*e[:3]), layout.obstacle.footprint_one(*o[:3]))
-    return _closing(layout.ego, layout.obstacle, e, o, gap)
+    return _closing(layout.ego, layout.obstacle, e, o, road.car_gap(layout.ego, e, layout.obstacle, o))
 
 
 # ------------------------------------------------------------------------------ one episode
@@ -158,7 +169,7 @@ class SafetyMetrics:
         conflict_first: which car entered the conflict area first, ``"ego"``,
             ``"obstacle"`` or ``"both"`` (one tick); None if neither did.
         following_ticks: ticks with the obstacle ahead in the ego's lane.
-        rss_ticks: those of them with gap < the RSS safe distance (:func:`rss_distance`).
+        rss_ticks: those of them with gap < the RSS safe distance (:meth:`SafetyParams.rss_distance`).
         brake_switches: changes of the brake flag (on or off), from off at the start.
         brake_applications: its off-to-on changes.
         peak_decel: [m/s^2] the largest deceleration over one tick (0 if it never slowed).
@@ -231,13 +242,12 @@ class SafetyMetrics:
 
 @dataclass(frozen=True)
 class _Areas:
-    """What the recorder needs of a layout, computed once: the cars, the ego's route, the
-    corners ``(4, 2)`` [m] of the ego lane and of the conflict area."""
+    """What the recorder needs of a layout, computed once: the layout, its cars and the
+    corners ``(4, 2)`` [m] of the conflict area."""
 
+    layout: Layout
     ego: CarGeometry
     obstacle: CarGeometry
-    route: Polyline
-    lane: np.ndarray
     conflict: np.ndarray
 
     @classmethod
@@ -249,7 +259,7 @@ class _Areas:
         half = float(layout.ego_lane.half[1])
         square = OrientedBox(center=route.point_at(s), heading=math.atan2(b[1] - a[1], b[0] - a[0]),
                              half=np.array([half, half]))
-        return cls(layout.ego, layout.obstacle, route, layout.ego_lane.corners(), square.corners())
+        return cls(layout, layout.ego, layout.obstacle, square.corners())
 
 
 class _TickLike(Protocol):
@@ -341,20 +351,20 @@ class SafetyRecorder:
         ego_box, obs_box = areas.ego.footprint_one(*e[:3]), areas.obstacle.footprint_one(*o[:3])
         gap = box_gap(ego_box, obs_box)
         self._min_gap = _lower(self._min_gap, gap)
-        in_lane = box_gap(obs_box, areas.lane) == 0.0
+        in_lane = road.in_lane(areas.layout, obs_box, by="overlap")
         closing: float | None = None
         if in_lane or (braking and self._brake_time is None):
             closing = _closing(areas.ego, areas.obstacle, e, o, gap)
         ttc = (gap / closing if closing > 0.0 else None) if closing is not None else None
         if in_lane and ttc is not None:
             self._min_ttc = _lower(self._min_ttc, ttc)
-        self._was_following = in_lane and self._ahead(areas, e, o)
+        self._was_following = in_lane and road.ahead(areas.layout, o, areas.obstacle, e, areas.ego, by="centre")
         if self._was_following:
             self._following += 1
             if e[3] > 0.0:
                 self._min_headway = _lower(self._min_headway, gap / e[3])
             v_f = o[3] * math.cos(o[2] - e[2])  # the obstacle's speed along the ego's heading
-            self._rss += gap < rss_distance(e[3], v_f, self.params)
+            self._rss += gap < self.params.rss_distance(e[3], v_f)
         for k, box in enumerate((ego_box, obs_box)):
             if box_gap(box, areas.conflict) == 0.0:
                 self._enter[k] = t if self._enter[k] is None else self._enter[k]
@@ -371,16 +381,6 @@ class SafetyRecorder:
             self._collision = True
         self._braking, self._t = bool(braking), t
         self._ticks += 1
-
-    @staticmethod
-    def _ahead(areas: _Areas, e: list[float], o: list[float]) -> bool:
-        """The obstacle's box centre is further along the ego's route than the ego's."""
-        centres = []
-        for car, (x, y, theta, _) in ((areas.ego, e), (areas.obstacle, o)):
-            c, s = math.cos(theta), math.sin(theta)
-            ox, oy = float(car.hull_offset[0]), float(car.hull_offset[1])
-            centres.append(areas.route.project_point(x + c * ox - s * oy, y + s * ox + c * oy)[0])
-        return centres[1] > centres[0]
 
     def _speed(self, t: float, v: float) -> None:
         """Deceleration and jerk from the ego's speed ``v`` [m/s] at tick time ``t`` [s]: the

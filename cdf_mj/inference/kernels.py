@@ -39,7 +39,7 @@ import numba
 import numpy as np
 
 from cdf_mj.model import kernels as drv
-from cdf_mj.model.kernels import COMMITTED, GOING, LEFT, RIGHT, WAITING, YIELDING
+from cdf_mj.model.modes import COMMITTED, GOING, LEFT, RIGHT, WAITING, YIELDING
 from cdf_mj.model.occlusion import Occluders
 from cdf_mj.traits import THETA
 

@@ -8,7 +8,7 @@ ego's pose ``[x, y, theta, v]`` or nothing (``has_belief`` false); it is updated
 :func:`update_belief` (paper's ``g``): a new observation replaces it, otherwise it is
 dead-reckoned at the believed speed.
 
-Modes (``Mode``):
+Modes (``Mode``; it and ``Intent`` live in :mod:`cdf_mj.model.modes`, re-exported here):
 
 ========== ===========================================================================
 WAITING    at the stop line; goes once its stop is over (``may_go``: the world's dwell
@@ -34,7 +34,6 @@ from __future__ import annotations
 import operator
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from enum import IntEnum
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -44,6 +43,7 @@ from cdf_mj.model import kernels
 from cdf_mj.model.geometry import Polyline
 from cdf_mj.model.kernels import RouteTable, pack_driver, pack_ego
 from cdf_mj.model.layout import Layout
+from cdf_mj.model.modes import Intent, Mode  # re-exported: the vocabulary's home is modes
 from cdf_mj.model.vehicle import CarGeometry
 from cdf_mj.traits import PER_CAR, SHARED, with_traits
 
@@ -61,22 +61,6 @@ __all__ = [
     "update_belief",
     "update_belief_one",
 ]
-
-
-class Mode(IntEnum):
-    """Discrete mode of the obstacle driver's finite state machine."""
-
-    WAITING = 0
-    GOING = 1
-    YIELDING = 2
-    COMMITTED = 3
-
-
-class Intent(IntEnum):
-    """The obstacle's intent, constant during an episode."""
-
-    LEFT = 0
-    RIGHT = 1
 
 
 @dataclass(frozen=True)

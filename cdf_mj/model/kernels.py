@@ -44,16 +44,13 @@ import numba
 import numpy as np
 
 from cdf_mj.model.geometry import Polyline
+from cdf_mj.model.modes import COMMITTED, GOING, RIGHT, WAITING, YIELDING  # Numba constants
 from cdf_mj.traits import PER_CAR, SHARED
 
 __all__ = ["DRIVER_FIELDS", "EGO_FIELDS", "LAYOUT", "LAYOUTS", "RouteTable", "compile_pending", "helper",
            "layout_digest", "offsets", "pack", "pack_driver", "pack_ego", "tracking_radius"]
 
 F = TypeVar("F", bound=Callable[..., Any])
-
-# The driver's modes and intents as plain ints (cdf_mj.model.driver.Mode / Intent).
-WAITING, GOING, YIELDING, COMMITTED = 0, 1, 2, 3
-LEFT, RIGHT = 0, 1
 
 #: Entries of the float vector ``cfg`` that the driver kernels read (:func:`pack_driver`): the
 #: tick [s], the obstacle car's limits, its pure pursuit, the traits shared by every car

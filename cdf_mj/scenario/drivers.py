@@ -3,8 +3,9 @@
 The filter's driver model (:mod:`cdf_mj.model.driver`) is a compiled state machine with
 sparse random looks, a dead-reckoned belief, a critical gap and a clear distance. The
 drivers here are written apart from it (this module imports neither it, nor its kernels,
-nor the filter) from traffic-engineering models, so that a world driven by them tests
-the filter on behaviour it was not built to invert:
+nor the filter; only the shared vocabulary of :mod:`cdf_mj.model.modes` and of the road,
+:mod:`cdf_mj.model.road`) from traffic-engineering models, so that a world driven by them
+tests the filter on behaviour it was not built to invert:
 
 ================ ========================================================================
 gap-acceptance   stops at the line, waits a dwell, creeps forward while it waits, looks
@@ -33,6 +34,8 @@ tick::
     accel, steer = driver.control(t, pose, ego_if_in_sight_else_None, dt)
     driver.mode, driver.params                      # for records (Mode ints, drawn floats)
 
+Their IDM is :func:`cdf_mj.model.road.idm`'s full form (free-road term, ``s_star="dynamic"``).
+
 World frame (x east, y north), metres, seconds, radians; poses are rear-axle
 ``[x, y, theta, v]``. "Progress" is the arc length [m] of the rear axle along the driver's
 own path past its stop position (``layout.obstacle_start``: the front bumper on the stop
@@ -52,16 +55,13 @@ import numpy as np
 
 from cdf_mj.model.geometry import Polyline
 from cdf_mj.model.layout import Layout
+from cdf_mj.model.modes import COMMITTED, GOING, LEFT, RIGHT, WAITING, YIELDING
+from cdf_mj.model.road import idm
 
 __all__ = ["FAMILIES", "AggressiveDriver", "AggressiveParams", "FamilyParams", "GapAcceptanceDriver",
            "GapAcceptanceParams", "OffRouteDriver", "OffRouteParams", "RollingStopDriver", "RollingStopParams",
-           "WorldDriver", "idm_accel", "make_driver", "offset_path"]
+           "WorldDriver", "make_driver", "offset_path"]
 
-# Modes, as the ints of cdf_mj.model.driver.Mode (records share one vocabulary).
-WAITING, GOING, YIELDING, COMMITTED = 0, 1, 2, 3
-LEFT, RIGHT = 0, 1  # intents, as cdf_mj.model.driver.Intent
-
-IDM_DELTA = 4.0  # [1] the IDM's acceleration exponent (Treiber, Hennecke, Helbing 2000)
 IDM_HEADWAY = 1.0  # [s] the IDM's time headway T to a virtual standing car (city traffic: 1.0-1.5 s)
 IDM_JAM = 1.0  # [m] jam distance s0; a stop target is a virtual standing car s0 beyond it
 LOOKAHEAD = 2.0  # [m] pure pursuit look-ahead at standstill (short: the turns have 6-7 m radii)
@@ -209,18 +209,6 @@ class RollingStopParams(_CommonParams):
         (3.5, 5.0), 0.5, 10.0, "m/s^2", "firm to full braking (clipped to the car's maximum)")
 
 
-def idm_accel(v: float, v0: float, a: float, b: float, gap: float = math.inf, v_lead: float = 0.0) -> float:
-    """The intelligent driver model's acceleration [m/s^2] at speed ``v`` [m/s] with desired
-    speed ``v0`` [m/s], maximum acceleration ``a`` and comfortable deceleration ``b``
-    [m/s^2], behind a leader ``gap`` [m] ahead at speed ``v_lead`` (none: free road):
-    ``a [1 - (v/v0)^4 - (s*/gap)^2]``, ``s* = s0 + max(0, v T + v (v - v_lead) / (2 sqrt(a b)))``."""
-    acc = 1.0 - (max(v, 0.0) / max(v0, 1e-6)) ** IDM_DELTA
-    if math.isfinite(gap):
-        s_star = IDM_JAM + max(0.0, v * IDM_HEADWAY + v * (v - v_lead) / (2.0 * math.sqrt(a * b)))
-        acc -= (s_star / max(gap, 0.05)) ** 2
-    return a * acc
-
-
 def offset_path(route: Polyline, offset: float) -> Polyline:
     """``route`` shifted sideways through its turn: by ``offset`` [m] towards the inside of
     the turn (> 0 cuts the corner, < 0 swings wide), a half-sine bump over the arc length
@@ -256,7 +244,7 @@ class WorldDriver(Protocol):
     ``control`` once per tick; ``mode``, ``params`` and ``start`` for the world and records."""
 
     family: str
-    mode: int  # 0 waiting, 1 going, 2 yielding, 3 committed (as cdf_mj.model.driver.Mode)
+    mode: int  # a cdf_mj.model.modes.Mode int: 0 waiting, 1 going, 2 yielding, 3 committed
     params: Mapping[str, float]  # this episode's drawn values
     start: np.ndarray  # (4,) where the world places the car at t = 0: [x m, y m, theta rad, v m/s]
 
@@ -389,8 +377,11 @@ class _Driver:
         return -self._p["comfort_brake"]
 
     def _idm(self, v: float, v0: float, gap: float = math.inf) -> float:
-        """The IDM with this episode's maximum acceleration and comfortable deceleration."""
-        return idm_accel(v, v0, self._p["max_accel"], self._p["comfort_brake"], gap)
+        """The full IDM (:func:`cdf_mj.model.road.idm`) at speed ``v`` towards desired speed
+        ``v0`` [m/s], behind a virtual standing car ``gap`` [m] ahead (``inf``: free road),
+        with this episode's maximum acceleration and comfortable deceleration."""
+        return idm(v, 0.0, gap, a_max=self._p["max_accel"], b=self._p["comfort_brake"], time_gap=IDM_HEADWAY,
+                   min_gap=IDM_JAM, v0=v0, s_star="dynamic", gap_floor=0.05)
 
     def _stop_at(self, target: float, x: float, v: float, v0: float) -> float:
         """Towards a stop with the rear axle at progress ``target`` [m]: the IDM behind a
