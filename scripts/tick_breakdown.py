@@ -31,6 +31,8 @@ from cdf_mj.sim.scene import Scene
 
 # (module, class, method): what one tick calls, outermost first.
 _TIMED = (("cdf_mj.scenario.world", "World", "step"), ("cdf_mj.sim.scene", "Scene", "step"),
+          ("cdf_mj.scenario.ego_agent", "EgoAgent", "act"),
+          ("cdf_mj.scenario.obstacle_agent", "ObstacleAgent", "act"),
           ("cdf_mj.planners.base", "DecidingPlanner", "command"), ("cdf_mj.planners.cdf", "CDFPlanner", "observe"),
           ("cdf_mj.inference.particle_filter", "ParticleFilter", "predict"),
           ("cdf_mj.inference.particle_filter", "ParticleFilter", "weigh"),

@@ -119,6 +119,107 @@ def test_env_with_the_planners_policy_replays_run_episode(scene, planner):
         assert info["collision"] is None
 
 
+NOISY = {"sensing.pos": 0.5, "sensing.heading": 0.05, "sensing.speed": 0.5}
+
+
+def _rollout(env, seed, actions):
+    """(observations, infos) of an episode under fixed actions."""
+    obs, info = env.reset(seed=seed)
+    out = [(obs, info)]
+    for a in actions:
+        obs, _, te, tr, info = env.step(a)
+        out.append((obs, info))
+        if te or tr:
+            break
+    return out
+
+
+@pytest.mark.parametrize("values", [NOISY, {"sensing.latency": 3}])
+def test_sensing_changes_the_observation_and_the_filter_not_the_truth(scene, values):
+    """The agent observes the obstacle through the ego's sensor (and the CDF filter reads
+    what it observes); ``info`` keeps the truth, which is the perfect world's."""
+    actions = np.random.default_rng(3).uniform([-2.0, -0.05], [1.0, 0.05], size=(25, 2))
+    kwargs = {"scene": scene, "posterior_in_observation": True}
+    perfect = _rollout(cdf_mj.TIntersectionEnv(**kwargs), 1, actions)
+    sensed = _rollout(cdf_mj.TIntersectionEnv(config=ScenarioConfig().with_values(values), **kwargs), 1, actions)
+    assert len(sensed) == len(perfect) > 10
+    assert "true_poses" not in perfect[0][1]  # the default info is what it was
+    for (obs, info), (obs0, info0) in zip(sensed, perfect, strict=True):
+        truth = info["true_poses"]
+        np.testing.assert_array_equal(truth.reshape(8), obs0[:8])  # the truth is the perfect world's
+        np.testing.assert_array_equal(obs[:4], truth[0])  # the ego's own pose is exact
+        assert info["obstacle_measured"] and (info["gap"], info["t"]) == (info0["gap"], info0["t"])
+    moved = [not np.array_equal(obs[4:8], info["true_poses"][1]) for obs, info in sensed]
+    assert all(moved) if "sensing.pos" in values else moved.count(True) >= 10  # standing still, late is the same
+    assert [info["posterior"] for _, info in sensed] != [info["posterior"] for _, info in perfect]
+
+
+@pytest.mark.parametrize("values", [NOISY, {"sensing.latency": 2}])
+def test_with_sensing_the_planners_policy_still_replays_run_episode(scene, values):
+    """The env's filter senses through run_episode's ego sensor (the same stream, the same
+    ticks): the CDF rule's commands drive the same episode as run_episode's ``cdf`` ego,
+    which the sensing changed (seed 3 ends 0.1-0.3 s later than with perfect sensing)."""
+    config = ScenarioConfig().with_values({"ego.follow": False, **values})
+    rec = run_episode(config, seed=3, planner="cdf", scene=scene)
+    assert rec.end_time != run_episode(ScenarioConfig().with_values({"ego.follow": False}), seed=3,
+                                       planner="cdf", scene=scene).end_time
+    env = cdf_mj.TIntersectionEnv(scene=scene, config=config, command_in_observation=True)
+    obs, info = env.reset(seed=3)
+    actuator = JerkLimiter(config.ego.jerk_limit, config.timing.dt)
+    done = False
+    while not done:
+        action = ego_control(env.world.driver, env.world.layout.ego, obs[:4], False)
+        action[0] = actuator(float(info["accel"]))
+        obs, _, terminated, truncated, info = env.step(action)
+        done = terminated or truncated
+    assert (info["t"], info["collision"], env.world.min_gap) == (rec.end_time, rec.collision_with, rec.min_gap)
+
+
+def test_a_dropped_measurement_keeps_the_last_one_in_the_observation(scene):
+    config = ScenarioConfig().with_values({"sensing.dropout": 0.5, "sensing.pos": 0.2})
+    env = cdf_mj.TIntersectionEnv(scene=scene, config=config, run_filter=False, label=False)
+    steps = _rollout(env, 2, np.zeros((30, 2)))
+    measured = [info["obstacle_measured"] for _, info in steps]
+    assert 5 <= measured.count(False) <= 25
+    for k in range(1, len(steps)):
+        obs, info = steps[k]
+        assert np.all(np.isfinite(obs)) and env.observation_space.contains(obs)
+        if not info["obstacle_measured"]:
+            np.testing.assert_array_equal(obs[4:8], steps[k - 1][0][4:8])
+
+
+def test_the_filter_skips_a_dropped_measurement(scene):
+    """With the filter, a dropout is an update skipped, as the ``cdf`` planner skips it (the
+    monitor takes the sensor's NaN row as no measurement)."""
+    config = ScenarioConfig().with_values({"sensing.dropout": 0.3})
+    env = cdf_mj.TIntersectionEnv(scene=scene, config=config, posterior_in_observation=True, label=False)
+    steps = _rollout(env, 1, np.zeros((40, 2)))
+    dropped = sum(not info["obstacle_measured"] for _, info in steps)
+    assert dropped > 0 and env._monitor is not None
+    # Every missed measurement is one the filter skipped (but those before its first one).
+    assert 0 < env._monitor.planner.summary()["skipped_updates"] <= dropped
+    assert all(np.all(np.isfinite(obs)) for obs, _ in steps)
+
+
+def test_brake_latency_delays_the_actions_acceleration(scene):
+    config = ScenarioConfig().with_values({"sensing.brake_latency": 2})
+    env = cdf_mj.TIntersectionEnv(scene=scene, config=config, run_filter=False, label=False)
+    env.reset(seed=2)
+    applied = []
+    step = env.world.step
+    env.world.step = lambda controls: applied.append(controls.copy()) or step(controls)
+    for k in range(4):
+        env.step(np.array([-1.0 - k, 0.01 * k]))
+    assert [a[0] for a in applied[2:]] == [-1.0, -2.0] and abs(applied[0][0]) < 0.5  # the speed hold first
+    assert [a[1] for a in applied] == pytest.approx([0.0, 0.01, 0.02, 0.03])
+
+
+def test_check_env_with_imperfect_sensing():
+    config = ScenarioConfig().with_values({**NOISY, "sensing.dropout": 0.3, "sensing.latency": 1})
+    env = gym.make(cdf_mj.ENV_ID, config=config, normalized_actions=True, run_filter=False, label=False)
+    assert _checker_warnings(env.unwrapped) == []
+
+
 def test_out_of_range_actions_are_clipped_and_bad_ones_refused(scene):
     env = gym.make(cdf_mj.ENV_ID, scene=scene, run_filter=False, label=False).unwrapped
     env.reset(seed=2)

@@ -58,6 +58,26 @@ def test_observe_refuses_bad_input_with_one_line(scene: Scene):
     assert [row["t"] for row in monitor.trace] == [0.0, 0.1]
 
 
+def test_a_missed_measurement_only_predicts_and_is_never_written_to_a_trace(scene: Scene):
+    """Four NaN for the obstacle are a sensor's dropout: without a trace the filter skips its
+    weighing (its posterior moves only by prediction, as the ``cdf`` planner's does); with a
+    trace it is refused, since a trace file holds measured poses; half a NaN pose never passes."""
+    layout = scene.layout()
+    ego, obs = _poses(layout, 0)
+    missing = [np.nan] * 4
+    with pytest.raises(ValueError, match="obstacle_pose must be 4 finite numbers"):
+        CDFMonitor(layout, rng=0).observe(0.0, ego, missing)  # a trace is kept by default
+    dropped, measured = CDFMonitor(layout, rng=0, record_trace=False), CDFMonitor(layout, rng=0, record_trace=False)
+    for m in (dropped, measured):
+        m.observe(0.0, ego, obs)
+    ego1, obs1 = _poses(layout, 1)
+    with pytest.raises(ValueError, match="or 4 NaN"):
+        dropped.observe(0.1, ego1, [np.nan, 0.0, 0.0, 0.0])
+    d = dropped.observe(0.1, ego1, missing)
+    assert np.isnan(d.poses[1]).all() and 0.0 <= d.posterior.p_cutoff <= 1.0
+    assert measured.observe(0.1, ego1, obs1).posterior != d.posterior  # the measurement was not weighed in
+
+
 def test_step_on_a_scene_equals_observe_on_its_poses(scene: Scene):
     layout = scene.layout()
     by_scene, by_poses = CDFMonitor(scene, rng=3), CDFMonitor(layout, rng=3)

@@ -15,7 +15,9 @@ A scene with no camera ``top`` renders too: through a free camera looking straig
 at the junction (``camera=None``, the default).
 
 The obstacle is the scenario's (:class:`cdf_mj.scenario.world.World`, the same code as
-:func:`cdf_mj.run_episode`); the agent replaces the ego's planner and controller.
+:func:`cdf_mj.run_episode`); the agent replaces the ego's planner and controller, and
+senses the obstacle through the ego's own sensor (:class:`cdf_mj.scenario.ego_agent.EgoAgent`:
+``config.sensing``'s noise, dropouts, latencies; perfect by default).
 """
 
 from __future__ import annotations
@@ -38,9 +40,10 @@ except ImportError:  # the one-line error that names the extra (require raises i
     require("gymnasium", "gym", "the environment cdf_mj/TIntersection-v0")
     raise
 from cdf_mj.model.driver import Intent
+from cdf_mj.scenario.ego_agent import EgoAgent
 from cdf_mj.scenario.episode import episode_label
 from cdf_mj.scenario.monitor import CDFMonitor
-from cdf_mj.scenario.world import World
+from cdf_mj.scenario.world import Measurement, World
 from cdf_mj.sim.gl import Offscreen
 from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
 
@@ -104,7 +107,8 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
     idx    meaning                                                unit
     =====  =====================================================  ==========
     0-3    ego pose x, y, theta, v (measured system pose S_t)     m, m, rad, m/s
-    4-7    obstacle pose x, y, theta, v                           m, m, rad, m/s
+    4-7    obstacle pose x, y, theta, v, as the ego senses it     m, m, rad, m/s
+           (``config.sensing``; see **Sensing**)
     8      CDF posterior P(obstacle intends to turn left)         1
     9      CDF posterior P(obstacle has seen the ego)             1
     10     CDF posterior P(cut-off)                               1
@@ -112,6 +116,32 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
            graded command on the ego's speed hold; negative
            when braking), within the ego car's limits
     =====  =====================================================  ==========
+
+    **Sensing** (``config.sensing``; perfect by default: the observation is the truth). The
+    ego's sensor is the one of :func:`~cdf_mj.run_episode`'s ego
+    (:class:`~cdf_mj.scenario.ego_agent.EgoAgent`, drawing from the seed's ``sensing``
+    stream), and the CDF filter (``info["posterior"]``, ``"brake"``, ``"accel"`` and the
+    observation's entries 8 on) reads what it senses:
+
+    =================  ===============================================================
+    option             what the agent gets
+    =================  ===============================================================
+    ``pos``,           the obstacle pose plus Gaussian noise of these std [m] (x and y),
+    ``heading``,       [rad], [m/s]; the ego's own pose is exact
+    ``speed``
+    ``latency``        the obstacle pose ``latency`` steps old
+    ``dropout``        with this probability per step no measurement: the observation
+                       keeps the last measured obstacle pose (before any, its start site
+                       at rest, ``layout.obstacle_start``) and
+                       ``info["obstacle_measured"]`` is False; the filter skips that update
+    ``brake_latency``  the action's acceleration acts ``brake_latency`` steps late (until
+                       the first arrives, the ego's own speed hold, as in
+                       ``run_episode``); its steering at once
+    =================  ===============================================================
+
+    With any of these set, ``info`` also has ``true_poses`` ((2, 4) float64 array, the true
+    system pose: ego, obstacle) and ``obstacle_measured``; the other entries of ``info`` are
+    the truth whatever the sensing.
 
     **Reward** per step, the sum of:
 
@@ -142,10 +172,11 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
     with ``run_filter=False``), ``collision``
     (None, ``"obstacle"`` or ``"building"``), ``label`` (``Cutoff``/``Yield``/``Right``
     from the constant-speed counterfactual of the same seed, None with ``label=False``),
-    ``intent`` (``left``/``right``), ``t`` [s], ``obstacle_in_lane``, ``gap`` [m] between
-    the two collision boxes at the start of the step (0 when they touch; None after reset),
-    ``episode_seed``. ``label`` and ``intent`` are ground truth
-    for evaluation: a policy should not read them.
+    ``intent`` (``left``/``right``), ``t`` [s], ``obstacle_in_lane`` (the truth), ``gap`` [m]
+    between the two collision boxes at the start of the step (0 when they touch; None after
+    reset), ``episode_seed``; with imperfect sensing also ``true_poses`` and
+    ``obstacle_measured`` (**Sensing**). ``label``, ``intent``, ``obstacle_in_lane``, ``gap``
+    and ``true_poses`` are ground truth for evaluation: a policy should not read them.
 
     **Seeding**: ``reset(seed=n)`` plays the world of ``run_episode(seed=n)`` (same
     intent, ego start, obstacle observations and noise); ``reset()`` without a seed draws
@@ -207,6 +238,11 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ValueError("names apply to a scene file; a Scene object was loaded with its own")
         self.scene = scene if isinstance(scene, Scene) else Scene.load(scene, names or self.config.names)
         self.world = World(self.scene, self.config)
+        #: The ego's sensor and brake latency (the agent is its planner and controller).
+        self.ego = EgoAgent(self.world.layout, self.config, self.world.driver)
+        self._sensing = not self.config.sensing.perfect
+        self._held: np.ndarray = self.world.layout.obstacle_start  # the last measured obstacle pose
+        self._measured_now = True
         self.render_mode = render_mode
         # One frame per planner tick of the scenario (the class default assumes dt = 0.1 s).
         fps = 1.0 / self.config.timing.dt
@@ -268,14 +304,17 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         self._episode_seed = episode_seed
         self._label = episode_label(self.config, episode_seed, self.scene) if self.label else None
         m = self.world.reset(episode_seed)
+        self.ego.reset(self.world.rng)
+        self._held = self.world.layout.obstacle_start
         self._intent_name = Intent(self.world.intent).name.lower()
         self._monitor = None
+        sensed = self._sense(m)
         if self.run_filter:  # its trace is not kept: nothing reads it
             self._monitor = CDFMonitor(self.scene, self.config, self.cdf,
                                        rng=self.world.rng["planner"], record_trace=False)
-            self._observe(m.poses)
+            self._observe(sensed)
         self._s = self._progress(m.poses[0])
-        return self._observation(m.poses), self._info(m.obstacle_in_lane, gap=None)
+        return self._observation(self._seen(sensed)), self._info(m, gap=None)
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         """Apply the ego's ``[acceleration m/s^2, steering rad]`` for one tick of ``dt``."""
@@ -298,11 +337,12 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         else:  # the model's own limits in float64 (the float32 box would round -4.877 to -4.87699985)
             a0, a1 = min(max(a0, lo0), hi0), min(max(a1, lo1), hi1)
         world = self.world
-        tick = world.step(np.array([a0, a1]))
-        m = world.measure() if tick.collision is None else None
-        poses = m.poses if m is not None else self.scene.poses()
+        tick = world.step(self.ego.drive(a0, a1))  # the acceleration brake_latency steps late
+        m = world.measure() if tick.collision is None else \
+            Measurement(t=world.t, poses=self.scene.poses(), obstacle_in_lane=tick.obstacle_in_lane)
+        sensed = self._sense(m)
         if self._monitor is not None and tick.collision is None:
-            self._observe(poses)
+            self._observe(sensed)
         s = world.ego_arc  # the ego's progress along its route, as _progress(poses[0]) gives it
         reward = (s - self._s) / (self.config.ego.speed * self.config.timing.dt)
         self._s = s
@@ -310,10 +350,8 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
             reward -= self.collision_penalty
         truncated = world.end_reason == "duration"
         terminated = world.end_reason in ("collision", "passed")
-        in_lane = m.obstacle_in_lane if m is not None else tick.obstacle_in_lane
-        return (self._observation(poses), float(reward), bool(terminated), bool(truncated),
-                self._info(in_lane, gap=0.0 if tick.collision == "obstacle" else tick.gap,
-                           collision=tick.collision))
+        return (self._observation(self._seen(sensed)), float(reward), bool(terminated), bool(truncated),
+                self._info(m, gap=0.0 if tick.collision == "obstacle" else tick.gap, collision=tick.collision))
 
     def render(self) -> np.ndarray | None:
         """An RGB frame ``(height, width, 3)`` uint8 from ``camera``; None without
@@ -386,6 +424,22 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         assert self._monitor is not None
         self._monitor.observe(float(self.scene.data.time), poses[0], poses[1])
 
+    def _sense(self, m: Measurement) -> np.ndarray:
+        """The (2, 4) poses the ego measures at ``m`` (its sensor; with perfect sensing the
+        sensor passes the truth through and draws nothing, so it is not asked)."""
+        return self.ego.sense(m).poses if self._sensing else m.poses
+
+    def _seen(self, sensed: np.ndarray) -> np.ndarray:
+        """The poses of the observation from the sensed ones: a dropped obstacle (a NaN row)
+        keeps the last measured pose."""
+        if not self._sensing:
+            return sensed
+        self._measured_now = not math.isnan(sensed[1, 0])
+        if self._measured_now:
+            self._held = sensed[1].copy()
+            return sensed
+        return np.stack([sensed[0], self._held])
+
     def _progress(self, ego_pose: np.ndarray) -> float:
         return float(self.world.layout.route_ego.project(ego_pose[:2])[0])
 
@@ -411,13 +465,19 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         clipped: np.ndarray = np.clip(obs, self._obs_box.low, self._obs_box.high)
         return clipped
 
-    def _info(self, in_lane: bool, gap: float | None, collision: str | None = None) -> dict[str, Any]:
+    def _info(self, m: Measurement, gap: float | None, collision: str | None = None) -> dict[str, Any]:
+        """The step's ``info`` (the class docstring) from the true measurement ``m``."""
         w = self.world
         d = self._monitor.decision if self._monitor is not None else None
-        return {"posterior": d.posterior.to_dict() if d is not None else None,
-                "brake": bool(d.brake) if d is not None else False,
-                "accel": float(d.accel) if d is not None else None,
-                "collision": collision, "label": self._label,
-                "intent": self._intent_name, "t": w.end_time,
-                "obstacle_in_lane": bool(in_lane), "gap": gap,
-                "episode_seed": self._episode_seed}
+        info: dict[str, Any] = {
+            "posterior": d.posterior.to_dict() if d is not None else None,
+            "brake": bool(d.brake) if d is not None else False,
+            "accel": float(d.accel) if d is not None else None,
+            "collision": collision, "label": self._label,
+            "intent": self._intent_name, "t": w.end_time,
+            "obstacle_in_lane": bool(m.obstacle_in_lane), "gap": gap,
+            "episode_seed": self._episode_seed}
+        if self._sensing:
+            info["true_poses"] = np.array(m.poses, dtype=float)
+            info["obstacle_measured"] = self._measured_now
+        return info

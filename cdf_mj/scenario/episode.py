@@ -1,13 +1,17 @@
 """One episode of the T-intersection scenario in MuJoCo: ``run_episode(config, seed)``.
 
 The world itself is :class:`cdf_mj.scenario.world.World` (``reset(seed)``, ``measure()``,
-``step(ego_controls)``), shared with the Gymnasium environment. Each 0.1 s tick
-(``config.timing.dt``) of an episode, in this order:
+``step(ego_controls)``), shared with the Gymnasium environment; the ego is an
+:class:`~cdf_mj.scenario.ego_agent.EgoAgent`, the obstacle the world's
+:class:`~cdf_mj.scenario.obstacle_agent.ObstacleAgent`. Each 0.1 s tick
+(``config.timing.dt``) of an episode reads: the world measures, the ego acts, the world
+steps. In this order:
 
 1. read the system pose ``S_t`` from MuJoCo (error on a non-finite pose);
-2. the ego's planner is asked whether to brake (the first yes is held to the end, unless
-   the planner ``releases_brake``: then every tick's answer counts, and a released ego
-   returns to its nominal speed), the ego's controller gives its controls;
+2. the ego senses it (``config.sensing``), its planner is asked whether to brake (the
+   first yes is held to the end, unless the planner ``releases_brake``: then every tick's
+   answer counts, and a released ego returns to its nominal speed), the ego's controller
+   gives its controls;
 3. the obstacle looks: line of sight from its eye to the ego (MuJoCo rays); if visible,
    with probability ``beta`` it observes the ego's pose with Gaussian noise; its belief
    is updated (``g``);
@@ -40,16 +44,13 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
-
 from cdf_mj.analysis.safety import SafetyRecorder
 from cdf_mj.config import ScenarioConfig, check_seed
-from cdf_mj.model.driver import Intent, ego_control
-from cdf_mj.model.following import follow_accel
-from cdf_mj.planners.base import Planner, PlannerContext, PlannerInput, hard_brake_of
+from cdf_mj.model.driver import Intent
+from cdf_mj.planners.base import Planner
 from cdf_mj.planners.registry import make_planner
 from cdf_mj.records import EpisodeRecord, Label
-from cdf_mj.scenario.sensing import CommandDelay, JerkLimiter, Sensor
+from cdf_mj.scenario.ego_agent import EgoAgent
 from cdf_mj.scenario.world import Measurement, Tick, World
 from cdf_mj.sim.scene import Scene
 
@@ -110,99 +111,35 @@ class _Run:
     world: dict[str, Any] = field(default_factory=dict)
 
 
-def _answer(planner: Planner, wants: object) -> bool:
-    """A planner's answer to "brake now?": a ``bool`` or NumPy bool, else TypeError naming the
-    planner and what it returned (NaN, ``"yes"`` or ``None`` would otherwise read as a
-    decision)."""
-    if not isinstance(wants, (bool, np.bool_)):
-        name = getattr(planner, "name", None) or type(planner).__name__
-        raise TypeError(f"planner {name!r} ({type(planner).__name__}.brake) returned {wants!r} of type "
-                        f"{type(wants).__name__}: it must return a bool (True: brake now)")
-    return bool(wants)
-
-
-def _command(planner: Planner, command: object) -> float:
-    """A graded planner's command: a real number or +-inf (not NaN), else TypeError naming
-    the planner and what it returned."""
-    if isinstance(command, bool) or not isinstance(command, (int, float, np.floating, np.integer)) \
-            or math.isnan(command):
-        name = getattr(planner, "name", None) or type(planner).__name__
-        raise TypeError(f"planner {name!r} ({type(planner).__name__}.command) returned {command!r}: it must "
-                        "return an acceleration cap [m/s^2] (-inf: the full brake, inf: none)")
-    return float(command)
-
-
 def _simulate(scene: Scene, config: ScenarioConfig, seed: int, planner: Planner,
               observers: Sequence[Observer] = (), *, holds_speed: bool = False) -> _Run:
     """One run. ``holds_speed``: the label's counterfactual, whose ego never follows."""
     world = World(scene, config)
     world.reset(seed)
-    layout = world.layout
-    # The planner is told only what the ego knows: the map, the tick, its own controller.
-    planner.reset(PlannerContext.of(layout, config), world.rng["planner"])
-    sensor = Sensor(config.sensing, layout, world.rng["sensing"])
-    delay = CommandDelay(config.sensing.brake_latency)
-    graded = bool(getattr(planner, "graded", False))
-    # A graded planner's commands go through the ego's jerk-limited actuator; a yes/no
-    # planner's full brake and release act at once, as the paper's did (its records are
-    # what they were before graded commands existed).
-    actuator = JerkLimiter(config.ego.jerk_limit, config.timing.dt) if graded else float
-    follows = config.ego.follow and not holds_speed
-    braking = False
-    brake_time: float | None = None
-    deviated: float | None = None  # [s] the first tick the ego did not hold its speed
-    releases = bool(getattr(planner, "releases_brake", False))
-    max_brake = layout.ego.max_brake
-    hard = getattr(planner, "hard_brake", None) if graded else None
-    hard = hard_brake_of(max_brake) if hard is None else hard  # [m/s^2] a command from which it is a brake
+    ego = EgoAgent(world.layout, config, world.driver, planner, follows=config.ego.follow and not holds_speed)
+    ego.reset(world.rng)
     while not world.done:
-        m = world.measure()
-        # What the ego's sensors give it (the truth unless config.sensing says otherwise).
-        poses, in_lane = sensor.sense(m.poses, m.obstacle_in_lane)
-        # The ego decides: a graded command [m/s^2], or yes/no to the full brake (its first
-        # yes is held, unless the planner releases).
-        obs = PlannerInput(t=m.t, poses=poses, obstacle_in_lane=in_lane)
-        if graded:
-            command = _command(planner, planner.command(obs))
-            wants = command <= -hard
-        else:
-            wants = _answer(planner, planner.brake(obs))
-            braking = wants = wants if releases else (braking or wants)
-            command = -math.inf if wants else math.inf
-        if wants and brake_time is None:
-            brake_time = m.t
-        command = delay(command)  # as it acts, config.sensing.brake_latency ticks on
-        acting = command <= -hard
-        # The ego's own controller (its speed hold, and its car following), capped by the command.
-        controls = ego_control(world.driver, layout.ego, m.poses[0], False)
-        nominal = float(controls[0])
-        accel = min(nominal, command)
-        if follows and command > -max_brake:
-            behind = follow_accel(layout, layout.ego, m.poses[0], layout.obstacle, poses[1], config.ego,
-                                  max_brake=config.ego.follow_brake)
-            if behind is not None:
-                accel = min(accel, behind)
-        controls[0] = actuator(max(accel, -max_brake))  # within the car's brake and its actuator's jerk limit
-        if controls[0] < nominal - 1e-9 and deviated is None:
-            deviated = m.t
-        tick = world.step(controls)
+        m = world.measure()  # the truth at the start of the tick
+        controls = ego.act(m)  # what the ego senses, decides and commands
+        tick = world.step(controls)  # the obstacle acts, the physics steps
         if observers:
-            step = EpisodeTick(measurement=m, braking=acting, tick=tick, planner=planner, world=world,
-                               command=float(controls[0]))
+            step = EpisodeTick(measurement=m, braking=ego.acting, tick=tick, planner=planner, world=world,
+                               command=ego.accel)
             for observe in observers:
                 observe(step)
     # Up to the label's outcome this run was the constant-speed run if its ego held its speed.
-    same = world.label_time is not None and (deviated is None or deviated >= world.label_time - 1e-9)
+    same = world.label_time is not None and (ego.deviated is None or ego.deviated >= world.label_time - 1e-9)
     info: dict[str, Any] = {"family": config.obstacle.family,
                             "after_merge": {**world.after_merge.params, "since": world.after_merge.active_since}}
     if world.family is not None:
         info["driver"] = dict(world.family.params)
     if not config.sensing.perfect:
-        info["dropped"] = sensor.dropped
+        assert ego.sensor is not None
+        info["dropped"] = ego.sensor.dropped
     return _Run(intent=int(world.intent), offset=world.ego_start_offset,
                 first_seen=world.first_seen, yielded=world.yielded, entered=world.entered_lane,
                 collision=world.collision, collision_time=world.collision_time,
-                min_gap=world.min_gap, brake_time=brake_time, time_lost=world.time_lost,
+                min_gap=world.min_gap, brake_time=ego.brake_time, time_lost=world.time_lost,
                 end_time=world.end_time, label_hit=world.label_outcome if same else None, world=info)
 
 

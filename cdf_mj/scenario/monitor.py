@@ -47,6 +47,7 @@ import numpy as np
 
 from cdf_mj.config import CDFConfig, ScenarioConfig, SceneNames, check_seed
 from cdf_mj.inference.particle_filter import ParticleFilter, Posterior
+from cdf_mj.model import road
 from cdf_mj.model.layout import Layout
 from cdf_mj.model.vehicle import CarGeometry
 from cdf_mj.planners.base import PlannerContext, PlannerInput
@@ -97,15 +98,17 @@ class PoseSource(Protocol):
         ...
 
 
-def _pose(value: Sequence[float] | np.ndarray, what: str) -> np.ndarray:
-    """``value`` as 4 finite floats, or one ValueError naming ``what``."""
+def _pose(value: Sequence[float] | np.ndarray, what: str, missing: bool = False) -> np.ndarray:
+    """``value`` as 4 finite floats (or, where ``missing`` is allowed, 4 NaN: no measurement),
+    or one ValueError naming ``what``."""
     try:
         pose = np.array(value, dtype=float)
     except (TypeError, ValueError):
         pose = np.full(0, np.nan)
-    if pose.shape != (4,) or not np.all(np.isfinite(pose)):
+    if pose.shape != (4,) or not (np.all(np.isfinite(pose)) or (missing and np.all(np.isnan(pose)))):
         raise ValueError(f"CDFMonitor.observe: {what} must be 4 finite numbers [x m, y m, yaw rad, "
-                         f"speed m/s] (rear axle, world frame), got {_show(value)}")
+                         f"speed m/s] (rear axle, world frame){' or 4 NaN' if missing else ''}, "
+                         f"got {_show(value)}")
     return pose
 
 
@@ -214,6 +217,9 @@ class CDFMonitor:
         obstacle waiting, an unseen ego, intent from the prior); later calls weigh the
         particles by the new measurement and resample; the decision rule reads them; then
         they are propagated one tick.
+        An ``obstacle_pose`` of 4 NaN is no measurement (a sensor's dropout): the filter
+        skips its weighing and only predicts, as the ``cdf`` planner does; taken only
+        with ``record_trace=False`` (a trace file holds measured poses).
         ValueError, with nothing changed, for a pose that is not 4 finite numbers, a time
         that is not finite or goes back, or a time ``dt`` away from the last one.
         """
@@ -223,10 +229,12 @@ class CDFMonitor:
             t = math.nan
         if not math.isfinite(t):
             raise ValueError(f"CDFMonitor.observe: t must be a finite time [s], got {_show(t)}")
-        poses = np.stack([_pose(ego_pose, "ego_pose"), _pose(obstacle_pose, "obstacle_pose")])
+        poses = np.stack([_pose(ego_pose, "ego_pose"),
+                          _pose(obstacle_pose, "obstacle_pose", missing=not self.record_trace)])
         self._check_time(t)
         x, y, th = (float(v) for v in poses[1, :3])
-        in_lane = self.layout.ego_lane.contains_any(self.layout.obstacle.footprint_one(x, y, th))
+        in_lane = not math.isnan(x) and road.in_lane(self.layout, self.layout.obstacle.footprint_one(x, y, th),
+                                                     by="corner")  # no measurement: not in the lane
         command = self.planner.command(PlannerInput(t=t, poses=poses, obstacle_in_lane=in_lane))
         brake = self.planner.braking
         self._last_t = t

@@ -12,10 +12,12 @@ through and draw nothing.
 
 Randomness: the sensor draws from its own stream (the world's ``sensing`` stream), so the
 obstacle, the ego's start and every other draw of a seed are the same whatever the
-sensing (common random numbers). ::
+sensing (common random numbers). The ego agent (:class:`cdf_mj.scenario.ego_agent.EgoAgent`)
+holds all three; by hand::
 
     sensor = Sensor(config.sensing, layout, world.rng["sensing"])
-    poses, in_lane = sensor.sense(world.measure())
+    m = world.measure()
+    poses, in_lane = sensor.sense(m.poses, m.obstacle_in_lane)
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from collections import deque
 import numpy as np
 
 from cdf_mj.config import Sensing
+from cdf_mj.model import road
 from cdf_mj.model.layout import Layout
 
 __all__ = ["CommandDelay", "JerkLimiter", "Sensor"]
@@ -70,7 +73,7 @@ class Sensor:
             return out, seen_in_lane
         out[1] = obstacle + noise
         x, y, th = out[1, :3].tolist()
-        return out, bool(self.layout.ego_lane.contains_any(self.layout.obstacle.footprint_one(x, y, th)))
+        return out, road.in_lane(self.layout, self.layout.obstacle.footprint_one(x, y, th))
 
 
 class CommandDelay:

@@ -1,6 +1,9 @@
-"""The scenario world: both cars ticked at ``config.timing.dt``, the obstacle's side of the
-scenario in one place (:class:`World`), used by :func:`cdf_mj.scenario.episode.run_episode`
-and by the Gymnasium environment (:mod:`cdf_mj.envs.t_intersection`). ::
+"""The scenario world: both cars ticked at ``config.timing.dt`` (:class:`World`), used by
+:func:`cdf_mj.scenario.episode.run_episode` and by the Gymnasium environment
+(:mod:`cdf_mj.envs.t_intersection`). The world keeps the scene, the random streams, the
+physics, the bookkeeping and the episode's end; the obstacle driver is its
+:class:`~cdf_mj.scenario.obstacle_agent.ObstacleAgent`, and the ego takes the controls it
+is given (the episode's come from an :class:`~cdf_mj.scenario.ego_agent.EgoAgent`). ::
 
     world = World(scene, config)
     m = world.reset(seed=7)                    # draws intent and ego start; places cars
@@ -22,24 +25,16 @@ import numpy as np
 
 from cdf_mj.config import ScenarioConfig, check_seed
 from cdf_mj.model.conflict import right_turn_overlap
-from cdf_mj.model.driver import DriverModel, Intent, Mode, obstacle_control_one, road_clear, update_belief_one
-from cdf_mj.model.following import FOLLOW_HEADING, follow_accel, in_lane_ahead
+from cdf_mj.model.driver import DriverModel, Intent
 from cdf_mj.model.geometry import box_gap
+from cdf_mj.model.road import in_lane, in_lane_ahead
 from cdf_mj.scenario.after_merge import AfterMergeOverride
-from cdf_mj.scenario.drivers import WorldDriver, make_driver
+from cdf_mj.scenario.drivers import WorldDriver
+from cdf_mj.scenario.obstacle_agent import ObstacleAgent
 from cdf_mj.sim.checks import SceneWarning
 from cdf_mj.sim.scene import Scene, SimulationDivergedError
-from cdf_mj.sim.visibility import ego_visible
 
 __all__ = ["Measurement", "NonFiniteStateError", "Tick", "World"]
-
-
-_HELD_BACK = frozenset((int(Mode.YIELDING), int(Mode.WAITING)))  # plain ints: a cheap test per tick
-_MOVING = frozenset((int(Mode.GOING), int(Mode.COMMITTED)))
-_GOING, _WAITING, _YIELDING = int(Mode.GOING), int(Mode.WAITING), int(Mode.YIELDING)
-#: Below this cosine of the two cars' heading difference the obstacle follows no ego
-#: (:func:`cdf_mj.model.following.ahead_in_lane`'s first test, the same expression).
-_FOLLOW_COS = math.cos(FOLLOW_HEADING) - 1e-12
 
 
 class NonFiniteStateError(FloatingPointError):
@@ -83,13 +78,17 @@ def _streams(seed: int) -> dict[str, np.random.Generator]:
 
 
 class World:
-    """The scenario world, ticked at ``config.timing.dt``: the obstacle looks, believes and drives;
-    the ego takes the controls it is given (see the module docstring for an example).
+    """The scenario world, ticked at ``config.timing.dt``: the obstacle looks, believes and drives
+    (:attr:`obstacle_agent`); the ego takes the controls it is given (see the module docstring
+    for an example).
 
-    One tick, in order: the obstacle looks (MuJoCo rays; with probability ``beta`` it
-    observes the ego's pose with Gaussian noise) and updates its belief; its driver state
-    machine gives its controls; both cars' controls get the scenario's process noise;
-    MuJoCo steps ``dt / timestep`` physics steps, stopping at the ego's first contact.
+    One tick, in order: the world draws the tick's random numbers; the obstacle looks
+    (MuJoCo rays; with probability ``beta`` it observes the ego's pose with Gaussian noise),
+    updates its belief and its driver state machine gives its controls
+    (:meth:`ObstacleAgent.act <cdf_mj.scenario.obstacle_agent.ObstacleAgent.act>`); both
+    cars' controls get the scenario's process noise; MuJoCo steps ``dt / timestep`` physics
+    steps, stopping at the ego's first contact; the world keeps its books and decides
+    whether the episode is over.
 
     Stop line: the obstacle starts at rest at its stop line and waits ``dwell`` [s]
     (drawn per episode from ``config.obstacle.stop_dwell``) before it may go; on the tick it
@@ -100,10 +99,14 @@ class World:
     as its belief says (with another departure look).
 
     Randomness: ``reset(seed)`` splits the seed into independent streams (``rng``:
-    ``scenario``, ``obstacle``, ``ego``, ``planner``, ``departure``), each drawn the same
-    way whatever the ego does (common random numbers). The ``planner`` stream is not used
-    here; it is for the ego's decision maker. The dwell is drawn from ``scenario`` after
-    the intent and the ego's start, so these stay the same per seed whatever the dwell.
+    ``scenario``, ``obstacle``, ``ego``, ``planner``, ``departure``, ``sensing``,
+    ``after_merge``, ``driver``), each drawn the same way whatever the ego does (common
+    random numbers). The world draws every tick's numbers itself, in one place of
+    :meth:`step`, and hands the obstacle agent those of its look. The ``planner`` and
+    ``sensing`` streams are not used here; they are the ego's
+    (:meth:`EgoAgent.reset <cdf_mj.scenario.ego_agent.EgoAgent.reset>`). The dwell is drawn
+    from ``scenario`` after the intent and the ego's start, so these stay the same per seed
+    whatever the dwell.
 
     Args:
         scene: the loaded scene (its model is not changed; its data is).
@@ -111,8 +114,11 @@ class World:
             scene's timestep.
 
     Attributes: ``scene``, ``config``, ``layout`` (``scene.layout()``), ``driver`` (the
-    obstacle's :class:`~cdf_mj.model.driver.DriverModel`). After :meth:`reset` (updated by
-    :meth:`step`): ``seed``, ``intent`` (:class:`cdf_mj.model.driver.Intent`),
+    obstacle's :class:`~cdf_mj.model.driver.DriverModel`, whose ego controller the ego
+    agent uses too), ``obstacle_agent`` (the obstacle's
+    :class:`~cdf_mj.scenario.obstacle_agent.ObstacleAgent`: ``hesitated``, ``first_seen``,
+    ``departed``, ``yielded``, ``family`` and ``after_merge`` below are read from it, read
+    only). After :meth:`reset` (updated by :meth:`step`): ``seed``, ``intent`` (:class:`cdf_mj.model.driver.Intent`),
     ``ego_start_offset`` [m], ``dwell`` [s], ``departed`` [s] (when it left the line,
     else ``None``), ``hesitates``, ``hesitation_pause`` [s], ``hesitated`` [s] (when it
     stopped again, else ``None``), ``first_seen`` [s], ``yielded``, ``entered_lane`` [s],
@@ -137,12 +143,8 @@ class World:
         self.layout = layout = scene.layout()
         self.driver = DriverModel.of_world(layout, config)
         self.n_sub = scene.substeps(config.timing.dt)  # SceneError (a ValueError) unless whole, <= 1000
-        seen = config.observation
-        self._obs_std = np.array([seen.pos, seen.pos, seen.heading, seen.speed])
-        self._nu_std = np.array([config.noise.accel, config.noise.steer])
-        # The same as Python floats (the per-tick products on floats: the same values).
-        self._obs_std_py: list[float] = self._obs_std.tolist()
-        self._nu_std_py: list[float] = self._nu_std.tolist()
+        # The process noise's std as Python floats (the per-tick products on floats).
+        self._nu_std_py: list[float] = np.array([config.noise.accel, config.noise.steer]).tolist()
         self._dt = config.timing.dt
         self._s0 = layout.route_ego.project(layout.ego_start[:2])[0]
         self._s_conflict = layout.route_ego.project(layout.conflict)[0]
@@ -159,22 +161,8 @@ class World:
                           f"right route ({s_right:.1f} m along it): a right-turner can hit the ego, which the "
                           "drivers' model and every planner built on it take for impossible; give the right "
                           "route a wider turn or the obstacle a smaller box", SceneWarning, stacklevel=2)
-        behaviour = config.obstacle
-        # The obstacle's driver: the traits' state machine, or a family written apart from it.
-        self.family: WorldDriver | None = None if behaviour.family == "model" else make_driver(behaviour.family)
-        self.after_merge = AfterMergeOverride(config.after_merge)
-        room = layout.route_left.length - float(layout.route_left.project(layout.conflict)[0])
-        if config.after_merge.behaviour in ("slow", "brake") and config.after_merge.at[1] >= room:
-            raise ValueError(f"after_merge.at={config.after_merge.at} m: the obstacle's left route goes on for "
-                             f"{room:.1f} m past the conflict point in {scene.source}; give distances below it")
-        if behaviour.hesitation > 0.0:  # a stop past the commit point would never happen
-            start = layout.obstacle_start[:2]
-            room = min(float(s - r.project(start)[0]) for r, s in zip(layout.obstacle_routes,
-                                                                        self.driver.s_commit, strict=True))
-            if behaviour.hesitation_creep >= room:
-                raise ValueError(f"obstacle.hesitation_creep={behaviour.hesitation_creep} m reaches the commit point, "
-                                 f"{room + 1e-9:.2f} m from the obstacle's start in {scene.source}: a driver "
-                                 "past it never stops again; give a shorter creep")
+        # The obstacle driver (ValueError for world options its routes cannot take).
+        self.obstacle_agent = ObstacleAgent(scene, config, self.driver)
         self.done = True  # until reset
 
     # ------------------------------------------------------------------ episode
@@ -198,27 +186,14 @@ class World:
         pause = float(rng["scenario"].uniform(*behaviour.hesitation_pause))
         self.hesitates = bool(u_hesitate < behaviour.hesitation)
         self.hesitation_pause = pause if self.hesitates else 0.0
-        self.hesitated: float | None = None
-        self._go_after = self.dwell  # [s] a WAITING driver may leave from then on
-        self._line = layout.obstacle_start[:2].copy()  # where it stood
         ahead = route.point_at(self._s0 + offset + 1.0)
         heading0 = math.atan2(ahead[1] - xy0[1], ahead[0] - xy0[0])
         # The world options draw from streams of their own (the same per seed whatever they are).
-        self.after_merge.reset(rng["after_merge"])
-        obstacle_start = layout.obstacle_start
-        if self.family is not None:
-            self.family.reset(layout, int(self.intent), rng["driver"])
-            obstacle_start = self.family.start
+        obstacle_start = self.obstacle_agent.reset(self.intent, self.dwell, self.hesitates,
+                                                   self.hesitation_pause, rng)
         scene.reset(ego=np.array([xy0[0], xy0[1], heading0, config.ego.speed]), obstacle=obstacle_start)
-        self._mode = np.array([Mode.WAITING])
-        self._belief = np.zeros((1, 4))
-        self._has_belief = np.zeros(1, dtype=bool)
-        self._intents = np.array([int(self.intent)])
         # The per-tick draws' streams, looked up once (the same Generators as in rng).
         self._draws = (rng["obstacle"], rng["ego"], rng["departure"])
-        self.first_seen: float | None = None
-        self.departed: float | None = None
-        self.yielded = False
         self.entered_lane: float | None = None
         self.min_gap = math.inf
         self.collision: str | None = None
@@ -233,6 +208,38 @@ class World:
         self._measured: Measurement | None = None
         self._ego_arc: float | None = None  # [m] kept by step()
         return self.measure()
+
+    # The obstacle's own record, kept by its agent (read-only here).
+    @property
+    def hesitated(self) -> float | None:
+        """[s] when the obstacle stopped again after creeping out (a hesitating driver), else None."""
+        return self.obstacle_agent.hesitated
+
+    @property
+    def first_seen(self) -> float | None:
+        """[s] when the obstacle first observed the ego, else None."""
+        return self.obstacle_agent.first_seen
+
+    @property
+    def departed(self) -> float | None:
+        """[s] when the obstacle left its line (its mode first going or committed), else None."""
+        return self.obstacle_agent.departed
+
+    @property
+    def yielded(self) -> bool:
+        """Whether the obstacle has been held back by what it believes (braking to yield, or
+        waiting once its dwell was over)."""
+        return self.obstacle_agent.yielded
+
+    @property
+    def family(self) -> WorldDriver | None:
+        """The obstacle's driver family (``config.obstacle.family``), None for the traits' state machine."""
+        return self.obstacle_agent.family
+
+    @property
+    def after_merge(self) -> AfterMergeOverride:
+        """The obstacle's override once it is in the ego's lane (``config.after_merge``)."""
+        return self.obstacle_agent.after_merge
 
     @property
     def t(self) -> float:
@@ -275,8 +282,8 @@ class World:
         self._hull = self.layout.obstacle.footprint_one(ox, oy, oth)
         self._ego_hull = self.layout.ego.footprint_one(ex, ey, eth)
         self._values = values
-        in_lane = self.layout.ego_lane.contains_any(self._hull)
-        self._measured = Measurement(t=self.t, poses=np.array(values), obstacle_in_lane=in_lane)
+        self._measured = Measurement(t=self.t, poses=np.array(values),
+                                     obstacle_in_lane=in_lane(self.layout, self._hull))
         return self._measured
 
     def step(self, ego_controls: np.ndarray) -> Tick:
@@ -288,108 +295,47 @@ class World:
         """
         if self.done:
             raise RuntimeError("the episode is over: call reset(seed) before step()")
-        scene, layout = self.scene, self.layout
-        config = self.config
-        behaviour = config.obstacle
         m = self.measure()
-        t, poses = m.t, m.poses
-        ego, obs = poses[0], poses[1]
-        ego_v, obs_v = self._values  # the same poses as Python floats
-        dt = self._dt
+        t = m.t
         # The ego's controls as two floats, checked before anything of the tick is drawn or moved.
         u = np.asarray(ego_controls, dtype=float)
         if u.shape != (2,):
             raise ValueError(f"World.step: ego_controls must be [acceleration m/s^2, steering rad], got shape "
                              f"{u.shape}")
         ego_a, ego_steer = u.tolist()
-
-        # The obstacle looks (draws are made every tick, whatever is visible: CRN). Drawn as
-        # before: uniform, 4 observation normals, 2 control normals from "obstacle" (one call
-        # of 6 normals gives the same numbers as calls of 4 and 2), 2 from "ego", a uniform
-        # from "departure".
+        # The tick's draws, made every tick whatever is visible (CRN): a uniform (the beta
+        # look), 4 observation normals and 2 control normals from "obstacle" (one call of 6
+        # normals gives the same numbers as calls of 4 and 2), 2 from "ego", a uniform (the
+        # departure look) from "departure".
         g_obstacle, g_ego, g_departure = self._draws
         u_look = g_obstacle.random()
         z = g_obstacle.standard_normal(6).tolist()
         z_ego = g_ego.standard_normal(2).tolist()
         u_depart = g_departure.random()
-        sa, ss = self._nu_std_py
-        nu1 = (z[4] * sa, z[5] * ss)
-        nu2 = (z_ego[0] * sa, z_ego[1] * ss)
-        visible: bool | None = None  # the line of sight, cast at most once a tick
-
-        def sees_ego() -> bool:
-            nonlocal visible
-            if visible is None:
-                scene.sync()  # geoms where qpos puts them, for the rays
-                visible = ego_visible(scene, obs, ego)
-            return visible
-
-        std = self._obs_std_py
-        seen_as = [ego_v[i] + z[i] * std[i] for i in range(4)]  # the ego's pose with the observation noise
-
-        if self.family is None:  # the traits' state machine, the filter's own model
-            observed = bool(u_look < behaviour.beta) and sees_ego()
-            # The belief update g(B, O), in place: self._belief is this world's own.
-            update_belief_one(self._belief, self._has_belief, seen_as if observed else None, dt)
-            mode = int(self._mode[0])
-            if (self.hesitates and self.hesitated is None and mode == _GOING
-                    and math.dist(obs_v[:2], self._line.tolist()) >= behaviour.hesitation_creep):
-                # It has nosed out and stops again: it stands its pause, then may go on.
-                self.hesitated = t
-                self._mode[0] = mode = _WAITING
-                self._go_after = t + self.hesitation_pause
-            may_go = t >= self._go_after - 1e-9
-            if (not observed and may_go and u_depart < behaviour.departure_look
-                    and mode == _WAITING
-                    and road_clear(self.driver, self._belief, self._has_belief, self._intents)[0]
-                    and sees_ego()):
-                # It would leave now: it looks once more, and sees the ego.
-                observed = True
-                update_belief_one(self._belief, self._has_belief, seen_as, dt)
-            if observed and self.first_seen is None:
-                self.first_seen = t
-
-            # The obstacle decides (obstacle_control of one car: its kernel, from the full
-            # route search, with this tick's pose, mode and belief).
-            a1, steer1, mode, _ = obstacle_control_one(self.driver, obs_v, mode, self._belief[0].tolist(),
-                                                       bool(self._has_belief[0]), int(self._intents[0]), may_go)
-            self._mode[0] = mode  # this world's own array (obstacle_control returned a new one)
-        else:  # a driver written apart from it: it looks whenever it looks, and acts on what it sees
-            observed = self.family.looking and sees_ego()
-            if observed and self.first_seen is None:
-                self.first_seen = t
-            a1, steer1 = self.family.control(t, obs, ego if observed else None, dt)
-            a1 = float(np.float64(a1))  # what it was as an entry of the (1, 2) controls array
-            steer1 = float(np.float64(steer1))
-            mode, may_go = int(self.family.mode), True
-        # Once in the ego's lane, what it does next is the world's option (keep by default),
-        # and behind the ego it keeps its distance (after_merge.follows).
-        a1 = float(self.after_merge.accel(t, obs, m.obstacle_in_lane, a1))
-        # follow_accel is None unless the ego is ahead in the lane heading the obstacle's way
-        # (ahead_in_lane): its first test here, on the floats, spares the call on most ticks.
-        if config.after_merge.follows and math.cos(ego_v[2] - obs_v[2]) >= _FOLLOW_COS:
-            behind = follow_accel(layout, layout.obstacle, obs, layout.ego, ego, config.ego)
-            if behind is not None:
-                a1 = float(min(a1, behind))
-        if mode in _MOVING and self.departed is None:
-            self.departed = t
-        # Held back by what it believes: braking to yield, or still waiting once its dwell
-        # is over (waiting out the dwell itself is not yielding).
-        self.yielded |= mode in _HELD_BACK and (may_go or mode != _WAITING) if self.family is None \
-            else mode == _YIELDING
+        agent = self.obstacle_agent
+        a1, steer1 = agent.act(t, m.poses, self._values, m.obstacle_in_lane, u_look, z, u_depart)
         if m.obstacle_in_lane and self.entered_lane is None:
             self.entered_lane = t
         gap = box_gap(self._ego_hull, self._hull)
         self.min_gap = min(self.min_gap, gap)
+        sa, ss = self._nu_std_py  # both cars' controls with the process noise
+        self.scene.drive(ego_a + z_ego[0] * sa, ego_steer + z_ego[1] * ss, a1 + z[4] * sa, steer1 + z[5] * ss)
+        hit = self._physics(t)
+        return Tick(t=t, poses=m.poses, obstacle_in_lane=m.obstacle_in_lane, observed=agent.observed,
+                    mode=agent.mode, seen=agent.seen, belief=agent.belief.copy(), gap=gap, collision=hit,
+                    done=self.done)
 
-        scene.drive(ego_a + nu2[0], ego_steer + nu2[1], a1 + nu1[0], steer1 + nu1[1])
+    def _physics(self, t: float) -> str | None:
+        """MuJoCo's steps of one tick from ``t`` [s], then the books and the episode's end;
+        returns what the ego touched (``"obstacle"``, ``"building"``) or None."""
+        scene, layout, config = self.scene, self.layout, self.config
         self._measured = None
         try:
             hit = scene.step(self.n_sub)
         except SimulationDivergedError as exc:
             self.done = True
             raise NonFiniteStateError(f"non-finite system pose between t={t:.1f} s and "
-                                      f"t={t + dt:.1f} s (seed {self.seed}): {exc}") from None
+                                      f"t={t + self._dt:.1f} s (seed {self.seed}): {exc}") from None
         self._k += 1
         timing = config.timing
         ex, ey = scene.pose_values()[0][:2]
@@ -410,9 +356,7 @@ class World:
         if self.label_outcome is None and (hit == "obstacle" or past > timing.label_distance):
             self.label_outcome, self.label_time = hit == "obstacle", self.end_time
         self.done = self.end_reason is not None
-        seen = bool(self._has_belief[0]) if self.family is None else self.first_seen is not None
-        return Tick(t=t, poses=poses, obstacle_in_lane=m.obstacle_in_lane, observed=observed,
-                    mode=mode, seen=seen, belief=self._belief[0].copy(), gap=gap, collision=hit, done=self.done)
+        return hit
 
     def car_ahead(self) -> bool:
         """Whether the obstacle is ahead of the ego in the ego's lane now (any corner of its
