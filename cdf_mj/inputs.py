@@ -9,6 +9,9 @@ parsed here, with the same bounds everywhere.
   recurses, so a value ``[[[[...`` 5000 deep is one line, never a RecursionError.
 * :func:`printable`: control characters escaped before text from a file reaches a
   terminal (an ESC in a preset's description cannot recolour or clear the screen).
+* :func:`is_path` / :func:`read_named`: the one rule by which a user's word names a file
+  of theirs or one shipped with the package (a preset, a falsification space), and the
+  reading of either.
 
 Every refusal is an :class:`InputError` (a ValueError) of one line naming the input (the
 caller's ``what``, e.g. ``"preset file"``, and the path) and the bound. Errors of the
@@ -29,12 +32,17 @@ import os
 import re
 import stat
 import sys
+from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 if sys.version_info >= (3, 11):
+    from importlib.resources.abc import Traversable
+
     import tomllib
 else:  # Python 3.10: the same parser from PyPI (a dependency there)
+    from importlib.abc import Traversable
+
     import tomli as tomllib
 
 __all__ = [
@@ -43,17 +51,22 @@ __all__ = [
     "PRESET_MAX_BYTES",
     "RECORDS_MAX_BYTES",
     "SETTINGS_MAX_BYTES",
+    "TOML_SUFFIX",
     "TRACE_MAX_BYTES",
     "InputError",
+    "NamedText",
     "NotRegularFileError",
     "TOMLDecodeError",
     "check_depth",
     "check_regular",
+    "is_path",
     "kind_of",
+    "packaged_files",
     "parse_json",
     "parse_toml",
     "parse_user_toml",
     "printable",
+    "read_named",
     "read_regular",
     "read_text",
     "read_user_text",
@@ -190,6 +203,61 @@ def read_user_text(path: str | Path, what: str, max_bytes: int, error: type[Valu
         raise error(f"{what} {path} cannot be read ({why})") from None
     except InputError as exc:
         raise error(str(exc)) from None
+
+
+# ------------------------------------------------------------------------ names or paths
+#: The suffix of the package's TOML inputs (presets, falsification spaces).
+TOML_SUFFIX = ".toml"
+
+
+def is_path(name_or_path: str | os.PathLike[str], suffix: str = TOML_SUFFIX) -> bool:
+    """Whether ``name_or_path`` names a file of the user's rather than one shipped by name:
+    a path object, a text ending in ``suffix``, or one with a directory part (``/`` or
+    ``\\``, a path as Windows writes it)."""
+    if not isinstance(name_or_path, str):
+        return True
+    return name_or_path.endswith(suffix) or "/" in name_or_path or "\\" in name_or_path
+
+
+def packaged_files(package: str, folder: str = "", suffix: str = TOML_SUFFIX) -> dict[str, Traversable]:
+    """Name (the file's stem) -> file, for each ``suffix`` file of ``package`` (a dotted
+    name: ``"cdf_mj.presets"``) or of its sub-folder ``folder``, sorted by name."""
+    files = resources.files(package)
+    if folder:
+        files = files / folder
+    found = {f.name[: -len(suffix)]: f for f in files.iterdir() if f.name.endswith(suffix) and f.is_file()}
+    return dict(sorted(found.items()))
+
+
+class NamedText(NamedTuple):
+    """The text of a file named by a user (:func:`read_named`)."""
+
+    name: str  # the file's stem: "stop-and-wait"
+    source: str  # how messages name it: the user's path, or "NAME (cdf_mj/presets/NAME.toml)"
+    text: str
+    path: Path | None  # the user's file; None for one of the package's
+
+
+def read_named(name_or_path: str | os.PathLike[str], what: str, package: str, error: type[ValueError], *,
+               folder: str = "", max_bytes: int = PRESET_MAX_BYTES, suffix: str = TOML_SUFFIX) -> NamedText:
+    """The text of a user's file (a path: :func:`is_path`) or of the file of that name
+    shipped in ``package`` (its ``folder``: :func:`packaged_files`).
+
+    ``error`` (one line) for an unknown name (listing the shipped ones) and for a file of
+    the user's that is missing, cannot be read, is not UTF-8 or breaks a bound of
+    :func:`read_user_text` (``what`` names it: ``"preset"`` gives ``"preset file PATH"``).
+    """
+    files = packaged_files(package, folder, suffix)
+    if is_path(name_or_path, suffix):
+        path = Path(name_or_path)
+        text = read_user_text(path, f"{what} file", max_bytes, error,
+                              f"give the path of a {suffix} file or one of the names: {', '.join(files)}")
+        return NamedText(path.stem, str(path), text, path)
+    name = str(name_or_path)
+    if name not in files:
+        raise error(f"unknown {what} {name!r}: choose from {', '.join(files)}, or give the path of a {suffix} file")
+    where = "/".join([*package.split("."), *([folder] if folder else []), name + suffix])
+    return NamedText(name, f"{name} ({where})", files[name].read_text(encoding="utf-8"), None)
 
 
 # ------------------------------------------------------------------------ nesting

@@ -22,6 +22,7 @@ from cdf_mj.config import (
     SCENARIO_KEYS,
     CDFConfig,
     DriverPrior,
+    FlatKeyWarning,
     ScenarioConfig,
     normalise_settings,
     scenario_key,
@@ -99,13 +100,13 @@ def test_every_flat_key_names_one_dotted_key():
 def test_flat_keywords_replace_and_reads_still_work_with_a_warning_naming_the_dotted_key():
     nested = ScenarioConfig(obstacle={"beta": 0.1, "accel": 1.2}, timing={"duration": 4.0})
     for build in (ScenarioConfig, ScenarioConfig().replace):
-        with pytest.warns(DeprecationWarning, match="is deprecated") as got:
+        with pytest.warns(FlatKeyWarning, match="is deprecated") as got:  # a DeprecationWarning, as for input files
             assert build(beta=0.1, obstacle_accel=1.2, duration=4.0) == nested
         assert [str(w.message) for w in got] == [
             f"ScenarioConfig: the flat key {old!r} is deprecated; use {new!r}"
             for old, new in (("beta", "obstacle.beta"), ("obstacle_accel", "obstacle.accel"),
                              ("duration", "timing.duration"))]
-    with pytest.warns(DeprecationWarning, match=r"ScenarioConfig\.ego_speed is deprecated; read config\.ego\.speed"):
+    with pytest.warns(FlatKeyWarning, match=r"ScenarioConfig\.ego_speed is deprecated; read config\.ego\.speed"):
         assert nested.ego_speed == 13.4
     with pytest.warns(DeprecationWarning, match="'beta'"):
         assert dataclasses.replace(ScenarioConfig(), beta=0.1).obstacle.beta == 0.1
@@ -136,7 +137,7 @@ def test_a_run_stored_with_flat_settings_is_continued_not_refused(tmp_path, caps
     world, stored flat, continues; today's defaults would be other settings."""
     out = tmp_path / "run"
     world = [w for key, value in VERSION_0_1_WORLD.items() for w in ("--set", f"{key}={json.dumps(value)}")]
-    argv = ["experiment", "--episodes", "2", "--planners", "reactive", "--workers", "1", "--quiet", "--out", str(out),
+    argv = ["experiment", "--episodes", "2", "--planner", "reactive", "--workers", "1", "--quiet", "--out", str(out),
             *world, "--set", "timing.duration=8"]
     assert run_cli(capsys, *argv)[0] == 0
     path = out / "settings.json"

@@ -20,9 +20,12 @@ from cdf_mj.inputs import (
     NotRegularFileError,
     TOMLDecodeError,
     check_regular,
+    is_path,
+    packaged_files,
     parse_json,
     parse_toml,
     printable,
+    read_named,
     read_regular,
     read_text,
 )
@@ -183,6 +186,34 @@ def test_the_nesting_scan_is_linear_on_hostile_text(text):
         with pytest.raises(ValueError, match=r"nested deeper|Unterminated|Invalid|Expecting|Extra data"):
             parse(text, "x")
     assert time.monotonic() - start < 5
+
+
+# ------------------------------------------------------------------ names or paths
+class _NamedError(ValueError):
+    pass
+
+
+def test_one_rule_tells_a_users_file_from_a_shipped_name():
+    """A path object, a ``.toml`` ending or a directory part, ``/`` or ``\\``, is a file."""
+    assert [is_path(t) for t in ("default", "stop-and-wait", "a.toml", "a/b", "a\\b", Path("a"))] == [
+        False, False, True, True, True, True]
+    assert is_path("a.json", suffix=".json") and not is_path("a.toml", suffix=".json")
+
+
+def test_a_named_file_is_the_users_or_the_packages(tmp_path):
+    names = list(packaged_files("cdf_mj.presets"))
+    assert names == sorted(names) and "default" in names
+    shipped = read_named("default", "preset", "cdf_mj.presets", _NamedError)
+    assert (shipped.name, shipped.source, shipped.path) == ("default", "default (cdf_mj/presets/default.toml)", None)
+    space = read_named("default", "space", "cdf_mj.falsify", _NamedError, folder="spaces")
+    assert space.source == "default (cdf_mj/falsify/spaces/default.toml)" and space.text
+    mine = tmp_path / "mine.toml"
+    mine.write_text("x = 1\n")
+    assert read_named(mine, "preset", "cdf_mj.presets", _NamedError) == ("mine", str(mine), "x = 1\n", mine)
+    with pytest.raises(_NamedError, match=r"^unknown preset 'nope': choose from .*default.*, or give the path of"):
+        read_named("nope", "preset", "cdf_mj.presets", _NamedError)
+    with pytest.raises(_NamedError, match=r"^preset file .*none.toml does not exist; give the path of a .toml file"):
+        read_named(tmp_path / "none.toml", "preset", "cdf_mj.presets", _NamedError)
 
 
 # ------------------------------------------------------------------ printing

@@ -13,7 +13,7 @@ import pytest
 from cli_helpers import assert_one_line_error, load_script, run_cli
 
 from cdf_mj import cli
-from cdf_mj.config import CDFConfig, ScenarioConfig
+from cdf_mj.config import CDFConfig, FlatKeyWarning, ScenarioConfig
 from cdf_mj.presets import (
     PresetError,
     load_preset,
@@ -119,12 +119,13 @@ def test_a_flat_file_of_version_0_1_still_reads_with_a_note(tmp_path):
                            'obstacle_accel = 1.5\nego_start_spread = [-2, 2]\n', "flat.toml")
     nested = write(tmp_path, 'description = "A bold driver of version 0.1."\n[scenario.obstacle]\n'
                              'critical_gap = 2\naccel = 1.5\n[scenario.ego]\nstart_spread = [-2, 2]\n', "nested.toml")
-    with pytest.warns(DeprecationWarning, match="is a flat key of version 0.1") as got:
+    with pytest.warns(FlatKeyWarning, match="is now") as got:  # a DeprecationWarning
         old = read_preset(flat)
-    assert [str(w.message).split("[scenario] ")[1] for w in got] == [
-        "critical_gap is a flat key of version 0.1; write critical_gap in [scenario.obstacle]",
-        "obstacle_accel is a flat key of version 0.1; write accel in [scenario.obstacle]",
-        "ego_start_spread is a flat key of version 0.1; write start_spread in [scenario.ego]"]
+    assert [str(w.message) for w in got] == [
+        f"preset {flat}: [scenario] critical_gap is now [scenario.obstacle] critical_gap",
+        f"preset {flat}: [scenario] obstacle_accel is now [scenario.obstacle] accel",
+        f"preset {flat}: [scenario] ego_start_spread is now [scenario.ego] start_spread"]
+    assert {w.filename for w in got} == {__file__}  # the caller's line, however deep the reader
     assert old.scenario == read_preset(nested).scenario
     assert old.config() == load_preset(nested) == ScenarioConfig().with_values(
         {"obstacle.critical_gap": 2.0, "obstacle.accel": 1.5, "ego.start_spread": (-2.0, 2.0)})
@@ -141,6 +142,11 @@ def test_an_unknown_name_lists_the_shipped_ones(capsys):
     ('description = "x x"\n[scenario.obstacle]\nbeta = 0.1\ncritcal_gap = 3\n',
      ["unknown field 'obstacle.critcal_gap'", "valid fields: timing.dt", "obstacle.critical_gap"]),
     ('description = "x x"\n[scenario]\ncritcal_gap = 3\n', ["unknown field 'critcal_gap'"]),
+    ('description = "x x"\n[scenario.obstacle]\ncritcal_gap = 3\n',
+     ["unknown field 'obstacle.critcal_gap' (did you mean 'obstacle.critical_gap'?)"]),
+    ('description = "x x"\n[scenario.sensing]\nlatency = true\n', ["sensing.latency must be an integer, got true"]),
+    ('description = "x x"\n[scenario.timing]\nduration = ' + "9" * 400 + "\n",
+     ["timing.duration=99999", "(400 characters) is out of range"]),
     ('description = "x x"\n[scenario.obstacle]\nbeta = 2.0\n', ["[scenario]", "obstacle.beta=2.0", "in [0, 1]"]),
     ('description = "x x"\n[scenario.obstacle]\nbeta = "high"\n', ["obstacle.beta must be a number", "'high'"]),
     ('description = "x x"\n[scenario.ego]\nstart_spread = [1, 2, 3]\n',
@@ -172,7 +178,7 @@ def test_a_missing_or_unreadable_file(tmp_path, capsys):
 
 def test_the_experiment_records_the_presets_config_and_refuses_another(tmp_path, capsys):
     out_dir = tmp_path / "run"
-    common = ["experiment", "--episodes", "1", "--seed0", "3", "--planners", "reactive", "--workers", "1",
+    common = ["experiment", "--episodes", "1", "--seed", "3", "--planner", "reactive", "--workers", "1",
               "--quiet", "--out", str(out_dir)]
     status, _, err = run_cli(capsys, *common, "--preset", "slow-pull-out")
     assert status == 0, err

@@ -20,7 +20,7 @@ from cdf_mj.traits import within as _within
 
 __all__ = ["AFTER_MERGE", "DRIVER_FAMILIES", "FLAT_KEYS", "GROUPS", "MAX_ACCEL", "MAX_BRAKE", "MAX_DURATION",
            "MAX_EPISODES", "MAX_LENGTH", "MAX_PARTICLES", "MAX_SEED", "MAX_SPEED", "MAX_START_SPREAD",
-           "MAX_WORKERS", "SCENARIO_KEYS", "VERSION_0_1_WORLD", "AfterMerge", "Ego", "Observation",
+           "MAX_WORKERS", "SCENARIO_KEYS", "VERSION_0_1_WORLD", "AfterMerge", "Ego", "FlatKeyWarning", "Observation",
            "ObstacleDriver", "ProcessNoise", "Pursuit", "ScenarioConfig", "SceneNames", "Sensing", "Timing",
            "check_seed", "scenario_key"]
 
@@ -274,7 +274,7 @@ class AfterMerge(_Group):
     brake: tuple[float, float] = bounded((3.5, 5.0), 0.0, MAX_ACCEL, "m/s^2", open_low=True)  # to a stop
     at: tuple[float, float] = bounded((5.0, 25.0), 0.0, MAX_LENGTH, "m")  # in the lane before slowing, braking
     # Once in the ego's lane behind the ego, the obstacle keeps a following distance to it
-    # (the ego's IDM parameters: cdf_mj.model.following), as any driver would; without
+    # (the ego's IDM parameters: cdf_mj.model.road.follow_accel), as any driver would; without
     # it the obstacle's driver drives into an ego that brakes in front of it.
     follows: bool = True
 
@@ -342,6 +342,13 @@ FLAT_KEYS: Mapping[str, str] = MappingProxyType({
     "obs_noise_pos": "observation.pos", "obs_noise_heading": "observation.heading",
     "obs_noise_speed": "observation.speed", "lookahead": "pursuit.lookahead",
     "lookahead_gain": "pursuit.lookahead_gain", "noise_accel": "noise.accel", "noise_steer": "noise.steer"})
+
+
+class FlatKeyWarning(DeprecationWarning):
+    """A flat key of version 0.1 (:data:`FLAT_KEYS`) was read, in code (``ScenarioConfig(beta=...)``)
+    or in a user's input (``--set``, a preset or space file:
+    :mod:`cdf_mj.config.user_values`); the message names what to write instead. The
+    command line shows each as a one-line note on stderr."""
 
 
 def scenario_key(key: str) -> str:
@@ -421,7 +428,7 @@ class ScenarioConfig:
             dotted = FLAT_KEYS.get(name)
             if dotted is None:
                 raise AttributeError(f"'ScenarioConfig' object has no attribute {name!r}")
-            warnings.warn(f"ScenarioConfig.{name} is deprecated; read config.{dotted}", DeprecationWarning,
+            warnings.warn(f"ScenarioConfig.{name} is deprecated; read config.{dotted}", FlatKeyWarning,
                           stacklevel=2)
             return self.get(dotted)
 
@@ -482,7 +489,7 @@ def _apply(base: Mapping[str, Any], values: Mapping[str, Any], error: type[Excep
             continue
         if key in FLAT_KEYS and warn:
             warnings.warn(f"ScenarioConfig: the flat key {key!r} is deprecated; use {FLAT_KEYS[key]!r}",
-                          DeprecationWarning, stacklevel=stacklevel)
+                          FlatKeyWarning, stacklevel=stacklevel)
         try:
             group, _, name = scenario_key(key).partition(".")
         except ValueError as exc:

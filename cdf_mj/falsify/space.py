@@ -36,8 +36,11 @@ The nominal distribution (each dimension independent) is what "per encounter" me
 probability of failure is taken over. The search itself (:mod:`cdf_mj.falsify.search`)
 reads only the ranges.
 
-Every mistake in a file (not TOML, an unknown key or option, a range that is empty,
-inverted or not finite, weights that do not match, a value the world refuses) is a
+Options and choices are read as ``--set`` and presets read them
+(:mod:`cdf_mj.config.user_values`): the same types, the same words, and a flat key of
+version 0.1 (``[dims."beta"]``) taken with a :class:`~cdf_mj.config.FlatKeyWarning`. Every
+mistake in a file (not TOML, an unknown key or option, a range that is empty, inverted or
+not finite, weights that do not match, a value the world refuses) is a
 :class:`SpaceError` of one line naming the file and the dimension.
 """
 
@@ -46,15 +49,15 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 from statistics import NormalDist
 from typing import Any
 
 import numpy as np
 
-from cdf_mj.config import SCENARIO_KEYS, ScenarioConfig
-from cdf_mj.inputs import PRESET_MAX_BYTES, parse_user_toml, read_user_text
+from cdf_mj.config import ScenarioConfig
+from cdf_mj.config.user_values import UserValueError, apply_values, coerce_value, dotted_key
+from cdf_mj.inputs import PRESET_MAX_BYTES, TOML_SUFFIX, is_path, packaged_files, parse_user_toml, read_named
 from cdf_mj.presets import PresetError, read_preset
 
 __all__ = ["MARGINS", "MARGIN_CAP", "MAX_DIMS", "MAX_VALUES", "Choice", "Dim", "FailureSpec", "Range",
@@ -72,7 +75,7 @@ MARGIN_CAP = 10.0
 MAX_DIMS = 64
 #: Most values of one choice or integer range.
 MAX_VALUES = 1000
-SUFFIX = ".toml"
+SUFFIX = TOML_SUFFIX
 _TOP = ("description", "preset", "failure", "dims")
 _NORMAL = NormalDist()
 
@@ -241,26 +244,32 @@ class SearchSpace:
 
 
 # ------------------------------------------------------------------------ reading
-def _packaged() -> dict[str, Any]:
-    files = resources.files("cdf_mj.falsify") / "spaces"
-    found = {f.name[: -len(SUFFIX)]: f for f in files.iterdir() if f.name.endswith(SUFFIX) and f.is_file()}
-    return dict(sorted(found.items()))
+#: Where the shipped spaces are: the package and its folder.
+_PACKAGED = ("cdf_mj.falsify", "spaces")
 
 
 def space_names() -> list[str]:
     """The spaces shipped with the package."""
-    return list(_packaged())
+    return list(packaged_files(*_PACKAGED, suffix=SUFFIX))
 
 
 def _finite_number(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
 
-def _dim(key: str, spec: Any, base: ScenarioConfig, where: str) -> Dim:
-    """One ``[dims."KEY"]`` table as a :class:`Range` or :class:`Choice`."""
-    at = f"{where}: [dims.\"{key}\"]"
-    if key not in SCENARIO_KEYS:
-        raise SpaceError(f"{where}: unknown option {key!r} in [dims]; the options are {', '.join(SCENARIO_KEYS)}")
+def _spell(key: str) -> str:
+    """How a space file writes ``key``: ``[dims."obstacle.beta"]``."""
+    return f'[dims."{key}"]'
+
+
+def _dim(written: str, spec: Any, base: ScenarioConfig, where: str) -> Dim:
+    """One ``[dims."KEY"]`` table as a :class:`Range` or :class:`Choice` (a flat key of
+    version 0.1 read as its dotted key, with a FlatKeyWarning, as ``--set`` and presets do)."""
+    at = f"{where}: {_spell(written)}"
+    try:
+        key = dotted_key(written, _spell, f"{where}: ")
+    except UserValueError as exc:
+        raise SpaceError(f"{at}: {exc}") from None
     if not isinstance(spec, dict):
         raise SpaceError(f"{at} must be a table (range = [low, high] or choices = [...]), got {spec!r}")
     unknown = sorted(set(spec) - {"range", "choices", "weights", "mean", "std"})
@@ -274,12 +283,13 @@ def _dim(key: str, spec: Any, base: ScenarioConfig, where: str) -> Dim:
         values = spec["choices"]
         if not isinstance(values, list) or not values or len(values) > MAX_VALUES:
             raise SpaceError(f"{at}: choices must be a list of 1 to {MAX_VALUES} values, got {values!r}")
-        kind = type(default[0] if isinstance(default, tuple) else default)
-        values = [float(v) if kind is float and _finite_number(v) else v for v in values]
-        bad = [v for v in values if not (isinstance(v, kind) and not (kind is not bool and isinstance(v, bool)))
-               or (isinstance(v, float) and not math.isfinite(v))]
-        if bad:
-            raise SpaceError(f"{at}: choice {bad[0]!r} is not a {kind.__name__} (the option's type)")
+        if isinstance(default, tuple):
+            raise SpaceError(f"{at}: {key} is a (low, high) pair: give range = [low, high] (a point pins it to "
+                             "(v, v)), not choices")
+        try:  # each choice as --set and presets read a value: ranges are checked below
+            values = [coerce_value(key, v) for v in values]
+        except UserValueError as exc:
+            raise SpaceError(f"{at}: {exc}") from None
         if len(set(values)) != len(values):
             raise SpaceError(f"{at}: choices must be distinct, got {values!r}")
         if "mean" in spec or "std" in spec:
@@ -343,7 +353,7 @@ def parse_space(text: str, name: str, source: str, root: Path | None = None) -> 
     if not isinstance(preset, str) or not preset:
         raise SpaceError(f"{where}: preset must be a preset name or the path of a .toml file, got {preset!r}")
     preset_path = preset
-    if (preset.endswith(SUFFIX) or "/" in preset) and root is not None and not Path(preset).is_absolute():
+    if is_path(preset, SUFFIX) and root is not None and not Path(preset).is_absolute():
         preset_path = str(root / preset)
     try:
         base = read_preset(preset_path).config()
@@ -356,6 +366,10 @@ def parse_space(text: str, name: str, source: str, root: Path | None = None) -> 
     if len(dims_table) > MAX_DIMS:
         raise SpaceError(f"{where}: {len(dims_table)} dimensions; at most {MAX_DIMS}")
     dims = tuple(_dim(key, spec, base, where) for key, spec in dims_table.items())
+    keys = [d.key for d in dims]
+    twice = next((k for k in keys if keys.count(k) > 1), None)
+    if twice is not None:  # a flat key and its dotted key
+        raise SpaceError(f"{where}: {_spell(twice)} is given twice (once by its flat key of version 0.1)")
     space = SearchSpace(name=name, description=" ".join(description.split()), preset=preset, base=base,
                         failure=failure, dims=dims, source=source, text=text)
     _check_values(space, where)
@@ -384,27 +398,19 @@ def _check_values(space: SearchSpace, where: str) -> None:
         ends: Sequence[float] = (d.low, d.high) if isinstance(d, Range) else range(len(d.values))
         for x in ends:
             try:
-                space.base.with_values({d.key: d.value(float(x))})
-            except ValueError as exc:
-                raise SpaceError(f"{where}: [dims.\"{d.key}\"]: {' '.join(str(exc).split())}") from None
+                apply_values(space.base, {d.key: d.value(float(x))})
+            except UserValueError as exc:
+                raise SpaceError(f"{where}: {_spell(d.key)}: {exc}") from None
 
 
 def load_space(name_or_path: str | Path) -> SearchSpace:
     """The :class:`SearchSpace` of a shipped name (``"default"``) or of a TOML file of your
-    own (a path: ends in ``.toml`` or has a directory part). SpaceError (one line) for an
-    unknown name, a file that cannot be read, or any mistake in it."""
-    text_name = str(name_or_path)
-    if isinstance(name_or_path, Path) or text_name.endswith(SUFFIX) or "/" in text_name:
-        path = Path(name_or_path)
-        text = read_user_text(path, "space file", PRESET_MAX_BYTES, SpaceError,
-                              f"give a .toml file or one of: {', '.join(space_names())}")
-        return parse_space(text, path.stem, str(path), root=path.parent)
-    packaged = _packaged()
-    if text_name not in packaged:
-        raise SpaceError(f"unknown space {text_name!r}: choose from {', '.join(packaged)}, or give the path of a "
-                         f"{SUFFIX} file")
-    return parse_space(packaged[text_name].read_text(encoding="utf-8"), text_name,
-                       f"{text_name} (cdf_mj/falsify/spaces/{text_name}{SUFFIX})")
+    own (a path: ends in ``.toml`` or has a directory part, :func:`cdf_mj.inputs.is_path`).
+    SpaceError (one line) for an unknown name, a file that cannot be read, or any mistake
+    in it."""
+    named = read_named(name_or_path, "space", _PACKAGED[0], SpaceError, folder=_PACKAGED[1],
+                       max_bytes=PRESET_MAX_BYTES, suffix=SUFFIX)
+    return parse_space(named.text, named.name, named.source, root=None if named.path is None else named.path.parent)
 
 
 # ------------------------------------------------------------------------ densities

@@ -22,8 +22,10 @@ arrays)::
     stop_dwell = [1.0, 3.0]   # [s]
 
 A file of version 0.1, with the flat keys of :data:`cdf_mj.config.FLAT_KEYS` directly in
-``[scenario]`` (``stop_dwell = [1.0, 3.0]``), still reads, with a DeprecationWarning
-naming the table and key to write instead.
+``[scenario]`` (``stop_dwell = [1.0, 3.0]``), still reads, with a
+:class:`~cdf_mj.config.FlatKeyWarning` (a DeprecationWarning) naming the table and key to
+write instead; the command line shows it as a one-line note. Keys and values are read as
+``--set`` and space files read them (:mod:`cdf_mj.config.user_values`).
 
 On the command line: ``cdf-mj experiment --preset stop-and-wait`` (``--set`` is applied
 after the preset); ``cdf-mj presets`` lists them. Every mistake in a file (not TOML, an
@@ -33,20 +35,19 @@ of one line naming the file and the field.
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from cdf_mj.config import FLAT_KEYS, GROUPS, SCENARIO_KEYS, ScenarioConfig
-from cdf_mj.inputs import PRESET_MAX_BYTES, parse_user_toml, read_user_text
+from cdf_mj.config import GROUPS, ScenarioConfig
+from cdf_mj.config.user_values import UserValueError, apply_values, read_value
+from cdf_mj.inputs import PRESET_MAX_BYTES, TOML_SUFFIX, packaged_files, parse_user_toml, read_named
 
 __all__ = ["STRESS_PREFIX", "SUFFIX", "Preset", "PresetError", "load_preset", "preset_description", "preset_names",
            "read_preset", "scenario_preset_names"]
 
 #: The suffix of a preset file.
-SUFFIX = ".toml"
+SUFFIX = TOML_SUFFIX
 _KEYS = ("description", "scenario")
 
 
@@ -73,10 +74,9 @@ class Preset:
     def config(self, base: ScenarioConfig | None = None) -> ScenarioConfig:
         """``base`` (default: the defaults) with this preset's fields set; PresetError
         naming the file and the field if a value is out of range."""
-        base = base or ScenarioConfig()
         try:
-            return base.with_values(self.scenario)
-        except ValueError as exc:  # ScenarioConfig names the field and its range
+            return apply_values(base or ScenarioConfig(), self.scenario)
+        except UserValueError as exc:  # ScenarioConfig names the field and its range
             raise PresetError(f"preset {self.source}: [scenario] {exc}") from None
 
     def changes(self) -> dict[str, tuple[Any, Any]]:
@@ -86,20 +86,13 @@ class Preset:
         return {k: (default.get(k), v) for k, v in self.scenario.items() if default.get(k) != v}
 
 
-def _packaged() -> dict[str, Any]:
-    """Preset name -> its file in this package (a Traversable), sorted by name."""
-    files = resources.files(__name__)
-    found = {f.name[: -len(SUFFIX)]: f for f in files.iterdir() if f.name.endswith(SUFFIX) and f.is_file()}
-    return dict(sorted(found.items()))
-
-
 #: The prefix of the stress presets (scripts/stress.py runs them; docs/STRESS.md).
 STRESS_PREFIX = "stress-"
 
 
 def preset_names() -> list[str]:
     """The names of the presets shipped with the package, sorted."""
-    return list(_packaged())
+    return list(packaged_files(__name__, suffix=SUFFIX))
 
 
 def scenario_preset_names() -> list[str]:
@@ -108,60 +101,22 @@ def scenario_preset_names() -> list[str]:
     return [n for n in preset_names() if not n.startswith(STRESS_PREFIX)]
 
 
-def _is_path(name_or_path: str | Path) -> bool:
-    """A path (a ``.toml`` suffix, a directory part or a Path object) rather than a name."""
-    if isinstance(name_or_path, Path):
-        return True
-    return name_or_path.endswith(SUFFIX) or "/" in name_or_path or "\\" in name_or_path
+def _spell(key: str) -> str:
+    """How a preset file writes ``key``: ``"[scenario.obstacle] beta"``, or ``"[scenario] beta"``
+    for a flat key of version 0.1."""
+    group, dot, field = key.partition(".")
+    return f"[scenario.{group}] {field}" if dot else f"[scenario] {key}"
 
 
-def _number(source: str, key: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise PresetError(f"preset {source}: [scenario] {key} must be a number, got {value!r}")
-    return float(value)
-
-
-def _coerce(source: str, key: str, value: Any, default: Any) -> Any:
-    """``value`` read from TOML in the type of the field's ``default``; PresetError if it
-    cannot be (ranges are checked by ScenarioConfig)."""
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise PresetError(f"preset {source}: [scenario] {key} must be true or false, got {value!r}")
-        return value
-    if isinstance(default, float):
-        return _number(source, key, value)
-    if isinstance(default, int):
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise PresetError(f"preset {source}: [scenario] {key} must be an integer, got {value!r}")
-        return value
-    if isinstance(default, tuple):
-        if not isinstance(value, list) or len(value) != len(default):
-            example = ", ".join(f"{float(v):g}" for v in default)
-            raise PresetError(f"preset {source}: [scenario] {key} must be an array of {len(default)} numbers, "
-                              f"e.g. [{example}], got {value!r}")
-        return tuple(_number(source, key, v) for v in value)
-    if isinstance(default, str):
-        if not isinstance(value, str):
-            raise PresetError(f"preset {source}: [scenario] {key} must be a string, got {value!r}")
-        return value
-    raise PresetError(f"preset {source}: [scenario] {key} cannot be set in a preset")
-
-
-def _dotted(table: dict[str, Any], source: str) -> dict[str, Any]:
-    """The ``[scenario]`` table by dotted key: its group tables' fields, and the flat keys
-    of version 0.1 (:data:`~cdf_mj.config.FLAT_KEYS`, with a DeprecationWarning). A key
-    that is neither is kept as it is (and refused as unknown)."""
-    out: dict[str, Any] = {}
+def _entries(table: dict[str, Any]) -> list[tuple[str, Any]]:
+    """The ``[scenario]`` table as (key, value): its group tables' fields by dotted key, any
+    other key (a flat key of version 0.1, or one to refuse) as it is."""
+    out: list[tuple[str, Any]] = []
     for key, value in table.items():
         if key in GROUPS and isinstance(value, dict):
-            out.update({f"{key}.{field}": v for field, v in value.items()})
-        elif key in FLAT_KEYS:
-            group, _, field = FLAT_KEYS[key].partition(".")
-            warnings.warn(f"preset {source}: [scenario] {key} is a flat key of version 0.1; write {field} in "
-                          f"[scenario.{group}]", DeprecationWarning, stacklevel=4)
-            out[FLAT_KEYS[key]] = value
+            out += [(f"{key}.{field}", v) for field, v in value.items()]
         else:
-            out[key] = value
+            out.append((key, value))
     return out
 
 
@@ -178,13 +133,13 @@ def _parse(text: str, name: str, source: str) -> Preset:
     table = data.get("scenario", {})
     if not isinstance(table, dict):
         raise PresetError(f"preset {source}: 'scenario' must be a table ([scenario]), got {table!r}")
-    default = ScenarioConfig()
     scenario: dict[str, Any] = {}
-    for key, value in _dotted(table, source).items():
-        if key not in SCENARIO_KEYS:
-            raise PresetError(f"preset {source}: [scenario] unknown field {key!r}; "
-                              f"valid fields: {', '.join(SCENARIO_KEYS)}")
-        scenario[key] = _coerce(source, key, value, default.get(key))
+    for key, value in _entries(table):
+        try:  # the reader of --set and space files too: the same types, flat keys and words
+            dotted, coerced = read_value(key, value, _spell, f"preset {source}: ")
+        except UserValueError as exc:
+            raise PresetError(f"preset {source}: [scenario] {exc}") from None
+        scenario[dotted] = coerced
     preset = Preset(name=name, description=" ".join(description.split()), scenario=scenario, source=source)
     preset.config()  # ranges: PresetError naming the file and the field
     return preset
@@ -192,24 +147,15 @@ def _parse(text: str, name: str, source: str) -> Preset:
 
 def read_preset(name_or_path: str | Path) -> Preset:
     """The :class:`Preset` of a shipped name (``"stop-and-wait"``) or of a TOML file of
-    your own (a path: ends in ``.toml`` or has a directory part).
+    your own (a path: ends in ``.toml`` or has a directory part, :func:`cdf_mj.inputs.is_path`).
 
     PresetError (one line) for an unknown name (listing the shipped ones), a file that
     cannot be read, a file that is not TOML (with line and column), an unknown key or
     field (listing the valid ones), or a value of the wrong type or out of range.
     """
-    if _is_path(name_or_path):
-        path = Path(name_or_path)
-        # a regular file (a FIFO or a device is refused unopened) of at most PRESET_MAX_BYTES
-        text = read_user_text(path, "preset file", PRESET_MAX_BYTES, PresetError,
-                              f"give a path to a .toml file or one of the names: {', '.join(preset_names())}")
-        return _parse(text, path.stem, str(path))
-    packaged = _packaged()
-    if name_or_path not in packaged:
-        raise PresetError(f"unknown preset {name_or_path!r}: choose from {', '.join(packaged)}, "
-                          f"or give the path of a {SUFFIX} file")
-    return _parse(packaged[name_or_path].read_text(encoding="utf-8"), name_or_path,
-                  f"{name_or_path} (cdf_mj/presets/{name_or_path}{SUFFIX})")
+    # a user's file: a regular file (a FIFO or a device is refused unopened) of at most PRESET_MAX_BYTES
+    named = read_named(name_or_path, "preset", __name__, PresetError, max_bytes=PRESET_MAX_BYTES, suffix=SUFFIX)
+    return _parse(named.text, named.name, named.source)
 
 
 def load_preset(name_or_path: str | Path) -> ScenarioConfig:
