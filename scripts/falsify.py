@@ -53,7 +53,11 @@ from pathlib import Path
 
 from cdf_mj.analysis.metrics import mcnemar_exact, wilson_interval
 from cdf_mj.analysis.pages import ScriptParser, command_line, markdown_table, write_page
-from cdf_mj.cli.args import _episodes, _int_in, _out_path, _planner_list, _workers
+from cdf_mj.cli.args import episode_count as _episodes
+from cdf_mj.cli.args import int_in as _int_in
+from cdf_mj.cli.args import out_path as _out_path
+from cdf_mj.cli.args import planner_list as _planner_list
+from cdf_mj.cli.args import worker_count as _workers
 from cdf_mj.experiments.runner import WorkerDiedError
 from cdf_mj.falsify.counterexamples import write_counterexamples
 from cdf_mj.falsify.estimate import Estimate, agree

@@ -102,7 +102,7 @@ def _workers(opts: Options) -> list[str]:
 
 
 def _experiment(out: Path, episodes: int, seed0: int, planners: str, opts: Options) -> None:
-    cdf_mj(["experiment", "--episodes", str(episodes), "--seed0", str(seed0), "--planners", planners,
+    cdf_mj(["experiment", "--episodes", str(episodes), "--seed", str(seed0), "--planner", planners,
             "--out", str(out), "--quiet", *_workers(opts), *(["--force"] if opts.fresh else [])], opts)
 
 
@@ -133,8 +133,8 @@ def make_sweeps(opts: Options) -> None:
     if opts.fresh and not opts.dry_run and out.exists():
         shutil.rmtree(out)
     common = ["--episodes", str(opts.sweep_episodes), "--out", str(out), "--quiet", *_workers(opts)]
-    cdf_mj(["sweep", *SWEEPS, "--planners", ANALYSIS_PLANNERS, *common], opts)
-    cdf_mj(["sweep", "particles", "--planners", "cdf", *common], opts)
+    cdf_mj(["sweep", *SWEEPS, "--planner", ANALYSIS_PLANNERS, *common], opts)
+    cdf_mj(["sweep", "particles", "--planner", "cdf", *common], opts)
     for name in (*SWEEPS, "particles"):
         src, dst = out / f"{name}.png", opts.docs / "analysis" / f"{name}.png"
         print(f">>> copy {src} -> {dst}", flush=True)

@@ -49,9 +49,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NoReturn
 
-from cdf_mj.analysis.metrics import PlannerMetrics, Rate, confusion_matrix, cutoff_recall, planner_metrics
+from cdf_mj.analysis.metrics import PlannerMetrics, Rate, confusion_matrix, cutoff_recall, of_planner, planner_metrics
 from cdf_mj.analysis.pages import ScriptParser, command_line, exit_status, fail, markdown_table, write_page
-from cdf_mj.analysis.tables import PAPER_CONFUSION, PAPER_PLANNERS, format_number, format_rate
+from cdf_mj.analysis.tables import PAPER_CONFUSION, PAPER_PLANNERS, format_number, format_percent, format_rate
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
 from cdf_mj.extras import install_hint
@@ -84,14 +84,6 @@ def _span(part: Part) -> str:
     return f"{part.seeds.start}–{part.seeds.stop - 1}"
 
 
-def _percent(share: float, digits: int = 1) -> str:
-    return "-" if share != share else f"{100 * share:.{digits}f} %"
-
-
-def _of(records: Sequence[dict[str, Any]], planner: str) -> list[dict[str, Any]]:
-    return [r for r in records if record_field(r, "planner") == planner]
-
-
 # ----------------------------------------------------------------- the paper's tables beside ours
 def confusion_lines(records: Sequence[dict[str, Any]], planner: str) -> list[str]:
     """The planner's predictions against the labels, each cell ``ours | paper``, and its recall."""
@@ -117,9 +109,10 @@ def planner_lines(metrics: dict[str, PlannerMetrics]) -> list[str]:
         paper = "-"
         if paper_name in PAPER_PLANNERS:
             pi, po = PAPER_PLANNERS[paper_name]
-            paper = f"{pi} / {po} / {_percent((pi - po) / pi, 0)}"
+            paper = f"{pi} / {po} / {format_percent((pi - po) / pi, 0)}"
         rows.append([m.planner, str(m.imminent), str(m.collisions), format_rate(m.avoided),
-                     _percent(m.paper_avoided), paper, format_rate(m.false_alarms), format_rate(m.false_alarms_yield),
+                     format_percent(m.paper_avoided), paper, format_rate(m.false_alarms),
+                     format_rate(m.false_alarms_yield),
                      f"{m.collisions_yield}, {m.collisions_right}", format_number(m.lead_time),
                      format_number(m.min_gap), format_number(m.time_lost)])
     return markdown_table(header, rows)
@@ -128,7 +121,7 @@ def planner_lines(metrics: dict[str, PlannerMetrics]) -> list[str]:
 def part_section(part: Part, records: Sequence[dict[str, Any]], failed: int, out: Path) -> list[str]:
     """Markdown of one part: labels, the CDF's predictions beside the paper's, the planners."""
     good = completed(records)
-    first = _of(good, PLANNERS[0])
+    first = of_planner(good, PLANNERS[0])
     labels = {lab: sum(1 for r in first if record_field(r, "label") == lab) for lab in LABELS}
     held = "never used to choose anything" if part.name == "held-out" else "the reproduction of the paper's run"
     lines = [f"## Seeds {_span(part)} ({part.title}: {held})", "",
@@ -140,7 +133,7 @@ def part_section(part: Part, records: Sequence[dict[str, Any]], failed: int, out
     if not good:
         return [*lines, "No completed episode.", ""]
     for planner in CDF_PLANNERS:
-        mine = _of(good, planner)
+        mine = of_planner(good, planner)
         if mine:
             rule = "the layered rule" if planner == "cdf" else "the paper's rule"
             lines += [f"`{planner}` ({rule}): predictions, ours \\| paper", "", *confusion_lines(mine, planner)]
@@ -188,12 +181,12 @@ def paper_figures(by_part: dict[str, list[dict[str, Any]]]) -> list[Figure]:
     for lab in LABELS:
         shares = {}
         for p, recs in by_part.items():
-            first = _of(recs, PLANNERS[0])
+            first = of_planner(recs, PLANNERS[0])
             shares[p] = Rate(sum(1 for r in first if record_field(r, "label") == lab), len(first))
         add(f"{lab} share of episodes", (sum(PAPER_CONFUSION[lab]), PAPER_EPISODES), dict(shares))
     cut, yld, right = LABELS
     for planner in CDF_PLANNERS:
-        conf = {p: confusion_matrix(_of(recs, planner)) for p, recs in by_part.items()}
+        conf = {p: confusion_matrix(of_planner(recs, planner)) for p, recs in by_part.items()}
 
         def cell(row: str, col: int, c: dict[str, tuple[int, int, int]]) -> Rate:
             return Rate(c[row][col], sum(c[row]))
@@ -226,18 +219,19 @@ def beside_paper_lines(figures: list[Figure], names: dict[str, str]) -> list[str
     for f in figures:
         cells = [format_rate(f.ours[p]) if p in f.ours else "-" for p in parts_shown]
         inside = ", ".join(("yes" if f.inside(p) else "**no**") for p in f.ours)
-        rows.append([f.quantity, f"{_percent(f.paper)} ({f.paper_k}/{f.paper_n})", *cells, inside])
+        rows.append([f.quantity, f"{format_percent(f.paper)} ({f.paper_k}/{f.paper_n})", *cells, inside])
     lines = [*markdown_table(header, rows), ""]
     matched = [f for f in figures if f.matched()]
     missed = [f for f in figures if not f.matched()]
     lines += ["### What matched the paper", "",
               "The paper's figure lies inside our 95 % interval on every seed range:", ""]
-    lines += [f"- {f.quantity}: paper {_percent(f.paper)}; ours {_ours(f, names)}." for f in matched] or ["- none."]
+    lines += [f"- {f.quantity}: paper {format_percent(f.paper)}; ours {_ours(f, names)}." for f in matched] or [
+        "- none."]
     lines += ["", "### What did not match", "", "The paper's figure lies outside our 95 % interval on at least one "
               "seed range:", ""]
     for f in missed:
         sides = sorted({"above" if f.ours[p].value > f.paper else "below" for p in f.ours if not f.inside(p)})
-        lines.append(f"- {f.quantity}: paper {_percent(f.paper)}; ours {_ours(f, names)} ({' and '.join(sides)} "
+        lines.append(f"- {f.quantity}: paper {format_percent(f.paper)}; ours {_ours(f, names)} ({' and '.join(sides)} "
                      "the paper's).")
     if not missed:
         lines.append("- none.")
@@ -265,7 +259,7 @@ def _brakes(r: dict[str, Any]) -> list[list[float | None]]:
 
 def cause_lines(records: Sequence[dict[str, Any]], planner: str, part_name: str) -> list[str]:
     """Where ``planner``'s false alarms and collisions come from, counted from its records."""
-    mine = _of(records, planner)
+    mine = of_planner(records, planner)
     lines: list[str] = []
     alarms = [r for r in mine if is_false_alarm(r)]
     if alarms:
@@ -327,7 +321,7 @@ def figure_lines(run_dir: Path, records: Sequence[dict[str, Any]], figures_dir: 
     """Draw ``cdf-mj report``'s figures of one part into ``figures_dir``; their Markdown."""
     from cdf_mj.viz.report import FIGURES, write_report
 
-    cdf = sorted(_of(completed(records), "cdf"), key=lambda r: record_field(r, "seed"))
+    cdf = sorted(of_planner(completed(records), "cdf"), key=lambda r: record_field(r, "seed"))
     seeds = []
     for lab in LABELS:  # the first seed of each label, a Cutoff the CDF braked hard in first
         cand = [r for r in cdf if record_field(r, "label") == lab]
@@ -391,7 +385,7 @@ def markdown(sections: list[list[str]], beside: list[str], causes: list[str], fi
         "anything.",
         "",
         f"Each part is one `run_experiment` call into `{out}/<part>` (the records of `cdf-mj experiment "
-        "--planners cdf,cdf-threshold,reactive` on the same seeds). `cdf-mj experiment` prints the same "
+        "--planner cdf,cdf-threshold,reactive` on the same seeds). `cdf-mj experiment` prints the same "
         "tables (`cdf_mj.analysis.tables.experiment_tables`).",
         "",
     ]

@@ -108,8 +108,8 @@ def test_particle_count_is_a_bounded_integer(n):
     (["experiment", "--particles", "99999999999999999999"], "--particles"),
     (["experiment", "--episodes", "1000000000000"], "--episodes"),
     (["experiment", "--workers", "100000"], "--workers"),
-    (["experiment", "--seed0", str(MAX_SEED + 1)], "--seed0"),
-    (["experiment", "--seed0", str(MAX_SEED), "--episodes", "2"], "beyond the largest seed"),
+    (["experiment", "--seed", str(MAX_SEED + 1)], "--seed"),
+    (["experiment", "--seed", str(MAX_SEED), "--episodes", "2"], "beyond the largest seed"),
     (["episode", "--seed", "9" * 5000], "--seed"),
     (["episode", "--set", f"timing.duration={HUGE_INT}"], "timing.duration"),
     (["episode", "--set", "ego.start_spread=[-1e300, 1e300]"], "ego.start_spread"),
@@ -138,7 +138,7 @@ def test_the_bounds_are_in_the_help(capsys):
 def test_an_os_error_on_a_path_with_a_newline_is_one_line(capsys, tmp_path):
     blocker = tmp_path / "a\nfile"
     blocker.write_text("not a directory")
-    status, out, err = run_cli(capsys, "experiment", "--episodes", "1", "--planners", "reactive",
+    status, out, err = run_cli(capsys, "experiment", "--episodes", "1", "--planner", "reactive",
                                "--workers", "1", "--quiet", "--out", str(blocker / "out"))
     assert_one_line_error(status, out, err)
     assert "a\\nfile" in err  # the newline shown escaped, the path still named
@@ -170,7 +170,7 @@ def test_an_experiment_refuses_a_zero_timestep_before_writing(capsys, tmp_path):
     _edit(scene, 'timestep="0.005"', 'timestep="0"')
     out = tmp_path / "out"
     status, stdout, err = run_cli(capsys, "experiment", "--scene", str(scene), "--episodes", "2",
-                                  "--planners", "reactive", "--workers", "1", "--quiet", "--out", str(out))
+                                  "--planner", "reactive", "--workers", "1", "--quiet", "--out", str(out))
     assert_one_line_error(status, stdout, err, "timestep")
     assert not (out / "episodes.jsonl").exists()
 

@@ -143,7 +143,7 @@ def test_help_of_an_optional_feature_names_its_extra(capsys):
 
 
 # ----------------------------------------------------------------- experiments run again
-SMALL_RUN = ("--episodes", "2", "--planners", "reactive", "--workers", "1", "--quiet")
+SMALL_RUN = ("--episodes", "2", "--planner", "reactive", "--workers", "1", "--quiet")
 
 
 def test_an_experiment_run_again_prints_its_stored_tables(capsys, tmp_path):

@@ -44,7 +44,7 @@ def test_stderr_closed_runs_and_keeps_the_records_clean(tmp_path):
     """`cdf-mj experiment 2>&-` with the progress bar on: the run happens, exit 0, and no
     message meant for stderr lands in the records file that took descriptor 2's place."""
     out = tmp_path / "run"
-    run = _cdf_mj("experiment", "--episodes", "2", "--planners", "reactive", "--workers", "1", "--out",
+    run = _cdf_mj("experiment", "--episodes", "2", "--planner", "reactive", "--workers", "1", "--out",
                   str(out), close=(2,), cwd=tmp_path)
     assert run.returncode == 0, run.stdout[-2000:]
     assert "episodes from seed 0" in run.stdout

@@ -64,7 +64,7 @@ def test_other_settings_in_the_same_directory_are_refused(small_run):
 
 
 def test_bad_experiment_input_is_refused_before_work(tmp_path, capsys):
-    assert main(["experiment", "--episodes", "2", "--planners", "cdf,psychic", "--out", str(tmp_path / "a")]) == 2
+    assert main(["experiment", "--episodes", "2", "--planner", "cdf,psychic", "--out", str(tmp_path / "a")]) == 2
     assert "psychic" in capsys.readouterr().err
     assert main(["experiment", "--episodes", "2", "--tau", "1.5", "--out", str(tmp_path / "b")]) == 2
     assert "tau" in capsys.readouterr().err
@@ -74,7 +74,7 @@ def test_bad_experiment_input_is_refused_before_work(tmp_path, capsys):
 
 
 def test_cli_experiment_prints_both_tables(tmp_path, capsys):
-    assert main(["experiment", "--episodes", "3", "--seed0", "40", "--planners", "reactive,constant",
+    assert main(["experiment", "--episodes", "3", "--seed", "40", "--planner", "reactive,constant",
                  "--out", str(tmp_path / "r"), "--quiet"]) == 0
     lines = capsys.readouterr().out.splitlines()
     assert "Collisions with the obstacle" in lines and "Braking" in lines

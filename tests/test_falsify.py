@@ -206,7 +206,7 @@ def test_a_space_files_preset_path_is_read_beside_the_file(spaces, monkeypatch, 
 
 _HEAD = 'description = "A space with a mistake."\n'
 _BAD_SPACES = [
-    ("unknown-option", _HEAD + '[dims."obstacle.nosuch"]\nrange = [0.0, 1.0]\n', "unknown option 'obstacle.nosuch'"),
+    ("unknown-option", _HEAD + '[dims."obstacle.nosuch"]\nrange = [0.0, 1.0]\n', "unknown field 'obstacle.nosuch'"),
     ("empty-range", _HEAD + '[dims."obstacle.accel"]\nrange = [1, 1]\n', "is empty"),
     ("inverted-range", _HEAD + '[dims."obstacle.accel"]\nrange = [2, 1]\n', "is inverted"),
     ("nan-in-range", _HEAD + '[dims."obstacle.accel"]\nrange = [nan, 2.0]\n', "two finite numbers"),
@@ -217,7 +217,12 @@ _BAD_SPACES = [
      _HEAD + '[dims."obstacle.family"]\nchoices = ["model", "aggressive"]\nweights = [1.0, -0.5]\n',
      "weights must be 2 finite numbers >= 0"),
     ("mean-without-std", _HEAD + '[dims."obstacle.accel"]\nrange = [1.0, 3.0]\nmean = 2.0\n', "both mean and std"),
-    ("choice-of-wrong-type", _HEAD + '[dims."obstacle.family"]\nchoices = ["model", 3]\n', "choice 3 is not a str"),
+    ("choice-of-wrong-type", _HEAD + '[dims."obstacle.family"]\nchoices = ["model", 3]\n',
+     "obstacle.family must be a string, got 3"),
+    ("choice-of-a-pair", _HEAD + '[dims."ego.start_spread"]\nchoices = [1.0]\n', "give range = [low, high]"),
+    ("choice-out-of-range", _HEAD + '[dims."ego.speed"]\nchoices = [nan]\n', "ego.speed=nan is out of range"),
+    ("flat-and-dotted-key", _HEAD + '[dims."beta"]\nrange = [0.0, 0.5]\n[dims."obstacle.beta"]\nrange = [0.0, 0.5]\n',
+     'is given twice'),
     ("unknown-top-key", _HEAD + 'budget = 10\n[dims."obstacle.accel"]\nrange = [1.0, 3.0]\n', "unknown key 'budget'"),
     ("not-toml", "this is [ not toml\n", "not valid TOML"),
     ("world-refuses", _HEAD + '[dims."obstacle.beta"]\nrange = [0.5, 2.0]\n', "obstacle.beta=2.0 is out of range"),
@@ -235,6 +240,7 @@ _BAD_SPACES = [
 
 @pytest.mark.parametrize(("text", "needle"), [case[1:] for case in _BAD_SPACES],
                          ids=[case[0] for case in _BAD_SPACES])
+@pytest.mark.filterwarnings("ignore::cdf_mj.config.FlatKeyWarning")
 def test_a_bad_space_file_is_one_line_naming_the_file_and_the_problem(tmp_path, text, needle):
     path = tmp_path / "bad.toml"
     path.write_text(text)
@@ -267,9 +273,9 @@ def test_the_command_line_says_a_bad_space_in_one_line_before_any_work(tmp_path,
     bad = tmp_path / "bad.toml"
     bad.write_text(_HEAD + '[dims."obstacle.nosuch"]\nrange = [0.0, 1.0]\n')
     out = tmp_path / "out"
-    result = run_cli(capsys, command, "--space", str(bad), "--planner", "reactive", "--budget", "10",
+    result = run_cli(capsys, command, "--space", str(bad), "--planner", "reactive", "--episodes", "10",
                      "--workers", "1", "--out", str(out), "--quiet")
-    assert_one_line_error(*result, str(bad), "unknown option 'obstacle.nosuch'")
+    assert_one_line_error(*result, str(bad), "unknown field 'obstacle.nosuch'")
     assert not out.exists()
     assert_one_line_error(*run_cli(capsys, command, "--space", "nosuch", "--out", str(out), "--quiet"),
                           "unknown space 'nosuch'")
@@ -643,7 +649,7 @@ def test_a_directory_refuses_other_settings_and_a_second_run(spaces, tmp_path, c
     with locked(out), pytest.raises(ValueError, match="in use by another run"):
         falsify(space, "reactive", 8, out, workers=1, figure=False)
     assert_one_line_error(*run_cli(capsys, "falsify", "--space", str(spaces["small"]), "--planner", "constant",
-                                   "--budget", "8", "--workers", "1", "--out", str(out), "--quiet", "--no-figure"),
+                                   "--episodes", "8", "--workers", "1", "--out", str(out), "--quiet", "--no-figure"),
                           str(out), "another planner")
     assert _files(out) == before  # nothing refused wrote anything
     reworded = tmp_path / "reworded.toml"  # another name, description and comments: the same space, the same run
@@ -653,7 +659,7 @@ def test_a_directory_refuses_other_settings_and_a_second_run(spaces, tmp_path, c
 
 def test_a_damaged_journal_is_one_line_on_the_command_line(spaces, tmp_path, capsys):
     out = tmp_path / "run"
-    argv = ("falsify", "--space", str(spaces["small"]), "--planner", "reactive", "--budget", "8", "--workers", "1",
+    argv = ("falsify", "--space", str(spaces["small"]), "--planner", "reactive", "--episodes", "8", "--workers", "1",
             "--out", str(out), "--quiet", "--no-figure")
     status, _, err = run_cli(capsys, *argv)
     assert status == 0, err
@@ -665,7 +671,7 @@ def test_a_damaged_journal_is_one_line_on_the_command_line(spaces, tmp_path, cap
 def test_the_estimate_command_prints_its_estimate_and_writes_it(spaces, tmp_path, capsys):
     out = tmp_path / "est"
     argv = ("estimate", "--space", str(spaces["estimate"]), "--planner", "reactive", "--method", "mc",
-            "--budget", "60", "--seed", "2", "--workers", "1", "--out", str(out), "--quiet")
+            "--episodes", "60", "--seed", "2", "--workers", "1", "--out", str(out), "--quiet")
     status, text, err = run_cli(capsys, *argv)
     assert status == 0 and err == "", err
     saved = json.loads((out / "estimate.json").read_text())
@@ -690,7 +696,7 @@ def test_a_killed_falsify_goes_on_to_the_uninterrupted_result(spaces, tmp_path):
     no episode twice in the journal, and the result of a run never interrupted."""
     out = tmp_path / "killed"
     command = [sys.executable, "-m", "cdf_mj", "falsify", "--planner", "reactive", "--space", str(spaces["small"]),
-               "--budget", str(KILL_BUDGET), "--workers", "2", "--out", str(out), "--quiet", "--no-figure"]
+               "--episodes", str(KILL_BUDGET), "--workers", "2", "--out", str(out), "--quiet", "--no-figure"]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}
     journal = out / JOURNAL_FILE
     with open(tmp_path / "stderr", "wb") as err:
@@ -837,7 +843,7 @@ def test_an_episode_that_raises_in_a_replay_is_counted_not_read_as_a_pass(spaces
     assert all(c.others["raising"] is None for c in result.counterexamples)
     assert "raised" in (out / "report.md").read_text() and "passes" not in (out / "report.md").read_text()
     status, _, err = run_cli(capsys, "falsify", "--space", str(spaces["small"]), "--planner", "reactive",
-                             "--budget", str(BUDGET), "--compare", "raising", "--workers", "1", "--quiet",
+                             "--episodes", str(BUDGET), "--compare", "raising", "--workers", "1", "--quiet",
                              "--no-figure", "--out", str(out))
     assert status == 1 and "raised" in err
 
@@ -869,7 +875,7 @@ def test_ctrl_c_is_one_line_and_a_missing_scene_is_refused_before_anything_is_wr
     starts there."""
     out = tmp_path / "interrupted"
     command = [sys.executable, "-m", "cdf_mj", "estimate", "--method", "mc", "--planner", "reactive", "--space",
-               str(spaces["small"]), "--budget", "100000", "--workers", "2", "--out", str(out), "--quiet"]
+               str(spaces["small"]), "--episodes", "100000", "--workers", "2", "--out", str(out), "--quiet"]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(REPO), os.environ.get("PYTHONPATH")]))}
     journal = out / JOURNAL_FILE
     proc = subprocess.Popen(command, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -891,7 +897,7 @@ def test_ctrl_c_is_one_line_and_a_missing_scene_is_refused_before_anything_is_wr
 
     missing = tmp_path / "missing"
     status, stdout, stderr = run_cli(capsys, "falsify", "--planner", "reactive", "--space", str(spaces["small"]),
-                                     "--budget", "3", "--workers", "2", "--scene", str(tmp_path / "nope.xml"),
+                                     "--episodes", "3", "--workers", "2", "--scene", str(tmp_path / "nope.xml"),
                                      "--out", str(missing), "--quiet", "--no-figure")
     assert_one_line_error(status, stdout, stderr, "nope.xml")
     assert not missing.exists()
@@ -911,11 +917,11 @@ def test_an_estimate_that_is_not_reliable_says_why_on_its_line():
 
 @pytest.mark.parametrize(("extra", "needle"), [
     (["--method", "mc", "--stage", "20"], "--stage is for --method ce"),
-    (["--method", "ce", "--budget", "100", "--stage", "90"], "leaves no adaptive stage"),
+    (["--method", "ce", "--episodes", "100", "--stage", "90"], "leaves no adaptive stage"),
 ])
 def test_an_estimate_refuses_a_stage_it_would_not_use(spaces, tmp_path, capsys, extra, needle):
     out = tmp_path / "e"
-    argv = ["estimate", "--planner", "reactive", "--space", str(spaces["small"]), "--budget", "100", "--out",
+    argv = ["estimate", "--planner", "reactive", "--space", str(spaces["small"]), "--episodes", "100", "--out",
             str(out), "--quiet", *extra]
     assert_one_line_error(*run_cli(capsys, *argv), needle)
     assert not out.exists()

@@ -23,7 +23,7 @@ from cdf_mj.sim.assets import MODELS_DIR
 
 PLANNERS = ("constant", "reactive")
 SEEDS = range(0, 12)
-ARGS = ["--episodes", str(len(SEEDS)), "--planners", ",".join(PLANNERS), "--workers", "1", "--quiet"]
+ARGS = ["--episodes", str(len(SEEDS)), "--planner", ",".join(PLANNERS), "--workers", "1", "--quiet"]
 
 
 def _key(rec: dict) -> tuple[int, str]:

@@ -53,13 +53,13 @@ def test_episode_with_a_names_file(own_scene: Path, tmp_path: Path, capsys: pyte
 
 
 @pytest.mark.parametrize("command", [
-    ["experiment", "--episodes", "1", "--planners", "constant", "--quiet", "--workers", "1"],
-    ["sweep", "beta", "--values", "0.05", "--episodes", "1", "--planners", "constant", "--quiet",
+    ["experiment", "--episodes", "1", "--planner", "constant", "--quiet", "--workers", "1"],
+    ["sweep", "beta", "--values", "0.05", "--episodes", "1", "--planner", "constant", "--quiet",
      "--workers", "1", "--no-figure"],
     ["bench", "--only-reproduce", "--reproduce-episodes", "1", "--workers", "1", "--quiet"],
-    ["falsify", "--planner", "reactive", "--budget", "8", "--popsize", "4", "--workers", "1", "--quiet",
+    ["falsify", "--planner", "reactive", "--episodes", "8", "--popsize", "4", "--workers", "1", "--quiet",
      "--no-figure"],
-    ["estimate", "--planner", "reactive", "--method", "mc", "--budget", "4", "--workers", "1", "--quiet"],
+    ["estimate", "--planner", "reactive", "--method", "mc", "--episodes", "4", "--workers", "1", "--quiet"],
 ])
 def test_other_commands_take_a_names_file(command: list[str], own_scene: Path, tmp_path: Path):
     names = tmp_path / "names.json"

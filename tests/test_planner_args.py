@@ -69,7 +69,7 @@ def test_arguments_a_planner_does_not_take_are_refused_before_any_work(tmp_path)
 def test_a_cdf_flag_that_no_planner_reads_is_refused(tmp_path, capsys, planners, flag, readers):
     """Which planner reads which flag comes from the registry (its shared settings and its rule)."""
     out = tmp_path / "x"
-    status, stdout, stderr = run_cli(capsys, "experiment", "--episodes", "1", "--planners", planners, flag, "0.4",
+    status, stdout, stderr = run_cli(capsys, "experiment", "--episodes", "1", "--planner", planners, flag, "0.4",
                                      "--out", str(out))
     assert_one_line_error(status, stdout, stderr, f"{flag} ", readers)
     assert not out.exists()

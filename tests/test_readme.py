@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from cdf_mj.cli import build_parser, main
+from cdf_mj.cli.args import notes
 from cdf_mj.extras import EXTRAS
 
 REPO = Path(__file__).resolve().parent.parent
@@ -73,6 +74,7 @@ def test_cli_command_parses(command, capsys):
         return
     args = build_parser().parse_args(words)
     assert args.command == (words[0] if words else None)
+    assert notes(args) == [], "the README spells a flag as earlier releases did"
 
 
 def test_ci_runs_the_readme_test_command():

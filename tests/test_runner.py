@@ -81,7 +81,7 @@ def _state(pid: int) -> str:
 def test_sigkilled_run_resumes_without_loss_or_duplicates(tmp_path):
     out, seeds = tmp_path / "killed", range(0, 40)
     cmd = [sys.executable, "-m", "cdf_mj.cli", "experiment", "--episodes", str(len(seeds)),
-           "--planners", "reactive", "--workers", "2", "--out", str(out), "--quiet"]
+           "--planner", "reactive", "--workers", "2", "--out", str(out), "--quiet"]
     proc = subprocess.Popen(cmd, start_new_session=True, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 120
@@ -127,7 +127,7 @@ class ExplodingPlanner(ReactivePlanner):
 def test_a_failing_episode_is_recorded_and_the_run_goes_on(tmp_path, monkeypatch, capsys):
     monkeypatch.setitem(PLANNERS, "exploding", ExplodingPlanner)
     seeds = range(0, 10)
-    assert main(["experiment", "--episodes", "10", "--planners", "reactive,exploding", "--workers", "2",
+    assert main(["experiment", "--episodes", "10", "--planner", "reactive,exploding", "--workers", "2",
                  "--out", str(tmp_path), "--quiet"]) == 1
     err = capsys.readouterr().err
     records = load_records(tmp_path)
@@ -147,7 +147,7 @@ def test_a_failing_episode_is_recorded_and_the_run_goes_on(tmp_path, monkeypatch
             assert r["label"] == reactive[r["seed"]]["label"]
 
     # Running it again keeps the failures; --retry-failed runs them again (here, once fixed).
-    args = ["experiment", "--episodes", "10", "--planners", "reactive,exploding", "--workers", "2",
+    args = ["experiment", "--episodes", "10", "--planner", "reactive,exploding", "--workers", "2",
             "--out", str(tmp_path), "--quiet"]
     assert main(args) == 1 and len(load_records(tmp_path)) == 20
     monkeypatch.setitem(PLANNERS, "exploding", ReactivePlanner)  # the bug is fixed
@@ -188,7 +188,7 @@ def test_resume_with_other_settings_is_refused(serial, tmp_path):
         run_experiment(out, SEEDS, ("cdf", "reactive"), progress=False, resume=True)
     with pytest.raises(ValueError, match="planners"):
         run_experiment(out, SEEDS, ("reactive",), cdf=SMALL, progress=False, resume=True)
-    assert main(["experiment", "--episodes", "8", "--seed0", "30", "--out", str(out),
+    assert main(["experiment", "--episodes", "8", "--seed", "30", "--out", str(out),
                  "--set", "obstacle.beta=0.1", "--quiet"]) == 2
     assert (out / "episodes.jsonl").read_bytes() == before
     # The same settings: nothing left to run, the same records.
@@ -297,7 +297,7 @@ def test_numpy_values_are_written_and_a_record_json_cannot_hold_is_a_failed_epis
 def test_an_unwritable_output_is_one_line(tmp_path, capsys):
     afile = tmp_path / "afile"
     afile.write_text("")
-    assert main(["experiment", "--episodes", "2", "--planners", "reactive", "--out", str(afile), "--quiet"]) == 2
+    assert main(["experiment", "--episodes", "2", "--planner", "reactive", "--out", str(afile), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("cdf-mj: error: ") and "afile" in err and err.count("\n") == 1
 

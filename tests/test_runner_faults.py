@@ -48,7 +48,7 @@ def test_a_planner_raising_system_exit_is_a_failed_episode(tmp_path, monkeypatch
 
 def test_the_cli_exits_1_when_a_planner_raised_system_exit(tmp_path, monkeypatch, capsys):
     monkeypatch.setitem(PLANNERS, "quitter", _QuitsOnOddSeeds)
-    status = main(["experiment", "--episodes", "6", "--planners", "quitter", "--workers", "1", "--quiet",
+    status = main(["experiment", "--episodes", "6", "--planner", "quitter", "--workers", "1", "--quiet",
                    "--out", str(tmp_path)])
     assert status == EXIT_FAILED_EPISODES
     assert "episodes failed" in capsys.readouterr().err
@@ -78,7 +78,7 @@ def test_ray_without_a_cluster_fails_at_once_with_one_line(tmp_path, capsys):
         run_seeds(job, [(0, ("reactive",)), (1, ("reactive",))], backend="ray", address=address)
     with pytest.raises(ClusterUnreachableError, match="port must be a number"):
         run_seeds(job, [(0, ("reactive",)), (1, ("reactive",))], backend="ray", address="127.0.0.1:http")
-    status = main(["experiment", "--episodes", "2", "--planners", "reactive", "--backend", "ray", "--address",
+    status = main(["experiment", "--episodes", "2", "--planner", "reactive", "--backend", "ray", "--address",
                    address, "--quiet", "--out", str(tmp_path)])
     assert status == EXIT_USAGE
     err = capsys.readouterr().err.strip().splitlines()

@@ -66,8 +66,8 @@ def test_cdf_acts_on_a_cutoff_on_the_fourway(fourway: Scene):
 
 @pytest.mark.parametrize("argv", [
     ["episode", "--seed", "3", "--planner", "reactive"],
-    ["experiment", "--episodes", "2", "--planners", "reactive", "--quiet", "--workers", "1"],
-    ["reproduce", "--episodes", "2", "--planners", "constant", "--quiet", "--workers", "1"],
+    ["experiment", "--episodes", "2", "--planner", "reactive", "--quiet", "--workers", "1"],
+    ["reproduce", "--episodes", "2", "--planner", "constant", "--quiet", "--workers", "1"],
     ["bench", "--only-reproduce", "--reproduce-episodes", "2", "--workers", "1", "--quiet"],
 ])
 def test_cli_runs_on_the_fourway(argv, tmp_path, capsys):

@@ -84,7 +84,7 @@ def test_sweep_refuses_bad_requests(tmp_path):
 
 
 def test_cli_sweep(tmp_path, capsys, monkeypatch):
-    argv = ["sweep", "noise", "--values", "1,2", "--episodes", "1", "--planners", "reactive",
+    argv = ["sweep", "noise", "--values", "1,2", "--episodes", "1", "--planner", "reactive",
             "--workers", "1", "--quiet", "--out", str(tmp_path)]
     assert main(argv) == 0
     assert "Sweep `noise`" in capsys.readouterr().out
@@ -156,7 +156,7 @@ def test_failed_episodes_are_counted_per_point_and_never_hidden(tmp_path, monkey
     assert "| 0.9 | fragile | 0 |" in md and "**2 episodes failed**" in md and str(tmp_path / "tau" / "0.9") in md
     assert res.figure_path.is_file()  # a point without completed episodes is drawn as a gap
 
-    argv = ["sweep", "tau", "--values", "0.5,0.9", "--episodes", "2", "--planners", "fragile,cdf",
+    argv = ["sweep", "tau", "--values", "0.5,0.9", "--episodes", "2", "--planner", "fragile,cdf",
             "--workers", "1", "--quiet", "--no-figure", "--out", str(tmp_path)]
     assert main(argv) == 1  # EXIT_FAILED_EPISODES, as `experiment`
     err = capsys.readouterr().err

@@ -17,18 +17,24 @@ escaped, so the error stays one line. A run in which episodes failed
 (``2>&-``) commands run as usual and only their messages are lost; with stdout closed
 (``>&-``) nothing runs (status 2), as what they print would be lost.
 
-The package's modules: ``app`` (:func:`main`, the parser, errors to one line), ``args``
-(what the commands share: :class:`CLIError`, bounded argument types, ``--scene``/``--set``
-and the CDF's options), and one module per command (``episode``, ``experiment`` with
-``reproduce``, ``sweep``, ``render``, ``report``, ``bench``, ``presets``). Nothing else in
-``cdf_mj`` imports this package (tests/test_layers.py).
+One idea has one flag on every command (``--seed``, ``--episodes``, ``--planner``,
+``--workers``, ...): the table is in :mod:`cdf_mj.cli.args`. The spellings of earlier
+releases (``--seed0``, ``--planners``, ``--budget``, ``render --compare``) still work and
+say so in one line on stderr.
 
-Adding a subcommand: write ``cdf_mj/cli/<name>.py`` with ``_add_<name>(subparsers)``, which
-builds its parser with ``args._command`` (use :func:`add_scenario_arguments` for ``--scene``
-and ``--set``) and sets ``func`` to a function ``(args) -> int``; append it to
-``app._SUBCOMMANDS``. Raise :class:`CLIError` (or any ``ValueError``) for bad input; logic
-lives in the package, not here. Scripts that take ``--set`` too can call
-:func:`parse_overrides`.
+The package's modules: ``app`` (:func:`main`, the parser, errors to one line), ``args``
+(what the commands share: :class:`CLIError`, the vocabulary and its old spellings, bounded
+argument types, the run options and the CDF's options), and one module per command
+(``episode``, ``experiment`` with ``reproduce``, ``sweep``, ``render``, ``report``,
+``falsify`` with ``estimate``, ``bench``, ``presets``). A command module imports public
+names of ``args`` only. Nothing else in ``cdf_mj`` imports this package (tests/test_layers.py).
+
+Adding a subcommand: write ``cdf_mj/cli/<name>.py`` with ``add_<name>(subparsers)``, which
+builds its parser with ``args.command`` (use :func:`add_run_arguments` for ``--scene``,
+``--set``, ``--workers``, ...; the flags of the table for its other ideas) and sets
+``func`` to a function ``(args) -> int``; append it to ``app._SUBCOMMANDS``. Raise
+:class:`CLIError` (or any ``ValueError``) for bad input; logic lives in the package, not
+here. Scripts that take ``--set`` too can call :func:`parse_overrides`.
 """
 
 from __future__ import annotations
@@ -46,7 +52,7 @@ except (ImportError, AttributeError, RuntimeError) as _exc:
           "then tries EGL, then OSMesa) or set it to one installed here", file=sys.stderr)
     raise SystemExit(2) from None
 
-from cdf_mj import __version__
+from cdf_mj._version import __version__
 from cdf_mj.cli.app import build_parser, main
 from cdf_mj.cli.args import (
     EXIT_FAILED_EPISODES,
@@ -56,15 +62,18 @@ from cdf_mj.cli.args import (
     CLIError,
     add_cdf_arguments,
     add_format_argument,
+    add_run_arguments,
     add_scenario_arguments,
     cdf_from_args,
     config_from_args,
     parse_overrides,
+    pool_from_args,
     scene_from_args,
 )
 from cdf_mj.cli.experiment import RUN_FILES
 from cdf_mj.cli.sweep import MAX_SWEEP_VALUES
 
 __all__ = ["EXIT_FAILED_EPISODES", "EXIT_USAGE", "MAX_SWEEP_VALUES", "PROG", "RUN_FILES", "SETTABLE", "CLIError",
-           "__version__", "add_cdf_arguments", "add_format_argument", "add_scenario_arguments", "build_parser",
-           "cdf_from_args", "config_from_args", "main", "parse_overrides", "scene_from_args"]
+           "__version__", "add_cdf_arguments", "add_format_argument", "add_run_arguments", "add_scenario_arguments",
+           "build_parser", "cdf_from_args", "config_from_args", "main", "parse_overrides", "pool_from_args",
+           "scene_from_args"]

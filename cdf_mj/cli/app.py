@@ -11,16 +11,16 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import NoReturn
 
-from cdf_mj import __version__
-from cdf_mj.cli.args import EXIT_USAGE, PROG, CLIError
-from cdf_mj.cli.bench import _add_bench
-from cdf_mj.cli.episode import _add_episode
-from cdf_mj.cli.experiment import _add_experiment, _add_reproduce
-from cdf_mj.cli.falsify import _add_estimate, _add_falsify
-from cdf_mj.cli.presets import _add_presets
-from cdf_mj.cli.render import _add_render
-from cdf_mj.cli.report import _add_report
-from cdf_mj.cli.sweep import _add_sweep
+from cdf_mj._version import __version__
+from cdf_mj.cli.args import EXIT_USAGE, PROG, CLIError, notes
+from cdf_mj.cli.bench import add_bench
+from cdf_mj.cli.episode import add_episode
+from cdf_mj.cli.experiment import add_experiment, add_reproduce
+from cdf_mj.cli.falsify import add_estimate, add_falsify
+from cdf_mj.cli.presets import add_presets
+from cdf_mj.cli.render import add_render
+from cdf_mj.cli.report import add_report
+from cdf_mj.cli.sweep import add_sweep
 from cdf_mj.experiments.runner import WorkerDiedError
 
 
@@ -45,10 +45,10 @@ class _Parser(argparse.ArgumentParser):
 
 
 #: In the order of the list of commands: a newcomer's first steps first.
-_SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [_add_reproduce, _add_episode, _add_experiment,
-                                                                    _add_presets, _add_sweep, _add_render,
-                                                                    _add_report, _add_falsify, _add_estimate,
-                                                                    _add_bench]
+_SUBCOMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [add_reproduce, add_episode, add_experiment,
+                                                                    add_presets, add_sweep, add_render,
+                                                                    add_report, add_falsify, add_estimate,
+                                                                    add_bench]
 
 
 # ----------------------------------------------------------------- entry point
@@ -123,7 +123,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if getattr(args, "compiles", False) and not getattr(args, "quiet", False):
         _note_first_compile()
     try:
-        return args.func(args)
+        status: int = args.func(args)
     except BrokenPipeError:  # `cdf-mj episode | head`: the reader left; no traceback
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # Python's flush at exit
         return 1
@@ -147,6 +147,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         if isinstance(exc, OSError) and exc.filename is None and exc.errno in _WRITE_ERRORS and out:
             exc.filename = f"{out} (writing)"  # a failed write() names no file: name the output
         return _fail(exc)
+    if status != EXIT_USAGE:  # old spellings, once the command has run (an error stays one line)
+        for text in notes(args):
+            print(f"{PROG}: note: {text}", file=sys.stderr)
+    return status
 
 
 def _note_first_compile() -> None:

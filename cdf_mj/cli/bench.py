@@ -1,24 +1,36 @@
 """``cdf-mj bench``: the timing table of docs/PERFORMANCE.md (physics, filter stages,
 planners, startup, reproduction scaling), every row timed in interleaved repeats against
-the physics floor sampled between them, and the targets first."""
+the physics floor sampled between them, and the targets first.
+
+``--particles N`` and ``--workers N`` mean what they mean elsewhere, one number (the
+filter rows' size, the timed reproduction's workers); the scaling tables run over the
+lists ``--scale-particles`` and ``--scale-workers``. A list given to ``--particles`` or
+``--workers``, as earlier releases took it, still works, with a note."""
 
 from __future__ import annotations
 
 import argparse
 
 from cdf_mj.cli.args import (
-    _comma_list,
-    _command,
-    _episodes,
-    _int_in,
-    _particles,
-    _shown,
-    _workers,
-    add_scenario_arguments,
+    CLIError,
+    add_note,
+    add_run_arguments,
+    comma_list,
+    command,
     config_from_args,
+    episode_count,
+    int_in,
+    particle_count,
+    shown,
+    worker_count,
 )
 
-_repeats = _int_in(1, 1000, "run time: every row runs that many times over")
+_repeats = int_in(1, 1000, "run time: every row runs that many times over")
+_particle_counts = comma_list(particle_count, "positive integers")
+_worker_counts = comma_list(worker_count, "positive integers")
+#: The scaling lists' defaults.
+SCALE_PARTICLES = (250, 1000, 10000)
+SCALE_WORKERS = (1, 2)
 
 
 def _positive_seconds(text: str) -> float:
@@ -28,8 +40,20 @@ def _positive_seconds(text: str) -> float:
         value = float("nan")
     if not (value > 0 and value <= 600.0):  # a timing run of 10 minutes at most
         raise argparse.ArgumentTypeError(f"must be a positive number of seconds, at most 600, got "
-                                         f"{_shown(text)}")
+                                         f"{shown(text)}")
     return value
+
+
+def _scale(args: argparse.Namespace, one: str, scale: str, default: tuple[int, ...]) -> tuple[int, ...]:
+    """The list to time of ``--ONE N`` (one number; a list, as earlier releases took it,
+    with a note) or ``--SCALE N1,N2,...`` (``one``, ``scale``: the namespace's names)."""
+    given, listed = getattr(args, one), getattr(args, scale)
+    flag, scale_flag = f"--{one}", f"--scale-{one}"
+    if given is not None and listed is not None:
+        raise CLIError(f"{flag}: not used with {scale_flag}; give one number with {flag} or a list with {scale_flag}")
+    if given is not None and len(given) > 1:
+        add_note(args, f"bench {flag} with a list is now {scale_flag} (the old spelling still works)")
+    return tuple(given or listed or default)
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
@@ -45,7 +69,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         format_rows,
     )
 
-    sizes = tuple(args.particles)
+    sizes = _scale(args, "particles", "scale_particles", SCALE_PARTICLES)
+    workers = _scale(args, "workers", "scale_workers", SCALE_WORKERS)
     config = config_from_args(args)
     where = {"scene": args.scene, "config": config}
     reps = args.repeats
@@ -57,14 +82,15 @@ def _cmd_bench(args: argparse.Namespace) -> int:
                                            *bench_env(args.env_seconds, reps, probe=probe, **where),
                                            *bench_startup(probe=probe)]
     if args.reproduce or args.only_reproduce:
-        rows += bench_reproduction(args.reproduce_episodes, tuple(args.workers), progress=not args.quiet,
+        rows += bench_reproduction(args.reproduce_episodes, workers, progress=not args.quiet,
                                    probe=probe, **where)
     print(format_rows(rows, probe.floor()))
     return 0
 
 
-def _add_bench(subparsers: argparse._SubParsersAction) -> None:
-    p = _command(
+def add_bench(subparsers: argparse._SubParsersAction) -> None:
+    """The ``bench`` command."""
+    p = command(
         subparsers, "bench", compiles=True,
         summary="timing table: physics, filter stages, planners, startup, reproduction scaling",
         description="Print the benchmark table of docs/PERFORMANCE.md, the targets first: every row timed in "
@@ -75,7 +101,7 @@ def _add_bench(subparsers: argparse._SubParsersAction) -> None:
                     "--clock wall. Pin to one core with taskset -c 0 for the "
                     "single-core rows; the startup rows time fresh processes (Numba compiling or loading "
                     "its cache, a cold cdf-mj episode).")
-    p.add_argument("--episodes", type=_episodes, default=10,
+    p.add_argument("--episodes", type=episode_count, default=10,
                    help="seeds of each episode row, timed --repeats times over (default 10)")
     p.add_argument("--repeats", type=_repeats, default=3,
                    help="interleaved repeats of a row: passes over the seeds of an episode row, runs of "
@@ -86,18 +112,25 @@ def _add_bench(subparsers: argparse._SubParsersAction) -> None:
                         "finer: on a shared core, a row longer than a scheduler slice would otherwise count other "
                         "processes' turns) or wall time; the reproduction and cold-start rows are wall times "
                         "either way")
-    p.add_argument("--particles", type=_comma_list(_particles, "positive integers"), default=[250, 1000, 10000],
-                   help="filter sizes N to time, each 1 to 10^6, at most 100 of them (default 250,1000,10000)")
+    p.add_argument("--particles", type=_particle_counts, default=None,
+                   help="the CDF's particle count N: time the filter rows at this one size, 1 to 10^6 (several: "
+                        "--scale-particles)")
+    p.add_argument("--scale-particles", type=_particle_counts, default=None, metavar="N1,N2,...",
+                   help="filter sizes N to time, each 1 to 10^6, at most 100 of them (default "
+                        f"{','.join(map(str, SCALE_PARTICLES))})")
     p.add_argument("--env-seconds", type=_positive_seconds, default=1.0,
                    help="seconds of each of the --repeats timed runs of the Gymnasium env per setting "
                         "(default 1)")
     p.add_argument("--reproduce", action="store_true",
-                   help="also time the paper's reproduction with each --workers count (minutes)")
+                   help="also time the paper's reproduction on --workers, or on each --scale-workers count "
+                        "(minutes)")
     p.add_argument("--only-reproduce", action="store_true", help="only the reproduction rows")
-    p.add_argument("--reproduce-episodes", type=_episodes, default=1000,
+    p.add_argument("--reproduce-episodes", type=episode_count, default=1000,
                    help="seeds in the timed reproduction (default 1000)")
-    p.add_argument("--workers", type=_comma_list(_workers, "positive integers"), default=[1, 2],
-                   help="worker counts for the reproduction (default 1,2)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    add_scenario_arguments(p)
+    p.add_argument("--workers", type=_worker_counts, default=None,
+                   help="worker processes of the timed reproduction, 1 to 1024 (several: --scale-workers)")
+    p.add_argument("--scale-workers", type=_worker_counts, default=None, metavar="N1,N2,...",
+                   help="worker counts of the reproduction's scaling rows, each 1 to 1024, at most 100 of them "
+                        f"(default {','.join(map(str, SCALE_WORKERS))})")
+    add_run_arguments(p, pool=False)
     p.set_defaults(func=_cmd_bench)

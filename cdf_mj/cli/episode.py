@@ -7,9 +7,15 @@ import json
 import sys
 from typing import Any
 
-from cdf_mj.cli.args import _command, _non_negative_int, add_scenario_arguments, config_from_args, scene_from_args
+from cdf_mj.cli.args import (
+    add_planner_option,
+    add_run_arguments,
+    command,
+    config_from_args,
+    scene_from_args,
+    seed_value,
+)
 from cdf_mj.experiments.store import json_default
-from cdf_mj.planners.registry import PLANNERS
 from cdf_mj.scenario.episode import run_episode
 
 
@@ -27,16 +33,16 @@ def _cmd_episode(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_episode(subparsers: argparse._SubParsersAction) -> None:
-    p = _command(
+def add_episode(subparsers: argparse._SubParsersAction) -> None:
+    """The ``episode`` command."""
+    p = command(
         subparsers, "episode", compiles=True, summary="run one episode and print its record as JSON",
         description="Run one episode of the T-intersection scenario and print its record "
                     "as JSON on stdout. The same seed gives the same record.")
-    p.add_argument("--seed", type=_non_negative_int, default=0,
+    p.add_argument("--seed", type=seed_value, default=0,
                    help="episode seed, a non-negative integer (default: 0)")
-    p.add_argument("--planner", choices=sorted(PLANNERS), default="reactive",
-                   help="ego planner (default: reactive)")
-    add_scenario_arguments(p)
+    add_planner_option(p, "reactive", "ego planner (default: reactive)")
+    add_run_arguments(p, pool=False, progress=False)
     p.add_argument("--no-label", dest="label", action="store_false",
                    help="skip the counterfactual run that labels the episode Cutoff/Yield/Right")
     p.add_argument("--trace", action="store_true", help="include per-tick poses, modes and beliefs")

@@ -16,21 +16,21 @@ from cdf_mj.cli.args import (
     EXIT_FAILED_EPISODES,
     PROG,
     CLIError,
-    _command,
-    _episodes,
-    _non_negative_int,
-    _out_path,
-    _planner_list,
-    _seed_range,
-    _workers,
     add_cdf_arguments,
     add_format_argument,
-    add_scenario_arguments,
+    add_option,
+    add_planner_option,
+    add_run_arguments,
     cdf_from_args,
+    command,
     config_from_args,
+    episode_count,
+    out_path,
+    pool_from_args,
+    seed_range,
+    seed_value,
 )
 from cdf_mj.experiments.store import locked
-from cdf_mj.extras import install_hint
 from cdf_mj.records import RECORDS_FILE
 
 #: The one line that ``--resume`` prints on stderr (the option of earlier releases, now a no-op).
@@ -46,26 +46,24 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
 
     config = config_from_args(args)
     cdf = cdf_from_args(args, args.planners)
-    seeds = _seed_range(args.seed0, args.episodes)
+    seeds = seed_range(args.seed, args.episodes)
     if args.retry_failed and args.force:
         raise CLIError("--force starts over, so --retry-failed has nothing to retry: give one of them")
-    if args.address is not None and args.backend != "ray":
-        raise CLIError("--address is the address of a Ray cluster: it needs --backend ray")
+    pool = pool_from_args(args)
     if args.resume:  # a script written when continuing needed --resume: it gets what it asked for
         print(f"{PROG}: {RESUME_NOTE}", file=sys.stderr)
     if args.force:
         _remove_run(Path(args.out))
     try:  # resume: the same command again continues a run, or shows its tables if it is complete
         result = run_experiment(args.out, seeds, args.planners, config, cdf, args.scene,
-                                progress=not args.quiet, workers=args.workers, backend=args.backend,
-                                resume=True, retry_failed=args.retry_failed, address=args.address)
+                                progress=not args.quiet, resume=True, retry_failed=args.retry_failed, **pool)
     except SettingsMismatchError as exc:
         raise CLIError(f"{exc}, or give --force to replace them") from None
     except KeyboardInterrupt:
         print(f"{PROG}: interrupted; the finished episodes are saved in {args.out}/episodes.jsonl: "
               f"run the same command again to continue", file=sys.stderr)
         return 130
-    what = f"{args.episodes} episodes from seed {args.seed0}, planners {','.join(args.planners)}"
+    what = f"{args.episodes} episodes from seed {args.seed}, planners {','.join(args.planners)}"
     if result.ran:
         resumed = f", {result.resumed} already on disk" if result.resumed else ""
         print(f"{what}: {result.ran} run in {result.wall_time:.1f} s on {result.workers} worker(s) "
@@ -94,20 +92,14 @@ def _remove_run(out: Path) -> None:
 
 
 def _add_experiment_arguments(p: argparse.ArgumentParser, episodes: int, out: str) -> None:
-    p.add_argument("--episodes", type=_episodes, default=episodes,
+    p.add_argument("--episodes", type=episode_count, default=episodes,
                    help=f"number of seeds, 1 to 10^7 (default {episodes})")
-    p.add_argument("--seed0", type=_non_negative_int, default=0, help="first seed (default 0)")
-    p.add_argument("--planners", type=_planner_list, default=["cdf", "reactive"],
-                   help="comma-separated planners run on the same seeds (default cdf,reactive)")
-    p.add_argument("--out", type=_out_path, default=out, help=f"result directory (default {out})")
+    add_option(p, "--seed", old=("--seed0",), type=seed_value, default=0,
+               help="first seed: the run's seeds are --seed to --seed + --episodes - 1 (default 0)")
+    add_planner_option(p, ["cdf", "reactive"], "comma-separated planners run on the same seeds (default "
+                       "cdf,reactive)", several=True, old=("--planners",))
+    p.add_argument("--out", type=out_path, default=out, help=f"result directory (default {out})")
     add_cdf_arguments(p)
-    p.add_argument("--workers", type=_workers, default=None,
-                   help="worker processes, 1 to 1024 (default: the CPU count; 1 runs in this process)")
-    p.add_argument("--backend", choices=("process", "ray"), default="process",
-                   help=f"where episodes run: a local process pool (default) or Ray ({install_hint('ray')})")
-    p.add_argument("--address", default=None,
-                   help="with --backend ray: the address of an existing Ray cluster "
-                        "(default: start a local Ray instance)")
     p.add_argument("--force", action="store_true",
                    help="start over: remove the records and settings of the run in --out (no other file)")
     p.add_argument("--resume", action="store_true",
@@ -115,14 +107,14 @@ def _add_experiment_arguments(p: argparse.ArgumentParser, episodes: int, out: st
                         "interrupted run")
     p.add_argument("--retry-failed", action="store_true",
                    help="run the episodes of the run in --out that failed again")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_format_argument(p)
-    add_scenario_arguments(p)
+    add_run_arguments(p)
     p.set_defaults(func=_cmd_experiment)
 
 
-def _add_experiment(subparsers: argparse._SubParsersAction) -> None:
-    p = _command(
+def add_experiment(subparsers: argparse._SubParsersAction) -> None:
+    """The ``experiment`` command."""
+    p = command(
         subparsers, "experiment", compiles=True,
         summary="run planners on the same seeds; print the paper's tables beside ours",
         description="Run each planner on the same seeds, write one JSON line per episode and "
@@ -132,11 +124,12 @@ def _add_experiment(subparsers: argparse._SubParsersAction) -> None:
     _add_experiment_arguments(p, episodes=100, out="results/experiment")
 
 
-def _add_reproduce(subparsers: argparse._SubParsersAction) -> None:
-    p = _command(
+def add_reproduce(subparsers: argparse._SubParsersAction) -> None:
+    """The ``reproduce`` command: ``experiment`` with the paper's 1000 seeds."""
+    p = command(
         subparsers, "reproduce", compiles=True, summary="the paper's experiment: 1000 episodes, CDF and reactive",
         description="The paper's experiment with the default settings: seeds 0-999, the CDF "
-                    "(with its risk rule; --planners cdf-threshold,reactive for the paper's rule) "
+                    "(with its risk rule; --planner cdf-threshold,reactive for the paper's rule) "
                     "and the reactive planner on the same seeds, both tables. The same command "
                     "again continues an interrupted run, or only prints the tables of a finished one.")
     _add_experiment_arguments(p, episodes=1000, out="results/reproduce")

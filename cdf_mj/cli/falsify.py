@@ -13,35 +13,60 @@ from cdf_mj.cli.args import (
     EXIT_FAILED_EPISODES,
     PROG,
     CLIError,
-    _command,
-    _episodes,
-    _int_in,
-    _non_negative_int,
-    _out_path,
-    _planner_list,
-    _workers,
+    add_note,
+    add_option,
+    add_planner_option,
+    add_run_arguments,
+    command,
+    episode_count,
+    int_in,
+    out_path,
+    parse_overrides,
+    planner_list,
+    pool_from_args,
+    seed_value,
 )
-from cdf_mj.planners.registry import PLANNERS
+from cdf_mj.config.user_values import UserValueError, apply_values, flat_key_notes
+from cdf_mj.presets import read_preset
 from cdf_mj.sim.checks import read_names
+from cdf_mj.sim.scene import DEFAULT_SCENE
 
 if TYPE_CHECKING:
     from cdf_mj.falsify.search import Generation
     from cdf_mj.falsify.space import SearchSpace
-from cdf_mj.sim.scene import DEFAULT_SCENE
 
-_popsize = _int_in(2, 10_000, "candidates per generation")
-_clusters = _int_in(1, 1000, "clusters minimised and written")
+_popsize = int_in(2, 10_000, "candidates per generation")
+_clusters = int_in(1, 1000, "clusters minimised and written")
 
 
 def _space(args: argparse.Namespace) -> SearchSpace:
-    from cdf_mj.falsify.space import load_space
+    """The space of ``--space``, its base world changed by ``--preset``, ``--names`` and
+    ``--set`` in that order (each dimension's ends checked against the new base)."""
+    from cdf_mj.falsify.space import Range, load_space
 
-    if args.address is not None and args.backend != "ray":
-        raise CLIError("--address is the address of a Ray cluster: it needs --backend ray")
     space = load_space(args.space)  # SpaceError: one line, exit 2
-    if args.names is not None:  # a scene of your own with its own names (SceneError: one line)
-        space = dataclasses.replace(space, base=space.base.replace(names=read_names(args.names)))
-    return space
+    base, given = space.base, []
+    with flat_key_notes(lambda note: add_note(args, note)):  # as config_from_args reads them
+        if args.preset is not None:  # its fields over the space's own preset (PresetError: one line)
+            base, given = read_preset(args.preset).config(base), ["--preset", args.preset]
+        if args.names is not None:  # a scene of your own with its own names (SceneError: one line)
+            base = base.replace(names=read_names(args.names))
+        if args.overrides:
+            try:
+                base = apply_values(base, parse_overrides(args.overrides))
+            except UserValueError as exc:  # the config names the field and its range
+                raise CLIError(f"--set: {exc}") from None
+            given += [w for item in args.overrides for w in ("--set", item)]
+    for d in space.dims if base is not space.base else ():
+        for x in (d.low, d.high) if isinstance(d, Range) else range(len(d.values)):
+            value = d.value(float(x))
+            try:
+                base.with_values({d.key: value})
+            except ValueError as exc:
+                raise CLIError(f"--preset/--set: the space's dimension {d.key} = {value!r} gives a world the "
+                               f"scenario refuses: {exc}") from None
+    preset = f"{space.preset} with {shlex.join(given)}" if given else space.preset
+    return dataclasses.replace(space, base=base, preset=preset)
 
 
 def _scene_args(args: argparse.Namespace) -> str:
@@ -56,8 +81,9 @@ def _cmd_falsify(args: argparse.Namespace) -> int:
 
     from cdf_mj.falsify.run import falsify
 
+    pool = pool_from_args(args)
     space = _space(args)
-    with tqdm(total=args.budget, unit="ep", desc=f"falsify {args.planner}", disable=args.quiet) as bar:
+    with tqdm(total=args.episodes, unit="ep", desc=f"falsify {args.planner}", disable=args.quiet) as bar:
         def generation(g: Generation) -> None:
             bar.update(g.episodes - bar.n)
             bar.set_postfix(best=f"{g.best_so_far:.3g}", failures=g.failures_so_far)
@@ -66,10 +92,10 @@ def _cmd_falsify(args: argparse.Namespace) -> int:
             if failures and not args.quiet:
                 bar.write(f"{failures} failures: clustering, minimising and replaying them")
 
-        result = falsify(space, args.planner, args.budget, args.out, compare=args.compare or (), seed=args.seed,
-                         popsize=args.popsize, scene=args.scene, backend=args.backend, workers=args.workers,
-                         address=args.address, max_clusters=args.max_clusters, figure=not args.no_figure,
-                         on_generation=generation, on_search_done=counterexamples, scene_args=_scene_args(args))
+        result = falsify(space, args.planner, args.episodes, args.out, compare=args.compare or (), seed=args.seed,
+                         popsize=args.popsize, scene=args.scene, max_clusters=args.max_clusters,
+                         figure=not args.no_figure, on_generation=generation, on_search_done=counterexamples,
+                         scene_args=_scene_args(args), **pool)
     s = result.search
     first = f"first after {s.first_failure} episodes" if s.first_failure else "none within the budget"
     print(f"{len(s.failures)} failures of {args.planner} ({space.failure.text}) in {len(s.evaluations)} episodes; "
@@ -92,20 +118,21 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     from cdf_mj.falsify.estimate import MIN_CE_BUDGET
     from cdf_mj.falsify.run import estimate
 
+    pool = pool_from_args(args)
     space = _space(args)
-    if args.method == "ce" and args.budget < MIN_CE_BUDGET:  # before a directory is made
-        raise CLIError(f"--method ce needs --budget {MIN_CE_BUDGET} or more (an adaptive stage of 50 and a last "
-                       f"stage), got {args.budget}; use --method mc below that")
+    n = args.episodes
+    if args.method == "ce" and n < MIN_CE_BUDGET:  # before a directory is made
+        raise CLIError(f"--method ce needs --episodes {MIN_CE_BUDGET} or more (an adaptive stage of 50 and a "
+                       f"last stage), got {n}; use --method mc below that")
     if args.stage is not None and args.method == "mc":
         raise CLIError("--stage is for --method ce (its adaptive stages); Monte Carlo has none")
-    if args.stage is not None and args.stage > args.budget - args.budget // 5:
-        raise CLIError(f"--stage {args.stage} leaves no adaptive stage before the last fifth of --budget "
-                       f"{args.budget}: give at most {args.budget - args.budget // 5}")
-    with tqdm(total=args.budget, unit="ep", desc=f"estimate {args.planner} ({args.method})",
+    if args.stage is not None and args.stage > n - n // 5:
+        raise CLIError(f"--stage {args.stage} leaves no adaptive stage before the last fifth of --episodes "
+                       f"{n}: give at most {n - n // 5}")
+    with tqdm(total=n, unit="ep", desc=f"estimate {args.planner} ({args.method})",
               disable=args.quiet) as bar:
-        result = estimate(space, args.planner, args.budget, args.out, method=args.method, seed=args.seed,
-                          stage=args.stage, scene=args.scene, backend=args.backend, workers=args.workers,
-                          address=args.address, on_episode=bar.update)
+        result = estimate(space, args.planner, n, args.out, method=args.method, seed=args.seed,
+                          stage=args.stage, scene=args.scene, on_episode=bar.update, **pool)
     how = "cross-entropy importance sampling" if result.method == "ce" else "Monte Carlo"
     ess = f"; effective sample size {result.ess:.1f}" if result.ess is not None else ""
     print(f"P({space.failure.text}) per encounter of {args.planner} on space {space.name}: {result.text()} "
@@ -124,25 +151,21 @@ def _common(p: argparse.ArgumentParser, out: str, budget: int) -> None:
     p.add_argument("--space", default="default", metavar="NAME|FILE",
                    help=f"the space: a shipped name ({', '.join(space_names())}) or a .toml file of your own "
                         "(docs/FALSIFICATION.md says the format) (default: default)")
-    p.add_argument("--planner", choices=sorted(PLANNERS), default="cdf", help="the planner under test (default cdf)")
-    p.add_argument("--budget", type=_episodes, default=budget, help=f"episodes, 1 to 10^7 (default {budget})")
-    p.add_argument("--seed", type=_non_negative_int, default=0,
+    add_planner_option(p, "cdf", "the planner under test (default cdf)")
+    add_option(p, "--episodes", old=("--budget",), type=episode_count, default=budget,
+               help=f"the run's budget of episodes, 1 to 10^7 (default {budget})")
+    p.add_argument("--seed", type=seed_value, default=0,
                    help="the run's seed: the same seed and settings give the same run (default 0)")
-    p.add_argument("--out", type=_out_path, default=out,
+    p.add_argument("--out", type=out_path, default=out,
                    help=f"output directory; the same command on it goes on where a run stopped (default {out})")
-    p.add_argument("--scene", metavar="PATH", default=DEFAULT_SCENE, help="MJCF scene file (default scene.xml)")
-    p.add_argument("--names", metavar="FILE", default=None,
-                   help="the scene's element names: a .json or .toml object of SceneNames fields (docs/SCENES.md)")
-    p.add_argument("--workers", type=_workers, default=None,
-                   help="worker processes (default: the CPU count; 1 runs in this process)")
-    p.add_argument("--backend", choices=("process", "ray"), default="process",
-                   help="where episodes run: a process pool (default) or Ray")
-    p.add_argument("--address", default=None, help="with --backend ray: an existing Ray cluster's address")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_run_arguments(p, preset_help="a scenario preset (cdf-mj presets lists them) or a .toml file whose "
+                                     "fields apply over the space's own preset, the world the space varies; "
+                                     "--set applies after it")
 
 
-def _add_falsify(subparsers: argparse._SubParsersAction) -> None:
-    p = _command(
+def add_falsify(subparsers: argparse._SubParsersAction) -> None:
+    """The ``falsify`` command."""
+    p = command(
         subparsers, "falsify", compiles=True,
         summary="search a space of worlds for a planner's failures; counterexamples as presets",
         description="Search a declared space of worlds (driver family and traits, after-merge behaviour, the "
@@ -152,8 +175,8 @@ def _add_falsify(subparsers: argparse._SubParsersAction) -> None:
                     "OUT/counterexamples/NN-seed-S.toml (replay: cdf-mj episode --preset FILE --seed S). "
                     "Killed, the same command goes on.")
     _common(p, "results/falsify", 2000)
-    p.add_argument("--compare", type=_planner_list, default=None,
-                   help="comma-separated planners to replay the counterexamples on")
+    p.add_argument("--compare", type=planner_list, default=None, metavar="PLANNER[,PLANNER...]",
+                   help="comma-separated planners to replay the counterexamples on, beside --planner")
     p.add_argument("--popsize", type=_popsize, default=None,
                    help="the first generation's candidates (default CMA-ES's 4 + 3 ln d; doubled at each restart)")
     p.add_argument("--max-clusters", type=_clusters, default=12,
@@ -162,8 +185,9 @@ def _add_falsify(subparsers: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_cmd_falsify)
 
 
-def _add_estimate(subparsers: argparse._SubParsersAction) -> None:
-    p = _command(
+def add_estimate(subparsers: argparse._SubParsersAction) -> None:
+    """The ``estimate`` command."""
+    p = command(
         subparsers, "estimate", compiles=True,
         summary="a planner's probability of failure per encounter, with its interval",
         description="Estimate P(failure) per encounter under a space's nominal distribution: cross-entropy "
@@ -173,6 +197,6 @@ def _add_estimate(subparsers: argparse._SubParsersAction) -> None:
     _common(p, "results/estimate", 4000)
     p.add_argument("--method", choices=("ce", "mc"), default="ce",
                    help="ce: cross-entropy importance sampling (default); mc: plain Monte Carlo")
-    p.add_argument("--stage", type=_int_in(10, 10**6, "episodes per adaptive stage"), default=None,
-                   help="ce: episodes per adaptive stage (default a fifth of the budget)")
+    p.add_argument("--stage", type=int_in(10, 10**6, "episodes per adaptive stage"), default=None,
+                   help="ce: episodes per adaptive stage (default a fifth of --episodes)")
     p.set_defaults(func=_cmd_estimate)

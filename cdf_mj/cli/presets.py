@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from cdf_mj.cli.args import PROG, _command
+from cdf_mj.cli.args import PROG, command
 from cdf_mj.inputs import printable
 from cdf_mj.presets import preset_names, read_preset
 
@@ -34,8 +34,9 @@ def _cmd_presets(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_presets(subparsers: argparse._SubParsersAction) -> None:
-    p = _command(
+def add_presets(subparsers: argparse._SubParsersAction) -> None:
+    """The ``presets`` command."""
+    p = command(
         subparsers, "presets", summary="list the scenario presets (--preset NAME), or show one",
         description="List the named scenario presets that --preset takes, each a driver (or "
                     "ego) that differs from the defaults in one trait; with NAME (or a .toml "

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from cdf_mj.cli.args import _command, _non_negative_int, _out_path, _shown
+from cdf_mj.cli.args import command, out_path, seed_value, shown
 from cdf_mj.config import MAX_SEED
 from cdf_mj.extras import install_hint
 
@@ -25,17 +25,18 @@ def _cmd_report(args: argparse.Namespace) -> int:
 
 def _seed_list(text: str) -> list[int]:
     try:
-        seeds = [_non_negative_int(v) for v in text.split(",") if v.strip()]
+        seeds = [seed_value(v) for v in text.split(",") if v.strip()]
     except argparse.ArgumentTypeError:
         raise argparse.ArgumentTypeError(f"expected comma-separated seeds from 0 to {MAX_SEED}, got "
-                                         f"{_shown(text)}") from None
+                                         f"{shown(text)}") from None
     if not seeds:
         raise argparse.ArgumentTypeError("expected at least one seed")
     return seeds
 
 
-def _add_report(subparsers: argparse._SubParsersAction) -> None:
-    p = _command(
+def add_report(subparsers: argparse._SubParsersAction) -> None:
+    """The ``report`` command."""
+    p = command(
         subparsers, "report", summary="figures (PNG) and a Markdown page from an experiment directory",
         description="Turn an experiment directory (settings.json, episodes.jsonl) into PNG "
                     "figures and report.md: confusion matrix beside the paper's, avoidance per "
@@ -43,9 +44,9 @@ def _add_report(subparsers: argparse._SubParsersAction) -> None:
                     "times. Failed episodes are skipped and counted. "
                     f"Needs matplotlib ({install_hint('viz')}).")
     p.add_argument("dir", metavar="DIR", help="experiment directory (cdf-mj experiment --out DIR)")
-    p.add_argument("--out", type=_out_path, default=None, help="output directory (default DIR)")
-    p.add_argument("--seeds", type=_seed_list, default=None,
+    p.add_argument("--out", type=out_path, default=None, help="output directory (default DIR)")
+    p.add_argument("--seeds", type=_seed_list, default=None, metavar="SEED[,SEED...]",
                    help="comma-separated seeds for trajectories and posteriors (default: one per label)")
-    p.add_argument("--planner", default=None,
+    p.add_argument("--planner", default=None, metavar="PLANNER",
                    help="planner whose trajectories are drawn (default cdf, else the first)")
     p.set_defaults(func=_cmd_report)

@@ -11,19 +11,20 @@ from cdf_mj.cli.args import (
     MAX_LIST_ITEMS,
     PROG,
     CLIError,
-    _comma_list,
-    _command,
-    _episodes,
-    _non_negative_int,
-    _out_path,
-    _planner_list,
-    _seed_range,
-    _shown,
-    _workers,
     add_cdf_arguments,
-    add_scenario_arguments,
+    add_option,
+    add_planner_option,
+    add_run_arguments,
     cdf_from_args,
+    comma_list,
+    command,
     config_from_args,
+    episode_count,
+    out_path,
+    pool_from_args,
+    seed_range,
+    seed_value,
+    shown,
 )
 from cdf_mj.extras import install_hint
 
@@ -36,12 +37,12 @@ def _finite(text: str) -> float:
     configuration)."""
     value = float(text)  # ValueError: not a number
     if not abs(value) < float("inf"):  # inf, nan; also a 400-digit number
-        raise argparse.ArgumentTypeError(f"must be a finite number, got {_shown(text)}")
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {shown(text)}")
     return value
 
 
 #: ``--values``: comma-separated finite numbers, 1 to :data:`MAX_SWEEP_VALUES` of them.
-_value_list = _comma_list(_finite, "numbers")
+_value_list = comma_list(_finite, "numbers")
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
@@ -49,15 +50,16 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
 
     config = config_from_args(args)
     cdf = cdf_from_args(args, args.planners)
-    seeds = _seed_range(args.seed0, args.episodes)
+    seeds = seed_range(args.seed, args.episodes)
+    pool = pool_from_args(args)
     if args.values is not None and len(args.sweeps) > 1:
         raise CLIError("--values applies to one sweep at a time; name a single sweep")
     failed = []
     for name in args.sweeps:
         try:
             result = run_sweep(name, args.out, seeds, planners=args.planners, values=args.values, config=config,
-                               cdf=cdf, scene=args.scene, workers=args.workers,
-                               progress=not args.quiet, figure=not args.no_figure)
+                               cdf=cdf, scene=args.scene, progress=not args.quiet, figure=not args.no_figure,
+                               **pool)
         except VizUnavailableError as exc:
             raise CLIError(f"{exc} (the tables are written; --no-figure skips the figure)") from None
         print(result.markdown + "\n")
@@ -73,10 +75,11 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_sweep(subparsers: argparse._SubParsersAction) -> None:
+def add_sweep(subparsers: argparse._SubParsersAction) -> None:
+    """The ``sweep`` command."""
     from cdf_mj.experiments.sweep import SWEEPS
 
-    p = _command(
+    p = command(
         subparsers, "sweep", compiles=True,
         summary="run the planners over a range of one setting; table (CSV, Markdown) and figure",
         description="Sweep one setting (beta, particle count, threshold tau, noise levels) over "
@@ -87,15 +90,13 @@ def _add_sweep(subparsers: argparse._SubParsersAction) -> None:
                    help=f"one or more of: {', '.join(SWEEPS)}")
     p.add_argument("--values", type=_value_list, default=None,
                    help="comma-separated values (one sweep only; default: the sweep's own)")
-    p.add_argument("--episodes", type=_episodes, default=200, help="seeds per point, 1 to 10^7 (default 200)")
-    p.add_argument("--seed0", type=_non_negative_int, default=0, help="first seed (default 0)")
-    p.add_argument("--planners", type=_planner_list, default=["cdf", "reactive"],
-                   help="comma-separated planners (default cdf,reactive)")
-    p.add_argument("--out", type=_out_path, default="results/sweeps", help="output directory (default results/sweeps)")
+    p.add_argument("--episodes", type=episode_count, default=200, help="seeds per point, 1 to 10^7 (default 200)")
+    add_option(p, "--seed", old=("--seed0",), type=seed_value, default=0,
+               help="first seed: every point runs seeds --seed to --seed + --episodes - 1 (default 0)")
+    add_planner_option(p, ["cdf", "reactive"], "comma-separated planners (default cdf,reactive)", several=True,
+                       old=("--planners",))
+    p.add_argument("--out", type=out_path, default="results/sweeps", help="output directory (default results/sweeps)")
     add_cdf_arguments(p, swept=True)
-    p.add_argument("--workers", type=_workers, default=None,
-                   help="worker processes per point (default: the CPU count; 1 runs in this process)")
     p.add_argument("--no-figure", action="store_true", help="tables only (no matplotlib needed)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    add_scenario_arguments(p)
+    add_run_arguments(p)
     p.set_defaults(func=_cmd_sweep)

@@ -58,7 +58,7 @@ import json
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from cdf_mj.analysis.metrics import PlannerMetrics, Rate, decision_time, planner_metrics, tau_curve
 from cdf_mj.config import CDFConfig, ScenarioConfig
@@ -75,6 +75,9 @@ from cdf_mj.experiments.sweep_report import (
 from cdf_mj.experiments.sweep_spec import SWEEPS, SweepSpec, _reads_cdf, _value_text
 from cdf_mj.records import FAILED, RecordLike, completed, record_field
 from cdf_mj.sim.scene import DEFAULT_SCENE
+
+if TYPE_CHECKING:
+    from cdf_mj.experiments.runner import Backend
 
 __all__ = ["SWEEPS", "PointFailures", "SweepResult", "SweepSpec", "VizUnavailableError", "comparison_figures",
            "run_sweep"]
@@ -109,15 +112,15 @@ def _planners_in(point: Path) -> list[str] | None:
 
 
 def _run_point(out: Path, seeds: Sequence[int], planners: Sequence[str], config: ScenarioConfig,
-               cdf: CDFConfig, scene: str | Path, progress: bool,
-               workers: int | None) -> tuple[list[RecordLike], float]:
+               cdf: CDFConfig, scene: str | Path, progress: bool, workers: int | None,
+               backend: Backend = "process", address: str | None = None) -> tuple[list[RecordLike], float]:
     """One :func:`run_experiment` call, resumed where ``out`` holds the same settings (a
     finished point is reused, an interrupted one continues); returns all its records (the
     failed ones too) and its wall time [s]."""
     from cdf_mj.experiments.experiment import run_experiment
 
     result = run_experiment(out, seeds, list(planners), config, cdf, scene, progress,
-                            workers=workers, resume=True)
+                            workers=workers, backend=backend, address=address, resume=True)
     return list(result.records), result.wall_time
 
 
@@ -146,7 +149,8 @@ def _metrics(records: Sequence[RecordLike], planners: Sequence[str]) -> list[tup
 def run_sweep(name: str, out_dir: str | Path, seeds: Iterable[int], planners: Sequence[str] = ("cdf", "reactive"),
               values: Sequence[float] | None = None, config: ScenarioConfig | None = None,
               cdf: CDFConfig | None = None, scene: str | Path = DEFAULT_SCENE, workers: int | None = None,
-              progress: bool = False, figure: bool = True) -> SweepResult:
+              progress: bool = False, figure: bool = True, backend: Backend = "process",
+              address: str | None = None) -> SweepResult:
     """Run one sweep (see the module docstring) and write its table and figure.
 
     Args:
@@ -161,6 +165,7 @@ def run_sweep(name: str, out_dir: str | Path, seeds: Iterable[int], planners: Se
         workers: worker processes per point (default: the runner's, the CPU count).
         progress: progress bars on stderr.
         figure: also draw ``out_dir/<name>.png`` (needs matplotlib: :class:`VizUnavailableError`).
+        backend, address: where each point's episodes run (as :func:`run_experiment`'s).
     """
     if name not in SWEEPS:
         raise ValueError(f"unknown sweep {name!r}: choose one of {', '.join(SWEEPS)}")
@@ -195,11 +200,11 @@ def run_sweep(name: str, out_dir: str | Path, seeds: Iterable[int], planners: Se
         names = varied
         if i == 0 and references and _planners_in(point) == list(planners):
             names, references = planners, []  # an earlier version's layout: every planner here
-        recs, wall = _run_point(point, seeds, names, cfg, cdf_v, scene, progress, workers)
+        recs, wall = _run_point(point, seeds, names, cfg, cdf_v, scene, progress, workers, backend, address)
         failures += _failures(value, point, recs)
         if i == 0 and references:  # unaffected by the swept CDF setting: run once, at the base
             ref, ref_wall = _run_point(out / name / "reference", seeds, references, config, cdf, scene,
-                                       progress, workers)
+                                       progress, workers, backend, address)
             failures += _failures(value, out / name / "reference", ref)
             recs, wall = recs + ref, wall + ref_wall
         records_by_value[value] = completed(recs)

@@ -421,12 +421,12 @@ def parse_planners(text: str) -> tuple[str, ...]:
     names = tuple(n.strip() for n in text.split(",") if n.strip())
     for n in names:
         if n not in PLANNERS:
-            raise RenderError(f"--compare: unknown planner {n!r}; choose from {', '.join(sorted(PLANNERS))}")
+            raise RenderError(f"--planner: unknown planner {n!r}; choose from {', '.join(sorted(PLANNERS))}")
     repeated = sorted({n for n in names if names.count(n) > 1})
     if repeated:
-        raise RenderError(f"--compare: planner {repeated[0]!r} given twice; name each once")
+        raise RenderError(f"--planner: planner {repeated[0]!r} given twice; name each once")
     if not 2 <= len(names) <= 6:
-        raise RenderError(f"--compare {text!r}: give 2 to 6 planners separated by commas, e.g. cdf,imm,reactive")
+        raise RenderError(f"--planner {text!r}: give 2 to 6 planners separated by commas, e.g. cdf,imm,reactive")
     return names
 
 
