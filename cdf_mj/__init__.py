@@ -22,8 +22,7 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-__version__ = "0.3.0"
-
+from cdf_mj._version import __version__  # the one place it is written
 from cdf_mj.envs import ENV_ID  # light: neither Gymnasium nor MuJoCo
 
 # public name -> module that defines it
@@ -44,8 +43,10 @@ _EXPORTS = {
     "add_car": "cdf_mj.sim.spec",
     "ParticleFilter": "cdf_mj.inference.particle_filter",
     "CDFPlanner": "cdf_mj.planners.cdf",
-    "CVPlanner": "cdf_mj.planners.baselines",
-    "IMMPlanner": "cdf_mj.planners.baselines",
+    "CVPlanner": "cdf_mj.planners.cv",
+    "IMMPlanner": "cdf_mj.planners.imm",
+    "make_planner": "cdf_mj.planners.registry",
+    "register": "cdf_mj.planners.registry",
     "World": "cdf_mj.scenario.world",
     "run_episode": "cdf_mj.scenario.episode",
     "CDFMonitor": "cdf_mj.scenario.monitor",
@@ -81,6 +82,8 @@ __all__ = [  # literal, for linters; tests/test_layers.py checks it against _EXP
     "__version__",
     "add_car",
     "attach",
+    "make_planner",
+    "register",
     "render_episode",
     "run_episode",
     "run_experiment",
@@ -96,8 +99,10 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time see __getattr__
     from cdf_mj.experiments.sweep import run_sweep
     from cdf_mj.inference.particle_filter import ParticleFilter
     from cdf_mj.model.vehicle import CarGeometry
-    from cdf_mj.planners.baselines import CVPlanner, IMMPlanner
     from cdf_mj.planners.cdf import CDFPlanner
+    from cdf_mj.planners.cv import CVPlanner
+    from cdf_mj.planners.imm import IMMPlanner
+    from cdf_mj.planners.registry import make_planner, register
     from cdf_mj.records import EpisodeRecord, Label
     from cdf_mj.scenario.episode import run_episode
     from cdf_mj.scenario.monitor import CDFMonitor, attach

@@ -17,7 +17,7 @@ from __future__ import annotations
 import importlib
 from types import ModuleType
 
-from cdf_mj import __version__
+from cdf_mj._version import __version__
 
 __all__ = ["EXTRAS", "WHEEL", "install_hint", "require"]
 

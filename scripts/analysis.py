@@ -67,14 +67,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NoReturn
 
-from cdf_mj.analysis.metrics import PlannerMetrics, Rate, mcnemar_exact, paired_counts, planner_metrics
+from cdf_mj.analysis.metrics import PlannerMetrics, Rate, mcnemar_exact, of_planner, paired_counts, planner_metrics
 from cdf_mj.analysis.pages import ScriptParser, command_line, exit_status, fail, markdown_table, write_page
-from cdf_mj.analysis.tables import filter_table, format_number, format_rate, planner_table
+from cdf_mj.analysis.tables import filter_table, format_number, format_percent, format_rate, planner_table
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
 from cdf_mj.experiments.sweep import SWEEPS, SweepResult, run_sweep
 from cdf_mj.extras import install_hint
-from cdf_mj.planners.baselines import CVConfig, IMMConfig
+from cdf_mj.planners.cv import CVConfig
+from cdf_mj.planners.imm import IMMConfig
 from cdf_mj.planners.registry import bind_planner, planner_spec
 from cdf_mj.records import LABELS, braked, completed, is_imminent, record_field
 
@@ -141,16 +142,8 @@ def _span(seeds: range) -> str:
     return f"{seeds.start}–{seeds.stop - 1}"
 
 
-def _of(records: Sequence[dict[str, Any]], planner: str) -> list[dict[str, Any]]:
-    return [r for r in records if record_field(r, "planner") == planner]
-
-
 def _p(b: int, c: int) -> str:
     return f"{mcnemar_exact(b, c):.3g}"
-
-
-def _percent(share: float) -> str:
-    return "-" if math.isnan(share) else f"{100 * share:.1f} %"
 
 
 def _experiment(part: Part, opts: Options, planners: Sequence[str], sub: str = "",
@@ -169,7 +162,7 @@ def _experiment(part: Part, opts: Options, planners: Sequence[str], sub: str = "
 
 
 def _labels_line(records: Sequence[dict[str, Any]], planner: str) -> str:
-    mine = _of(records, planner)
+    mine = of_planner(records, planner)
     counts = {lab: sum(1 for r in mine if record_field(r, "label") == lab) for lab in LABELS}
     return ", ".join(f"{lab} {counts[lab]}" for lab in LABELS) + f" of {len(mine)}"
 
@@ -184,11 +177,11 @@ def braking_lines(metrics: dict[str, PlannerMetrics], records: Sequence[dict[str
     episodes with a hard brake), collisions by label, released hard brakes."""
     rows = []
     for m in metrics.values():
-        mine = [r for r in _of(records, m.planner) if braked(r)]
+        mine = [r for r in of_planner(records, m.planner) if braked(r)]
         released = sum(1 for r in mine if (record_field(r, "planner_info") or {}).get("release_time") is not None)
         rows.append([m.planner, format_rate(m.recall), format_rate(m.false_alarms_yield),
                      format_rate(m.false_discovery), f"{m.collisions_yield}, {m.collisions_right}",
-                     f"{_percent(m.paper_avoided)} ({max(0, m.imminent - m.collisions)}/{m.imminent})",
+                     f"{format_percent(m.paper_avoided)} ({max(0, m.imminent - m.collisions)}/{m.imminent})",
                      f"{released}/{len(mine)}"])
     return markdown_table(["planner", "Cutoff recall (predicted Cutoff)", "false alarms / Yield episodes",
                            "false discovery (of braked hard)", "collisions in Yield, Right", "paper's formula",
@@ -218,7 +211,7 @@ def offset_lines(records: Sequence[dict[str, Any]], planners: Sequence[str]) -> 
                            enumerate(itertools.pairwise(edges)))]
     rows = []
     for planner in planners:
-        cut = [r for r in _of(records, planner) if is_imminent(r) and braked(r)]
+        cut = [r for r in of_planner(records, planner) if is_imminent(r) and braked(r)]
         if not cut:
             continue
         cells = []
@@ -401,7 +394,7 @@ def make_harder(part: Part, opts: Options) -> Made:
         "",
         *markdown_table(["planner", "avoided (95 % CI)", "paper's formula", "false alarms (95 % CI)",
                          "median lead [s]", "mean time lost [s]"],
-                        [[name, format_rate(m.avoided), _percent(m.paper_avoided), format_rate(m.false_alarms),
+                        [[name, format_rate(m.avoided), format_percent(m.paper_avoided), format_rate(m.false_alarms),
                           format_number(m.lead_time), format_number(m.time_lost)] for name, m in rows]),
         "",
     ]
@@ -558,7 +551,7 @@ def introduction(small: bool) -> list[str]:
         f"P(left) = {imm.p_left:g}. It predicts each intent's path along its route at constant acceleration, "
         f"speed kept within [0, {imm.max_speed:g} m/s], and the ego holding its speed. It has no notion of "
         "whether the obstacle has seen the ego: a yielding obstacle is visible to it only through its "
-        "deceleration. Code: `cdf_mj/planners/baselines.py`; parameters `CVConfig`, `IMMConfig`.",
+        "deceleration. Code: `cdf_mj/planners/cv.py`, `cdf_mj/planners/imm.py`; parameters `CVConfig`, `IMMConfig`.",
         "",
         "Definitions as in [RESULTS.md](RESULTS.md): *avoided* is among the Cutoff episodes (the constant-speed "
         "run of the seed hits the obstacle); a *false alarm* is a (hard) brake in an episode not labelled Cutoff, "

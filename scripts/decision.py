@@ -31,7 +31,6 @@ Bad input (an unknown part or planner, a result directory of other settings) is 
 from __future__ import annotations
 
 import argparse
-import math
 import shlex
 import statistics
 import sys
@@ -41,9 +40,9 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from cdf_mj.analysis.metrics import PlannerMetrics, mcnemar_exact, paired_counts, planner_metrics
-from cdf_mj.analysis.pages import ScriptParser, exit_status, fail, write_page
+from cdf_mj.analysis.pages import ScriptParser, exit_status, fail, markdown_table, verdict, write_page
 from cdf_mj.analysis.safety import safety_summary
-from cdf_mj.analysis.tables import format_number, format_rate, margin_table
+from cdf_mj.analysis.tables import format_number, format_percent, format_rate, margin_table
 from cdf_mj.config import CDFConfig, LayeredConfig, ScenarioConfig
 from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
 from cdf_mj.planners.registry import PLANNERS
@@ -83,27 +82,17 @@ def _parts(episodes: int | None) -> dict[str, Part]:
     return parts
 
 
-def _percent(share: float) -> str:
-    return "-" if math.isnan(share) else f"{100 * share:.1f} %"
-
-
-def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
-    def row(cells: Sequence[str]) -> str:
-        return "| " + " | ".join(cells) + " |"
-    return [row(header), "|" + "---|" * len(header), *map(row, rows)]
-
-
 def planner_rows(metrics: dict[str, PlannerMetrics]) -> list[str]:
     """Markdown: one row per planner with the counts of the module docstring."""
     header = ["planner", "Cutoff recall", "avoided (95 % CI)", "paper's formula", "false alarms / episodes",
               "false alarms / Yield episodes", "false discovery (of braked)", "collisions Yield, Right",
               "time lost [s]"]
     rows = [[m.planner, format_rate(m.recall), format_rate(m.avoided),
-             f"{_percent(m.paper_avoided)} ({m.imminent - m.collisions}/{m.imminent})",
+             f"{format_percent(m.paper_avoided)} ({m.imminent - m.collisions}/{m.imminent})",
              format_rate(m.false_alarms), format_rate(m.false_alarms_yield), format_rate(m.false_discovery),
              f"{m.collisions_yield}, {m.collisions_right}", format_number(m.time_lost)]
             for m in metrics.values()]
-    return _table(header, rows)
+    return markdown_table(header, rows)
 
 
 def paired_rows(records: Sequence[dict[str, Any]], first: str, others: Sequence[str]) -> list[str]:
@@ -115,12 +104,8 @@ def paired_rows(records: Sequence[dict[str, Any]], first: str, others: Sequence[
                      f"{mcnemar_exact(c.hit_only_first, c.hit_only_second):.3g}", str(c.false_alarm_only_first),
                      str(c.false_alarm_only_second),
                      f"{mcnemar_exact(c.false_alarm_only_first, c.false_alarm_only_second):.3g}"])
-    return _table(["pair", "seeds", f"collision only {first}", "only the other", "McNemar p",
-                   f"false alarm only {first}", "only the other", "McNemar p"], rows)
-
-
-def _verdict(ok: bool) -> str:
-    return "met" if ok else "**missed**"
+    return markdown_table(["pair", "seeds", f"collision only {first}", "only the other", "McNemar p",
+                           f"false alarm only {first}", "only the other", "McNemar p"], rows)
 
 
 def _cutoff_safety(records: Sequence[dict[str, Any]], planner: str) -> dict[str, Any]:
@@ -150,28 +135,28 @@ def targets(records: Sequence[dict[str, Any]], metrics: dict[str, PlannerMetrics
     rss_ok = not rss["n"] or rss["value"] <= 0.01
     rss_text = "-" if not rss["n"] else f"{100 * (1 - rss['value']):.1f} % of {rss['n']} ticks"
     jerk, limit = every["peak_jerk_comfort"], LayeredConfig().comfort_jerk
-    lines += [f"- Cutoff recall 100 %: {format_rate(cdf.recall)}: {_verdict(cdf.recall.k == cdf.recall.n)}",
-              f"- avoided 100 %: {format_rate(cdf.avoided)}: {_verdict(cdf.avoided.k == cdf.avoided.n)}",
-              f"- avoided, paper's formula, >= 99.5 %: {_percent(cdf.paper_avoided)}: "
-              f"{_verdict(cdf.paper_avoided >= 0.995)}",
-              f"- false alarms (hard braking) <= 1.0 % of episodes: {format_rate(fa)}: {_verdict(fa.value <= 0.01)}",
+    lines += [f"- Cutoff recall 100 %: {format_rate(cdf.recall)}: {verdict(cdf.recall.k == cdf.recall.n)}",
+              f"- avoided 100 %: {format_rate(cdf.avoided)}: {verdict(cdf.avoided.k == cdf.avoided.n)}",
+              f"- avoided, paper's formula, >= 99.5 %: {format_percent(cdf.paper_avoided)}: "
+              f"{verdict(cdf.paper_avoided >= 0.995)}",
+              f"- false alarms (hard braking) <= 1.0 % of episodes: {format_rate(fa)}: {verdict(fa.value <= 0.01)}",
               f"- TTC at the first hard brake >= 1.5 s median and >= 1.0 s least, or no hard brake needed: "
-              f"{ttc_text}: {_verdict(ttc_ok)}",
+              f"{ttc_text}: {verdict(ttc_ok)}",
               f"- brake switches <= 2 per episode (median): "
               f"{format_number(switches['median'], 0) if switches['n'] else '-'}: "
-              f"{_verdict(not switches['n'] or switches['median'] <= 2)}",
-              f"- following ticks at or beyond the RSS distance >= 99 %: {rss_text}: {_verdict(rss_ok)}",
+              f"{verdict(not switches['n'] or switches['median'] <= 2)}",
+              f"- following ticks at or beyond the RSS distance >= 99 %: {rss_text}: {verdict(rss_ok)}",
               f"- peak jerk outside hard braking within the rule's stated {limit:g} m/s³ (the world's process "
               f"noise on the acceleration adds its own): median {format_number(jerk['median'], 1)}, largest "
-              f"{format_number(jerk['max'], 1)} m/s³: {_verdict(not jerk['n'] or jerk['max'] <= limit)}"]
+              f"{format_number(jerk['max'], 1)} m/s³: {verdict(not jerk['n'] or jerk['max'] <= limit)}"]
     if "cdf-threshold" in metrics:
         t = metrics["cdf-threshold"]
         lines.append(f"- time lost no more than the paper's rule's: {format_number(cdf.time_lost)} s vs "
-                     f"{format_number(t.time_lost)} s: {_verdict(cdf.time_lost <= t.time_lost)}")
+                     f"{format_number(t.time_lost)} s: {verdict(cdf.time_lost <= t.time_lost)}")
     if "reactive" in metrics:
         r = metrics["reactive"]
         lines.append(f"- collisions in Yield episodes no more than reactive's: {cdf.collisions_yield} vs "
-                     f"{r.collisions_yield}: {_verdict(cdf.collisions_yield <= r.collisions_yield)}")
+                     f"{r.collisions_yield}: {verdict(cdf.collisions_yield <= r.collisions_yield)}")
     return [*lines, ""]
 
 

@@ -26,7 +26,6 @@ input (an unknown or broken preset, a result directory of other settings) is one
 from __future__ import annotations
 
 import argparse
-import math
 import shlex
 import sys
 from collections import Counter
@@ -37,8 +36,8 @@ from statistics import median
 from typing import Any, NoReturn
 
 from cdf_mj.analysis.metrics import PlannerMetrics, mcnemar_exact, paired_counts, planner_metrics
-from cdf_mj.analysis.pages import ScriptParser, exit_status, fail, write_page
-from cdf_mj.analysis.tables import format_number, format_rate
+from cdf_mj.analysis.pages import ScriptParser, exit_status, fail, markdown_table, write_page
+from cdf_mj.analysis.tables import format_number, format_percent, format_rate
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
 from cdf_mj.planners.registry import PLANNERS
@@ -62,18 +61,6 @@ class PresetResult:
     failed: int  # failed episodes, left out of the tables
 
 
-def _percent(share: float, digits: int = 1) -> str:
-    return "-" if math.isnan(share) else f"{100 * share:.{digits}f} %"
-
-
-def _row(cells: Sequence[str]) -> str:
-    return "| " + " | ".join(cells) + " |"
-
-
-def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
-    return [_row(header), "|" + "---|" * len(header), *map(_row, rows)]
-
-
 def _value(v: Any) -> str:
     return f"[{', '.join(f'{x:g}' for x in v)}]" if isinstance(v, tuple) else f"{v:g}" if isinstance(v, float) \
         else str(v)
@@ -93,7 +80,7 @@ def _targets(m: PlannerMetrics) -> tuple[str, str]:
     else:
         share = m.paper_avoided
         verdict = "met" if share >= TARGET_AVOIDED else f"missed by {100 * (TARGET_AVOIDED - share):.1f} points"
-        avoided = f"{_percent(share)} ({m.imminent - m.collisions}/{m.imminent}) ≥ 97 %: {verdict}"
+        avoided = f"{format_percent(share)} ({m.imminent - m.collisions}/{m.imminent}) ≥ 97 %: {verdict}"
     fa = m.false_alarms
     verdict = "met" if fa.value <= TARGET_FALSE_ALARMS else \
         f"missed by {100 * (fa.value - TARGET_FALSE_ALARMS):.1f} points"
@@ -131,9 +118,9 @@ def preset_section(result: PresetResult, planners: Sequence[str]) -> list[str]:
         return [*lines, "No completed episode.", ""]
     header = ["planner", "Cutoff episodes", "avoided (95 % CI)", "paper's formula", "collisions, any label",
               "false alarms, of all episodes (95 % CI)", "median lead time [s]"]
-    rows = [[m.planner, str(m.imminent), format_rate(m.avoided), _percent(m.paper_avoided), str(m.collisions),
+    rows = [[m.planner, str(m.imminent), format_rate(m.avoided), format_percent(m.paper_avoided), str(m.collisions),
              format_rate(m.false_alarms), format_number(m.lead_time)] for m in metrics.values()]
-    lines += [*_table(header, rows), ""]
+    lines += [*markdown_table(header, rows), ""]
     if "cdf" in metrics:
         pairs = []
         for other in planners:
@@ -147,7 +134,7 @@ def preset_section(result: PresetResult, planners: Sequence[str]) -> list[str]:
         if pairs:
             header = ["pair", "seeds", "Cutoff: only cdf collides", "only the other collides", "McNemar p",
                       "false alarm only cdf", "only the other", "both", "McNemar p"]
-            lines += [*_table(header, pairs), ""]
+            lines += [*markdown_table(header, pairs), ""]
         avoided, alarms = _targets(metrics["cdf"])
         lines += [f"**Targets (CDF on its defaults):** avoided by the paper's formula: {avoided}; "
                   f"false alarms: {alarms}. {_causes([r for r in good if record_field(r, 'planner') == 'cdf'])}"
@@ -166,8 +153,8 @@ def summary_table(results: Sequence[PresetResult]) -> list[str]:
             continue
         avoided, alarms = _targets(m)
         rows.append([f"`{res.preset.name}`", str(m.episodes), str(m.imminent), avoided, alarms])
-    return _table(["preset", "episodes", "Cutoff", "CDF avoided, paper's formula (target ≥ 97 %)",
-                   "CDF false alarms (target ≤ 3 %)"], rows)
+    return markdown_table(["preset", "episodes", "Cutoff", "CDF avoided, paper's formula (target ≥ 97 %)",
+                           "CDF false alarms (target ≤ 3 %)"], rows)
 
 
 def mismatch_markdown(results: Sequence[PresetResult], planners: Sequence[str]) -> str:

@@ -4,7 +4,7 @@
 On every tick of CDF episodes (the ego driven by the ``cdf`` planner's decisions), the
 risk rule's assessment (:meth:`cdf_mj.planners.decision.RiskRule.assess`: each particle's
 future in closed form, compiled) is compared with the reference
-(:func:`cdf_mj.planners.decision.rollout_assessment`: every particle rolled through the
+(:func:`cdf_mj.planners.rollout_reference.rollout_assessment`: every particle rolled through the
 filter's own look, belief, driver and bicycle stages, with process noise). Prints, over
 the ticks where either reads a risk above 0.01, the mean and largest absolute
 difference of the deferred risk, how often the two agree on braking at the rule's
@@ -26,7 +26,8 @@ from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.model.driver import ego_control
 from cdf_mj.planners.base import PlannerContext
 from cdf_mj.planners.cdf import CDFPlanner
-from cdf_mj.planners.decision import GivenFutures, RiskRule, rollout_assessment
+from cdf_mj.planners.decision import GivenFutures, RiskRule
+from cdf_mj.planners.rollout_reference import rollout_assessment
 from cdf_mj.scenario.world import World
 from cdf_mj.sim.scene import Scene
 

@@ -46,11 +46,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from cdf_mj.analysis.metrics import Rate, mcnemar_exact, paired_counts, planner_metrics
-from cdf_mj.analysis.pages import ScriptParser, command_line, write_page
+from cdf_mj.analysis.metrics import Rate, mcnemar_exact, of_planner, paired_counts, planner_metrics
+from cdf_mj.analysis.pages import ScriptParser, command_line, markdown_table, verdict, write_page
 from cdf_mj.analysis.safety import SafetyParams
 from cdf_mj.analysis.tables import format_number, format_rate, margin_table
-from cdf_mj.cli.args import CLIError, _episodes, _non_negative_int, _out_path, _planner_list, _seed_range, _workers
+from cdf_mj.cli.args import CLIError
+from cdf_mj.cli.args import episode_count as _episodes
+from cdf_mj.cli.args import out_path as _out_path
+from cdf_mj.cli.args import planner_list as _planner_list
+from cdf_mj.cli.args import seed_range as _seed_range
+from cdf_mj.cli.args import seed_value as _non_negative_int
+from cdf_mj.cli.args import worker_count as _workers
 from cdf_mj.config import CDFConfig
 from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
 from cdf_mj.presets import STRESS_PREFIX, Preset, preset_names, read_preset
@@ -84,16 +90,6 @@ class PresetRun:
     failed: int  # failed episodes, left out
 
 
-def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> list[str]:
-    def row(cells: Sequence[str]) -> str:
-        return "| " + " | ".join(cells) + " |"
-    return [row(header), "|" + "---|" * len(header), *map(row, rows)]
-
-
-def _of(records: Sequence[RecordLike], planner: str) -> list[RecordLike]:
-    return [r for r in records if record_field(r, "planner") == planner]
-
-
 def _collisions(records: Sequence[RecordLike]) -> Rate:
     """Episodes with a collision with the obstacle, any label, of all."""
     return Rate(sum(map(hit_obstacle, records)), len(records))
@@ -113,9 +109,9 @@ def outcome_table(records: Sequence[RecordLike], planners: Sequence[str]) -> lis
         if m is None:
             continue
         paper = "-" if not m.imminent else f"{100 * m.paper_avoided:.1f} % ({m.imminent - m.collisions}/{m.imminent})"
-        rows.append([name, str(m.episodes), format_rate(_collisions(_of(records, name))), format_rate(m.avoided),
+        rows.append([name, str(m.episodes), format_rate(_collisions(of_planner(records, name))), format_rate(m.avoided),
                      paper, format_rate(m.false_alarms), format_number(m.time_lost)])
-    return _table(["planner", "episodes", "collisions with the obstacle, any label (95 % CI)",
+    return markdown_table(["planner", "episodes", "collisions with the obstacle, any label (95 % CI)",
                    "Cutoff avoided (95 % CI)", "paper's formula", "false alarms: braked, not Cutoff (95 % CI)",
                    "time lost [s]"], rows)
 
@@ -134,8 +130,8 @@ def paired_table(records: Sequence[RecordLike], planners: Sequence[str]) -> list
                      f"{mcnemar_exact(c.hit_only_first, c.hit_only_second):.3g}", str(c.false_alarm_only_first),
                      str(c.false_alarm_only_second),
                      f"{mcnemar_exact(c.false_alarm_only_first, c.false_alarm_only_second):.3g}"])
-    return _table(["pair", "seeds", "collision only cdf", "only the other", "McNemar p", "false alarm only cdf",
-                   "only the other", "McNemar p"], rows)
+    return markdown_table(["pair", "seeds", "collision only cdf", "only the other", "McNemar p", "false alarm only cdf",
+                           "only the other", "McNemar p"], rows)
 
 
 def preset_section(run: PresetRun, planners: Sequence[str]) -> list[str]:
@@ -147,7 +143,8 @@ def preset_section(run: PresetRun, planners: Sequence[str]) -> list[str]:
     if not run.records:
         return [*lines, "No completed episode" + (f" ({run.failed} failed)." if run.failed else "."), ""]
     seeds = sorted({record_field(r, "seed") for r in run.records})
-    labels = Counter(str(record_field(r, "label")) for r in _of(run.records, record_field(run.records[0], "planner")))
+    first = record_field(run.records[0], "planner")
+    labels = Counter(str(record_field(r, "label")) for r in of_planner(run.records, first))
     failed = f"; {run.failed} failed episode(s) left out" if run.failed else ""
     lines += [f"Seeds {seeds[0]}-{seeds[-1]}; labels " + ", ".join(f"{n} {lab}" for lab, n in sorted(labels.items()))
               + f"{failed}.", "", "Outcomes:", "", *outcome_table(run.records, planners), "",
@@ -165,25 +162,21 @@ def targets(runs: Sequence[PresetRun]) -> list[str]:
         name = run.preset.name
         if m is None:
             continue
-        hits = _collisions(_of(run.records, "cdf"))
+        hits = _collisions(of_planner(run.records, "cdf"))
         if name in NO_COLLISION:
-            lines.append(f"- `{name}`: no collision: {format_rate(hits)}: {_verdict(hits.k == 0)}")
+            lines.append(f"- `{name}`: no collision: {format_rate(hits)}: {verdict(hits.k == 0)}")
         elif name in TOLD:
-            lines.append(f"- `{name}`: collisions <= 1 %: {format_rate(hits)}: {_verdict(hits.value <= 0.01)}")
+            lines.append(f"- `{name}`: collisions <= 1 %: {format_rate(hits)}: {verdict(hits.value <= 0.01)}")
         elif name in FAMILIES:
             paper = m.paper_avoided
             shown = "-" if not m.imminent else f"{100 * paper:.1f} % ({m.imminent - m.collisions}/{m.imminent})"
             ok = (not m.imminent or paper >= 0.99) and m.false_alarms.value <= 0.03
             lines.append(f"- `{name}`: paper's formula >= 99 %: {shown}; false alarms <= 3 %: "
-                         f"{format_rate(m.false_alarms)}: {_verdict(ok)}")
+                         f"{format_rate(m.false_alarms)}: {verdict(ok)}")
     if not lines:
         return []
     return ["## Targets for `cdf`", "", "The issue's targets on the stress presets (point estimates):", "",
             *lines, ""]
-
-
-def _verdict(ok: bool) -> str:
-    return "met" if ok else "**missed**"
 
 
 def overview(runs: Sequence[PresetRun], planners: Sequence[str]) -> list[str]:
@@ -191,13 +184,13 @@ def overview(runs: Sequence[PresetRun], planners: Sequence[str]) -> list[str]:
     presets on which ``cdf`` differs from another planner (McNemar p < SIGNIFICANT)."""
     rows = []
     for run in runs:
-        first = _of(run.records, planners[0])
-        cells = [format_rate(_collisions(_of(run.records, p))) for p in planners]
+        first = of_planner(run.records, planners[0])
+        cells = [format_rate(_collisions(of_planner(run.records, p))) for p in planners]
         rows.append([f"`{run.preset.name}`", str(sum(map(is_imminent, first))), *cells])
     lines = ["## Overview", "", "Collisions with the obstacle (any label), of all episodes:", "",
-             *_table(["preset", "Cutoff episodes", *planners], rows), ""]
+             *markdown_table(["preset", "Cutoff episodes", *planners], rows), ""]
     for p in planners:
-        hits = sorted(((_collisions(_of(r.records, p)), r.preset.name) for r in runs),
+        hits = sorted(((_collisions(of_planner(r.records, p)), r.preset.name) for r in runs),
                       key=lambda item: (-item[0].value if item[0].n else 0.0, item[1]))
         some = [f"`{name}` {rate.k}/{rate.n}" for rate, name in hits if rate.k]
         none = [f"`{name}`" for rate, name in hits if not rate.k and rate.n]

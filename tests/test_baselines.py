@@ -17,17 +17,12 @@ import pytest
 from cdf_mj.analysis.metrics import brier_over_time, brier_score, planner_metrics
 from cdf_mj.analysis.tables import paired_table, planner_table
 from cdf_mj.config import ScenarioConfig
-from cdf_mj.model.geometry import box_corners
+from cdf_mj.model.geometry import box_corners, boxes_overlap
 from cdf_mj.planners import PLANNERS, PlannerInput, make_planner
 from cdf_mj.planners.base import PlannerContext
-from cdf_mj.planners.baselines import (
-    CVConfig,
-    CVPlanner,
-    IMMConfig,
-    IMMPlanner,
-    boxes_overlap,
-    route_heading,
-)
+from cdf_mj.planners.baseline_common import route_heading
+from cdf_mj.planners.cv import CVConfig, CVPlanner
+from cdf_mj.planners.imm import IMMConfig, IMMPlanner
 from cdf_mj.scenario.episode import run_episode
 
 

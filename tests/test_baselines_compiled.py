@@ -24,15 +24,10 @@ from cdf_mj.model.driver import Intent
 from cdf_mj.model.geometry import boxes_overlap
 from cdf_mj.planners import make_planner
 from cdf_mj.planners.base import PlannerContext
-from cdf_mj.planners.baselines import (
-    CVPlanner,
-    IMMConfig,
-    IMMPlanner,
-    _imm_model,
-    first_conflict,
-    straight_path,
-)
+from cdf_mj.planners.baseline_common import first_conflict, straight_path
+from cdf_mj.planners.cv import CVPlanner
 from cdf_mj.planners.decision import LayeredRule, RiskRule
+from cdf_mj.planners.imm import IMMConfig, IMMPlanner, _imm_model
 from cdf_mj.scenario.episode import run_episode
 from tests.junctions import junction_scene
 

@@ -16,12 +16,12 @@ from cdf_mj.experiments.bench import (
     PhysicsFloor,
     Reading,
     Row,
-    _run_python,
     floor_check,
     format_rows,
     format_targets,
     physics_floor,
 )
+from cdf_mj.experiments.bench.startup import _run_python
 from cdf_mj.planners.registry import PLANNERS
 
 _TIME = r"[\d.]+ (µs|ms|s)"

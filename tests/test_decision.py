@@ -33,8 +33,9 @@ from cdf_mj.model.geometry import boxes_overlap
 from cdf_mj.model.layout import Layout
 from cdf_mj.planners import CDFPlanner
 from cdf_mj.planners.base import DecidingPlanner, PlannerContext, PlannerInput, ThresholdRule
-from cdf_mj.planners.decision import GivenFutures, LayeredRule, RiskRule, rollout_assessment
+from cdf_mj.planners.decision import GivenFutures, LayeredRule, RiskRule
 from cdf_mj.planners.registry import PLANNERS, make_planner
+from cdf_mj.planners.rollout_reference import rollout_assessment
 from cdf_mj.scenario.episode import run_episode
 from cdf_mj.scenario.world import World
 from cdf_mj.sim.scene import Scene

@@ -29,7 +29,7 @@ from cdf_mj.planners import (
     registry,
 )
 from cdf_mj.planners.base import PlannerContext
-from cdf_mj.planners.baselines import IMMConfig
+from cdf_mj.planners.imm import IMMConfig
 from cdf_mj.planners.registry import PlannerSpec, bind_planner, planner_arguments, shared_arguments
 from cdf_mj.scenario.episode import run_episode
 
@@ -65,7 +65,9 @@ def test_registered_arguments_are_updated_by_the_callers_and_stored_as_json(monk
     """``register(name, target, **defaults)`` and ``make_planner(name, **kwargs)`` as
     ``gymnasium.make``; a run's stored arguments rebuild the same planner."""
     monkeypatch.setitem(PLANNERS, "imm-09", PLANNERS["imm"])
-    register("imm-09", "cdf_mj.planners.baselines:IMMPlanner", params=IMMConfig(threshold=0.9))
+    register("imm-09", "cdf_mj.planners.imm:IMMPlanner", params=IMMConfig(threshold=0.9))
+    assert make_planner("imm-09").params.threshold == 0.9
+    register("imm-09", "cdf_mj.planners.baselines:IMMPlanner", params=IMMConfig(threshold=0.9))  # 0.3's home
     assert make_planner("imm-09").params.threshold == 0.9
     made = make_planner("imm-09", params=IMMConfig(threshold=0.5, p_left=0.4))
     assert (made.params.threshold, made.params.p_left) == (0.5, 0.4)
@@ -130,27 +132,45 @@ def test_a_target_that_cannot_be_imported_says_so(monkeypatch):
         make_planner("psychic")
 
 
-def test_the_registry_imports_no_planner_module():
-    """registry.py names the planners by string: of the planners it imports only their base
-    (no cycle); base.py reads the registry's names only when asked for them (PEP 562)."""
-    tree = ast.parse(Path(registry.__file__).read_text())
+def _imported(module: object) -> set[str]:
+    """The modules a module's source imports (absolute names)."""
+    tree = ast.parse(Path(module.__file__).read_text())  # type: ignore[attr-defined]
     imported = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
-    imported |= {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
-    assert {m for m in imported if m and m.startswith("cdf_mj.planners")} == {"cdf_mj.planners.base"}
-    assert base.make_planner is registry.make_planner and base.PLANNERS is registry.PLANNERS
-    with pytest.raises(AttributeError, match="no attribute 'nope'"):
-        base.nope  # noqa: B018
+    return {m for m in imported | {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names} if m}
 
 
-def test_the_baselines_load_when_first_made():
-    """filterpy (about 1 s to import) loads with the first cv or imm planner, not before."""
-    code = ("import sys, cdf_mj.planners as p\n"
-            "print('cdf_mj.planners.baselines' in sys.modules, 'filterpy' in sys.modules)\n"
-            "p.make_planner('cv')\n"
-            "print('cdf_mj.planners.baselines' in sys.modules, 'filterpy' in sys.modules)")
+def test_the_registry_imports_no_planner_module():
+    """registry.py names the planners by string: of the planners it imports only their base;
+    base.py does not import the registry (no cycle) and no longer gives its names."""
+    assert {m for m in _imported(registry) if m.startswith("cdf_mj.planners")} == {"cdf_mj.planners.base"}
+    assert not {m for m in _imported(base) if m.startswith("cdf_mj.planners")}
+    assert not hasattr(base, "make_planner")
+
+
+def _fresh(code: str) -> list[str]:
+    """What ``code`` prints in a fresh interpreter, split into words."""
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=False)
     assert out.returncode == 0, out.stderr[-2000:]
-    assert out.stdout.split() == ["False", "False", "True", "True"]
+    return out.stdout.split()
+
+
+def test_each_baseline_loads_with_its_first_planner():
+    """A predictor's module loads with the first planner made of it, not before; filterpy
+    (about 1 s to import) only with the IMM's."""
+    code = ("import sys, cdf_mj.planners as p\n"
+            "def show(): print(*(m in sys.modules for m in ('cdf_mj.planners.cv', 'cdf_mj.planners.imm', "
+            "'filterpy')))\n"
+            "show(); p.make_planner('cv'); show(); p.make_planner('imm'); show()")
+    assert _fresh(code) == ["False", "False", "False", "True", "False", "False", "True", "True", "True"]
+
+
+def test_the_decision_rules_load_no_filter():
+    """Importing the decision rules (or the planners' package) loads neither the particle
+    filter and its kernels nor filterpy: their reference (``rollout_assessment``) lives
+    apart, in ``cdf_mj.planners.rollout_reference``."""
+    code = ("import sys, cdf_mj.planners.decision\n"
+            "print(sorted(m for m in sys.modules if m.startswith(('cdf_mj.inference', 'filterpy'))))")
+    assert _fresh(code) == ["[]"]
 
 
 def test_the_package_gives_the_baselines_on_first_access():

@@ -27,7 +27,7 @@ import statistics
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -60,6 +60,7 @@ __all__ = [
     "cutoff_recall",
     "decision_time",
     "mcnemar_exact",
+    "of_planner",
     "paired_counts",
     "planner_metrics",
     "prior_brier",
@@ -109,6 +110,14 @@ class Rate:
         """JSON-serialisable view."""
         lo, hi = self.interval
         return {"k": self.k, "n": self.n, "value": self.value, "ci95": [lo, hi]}
+
+
+_R = TypeVar("_R", bound=RecordLike)
+
+
+def of_planner(records: Iterable[_R], planner: str) -> list[_R]:
+    """The records of ``planner`` (its ``planner`` field), in their order."""
+    return [r for r in records if record_field(r, "planner") == planner]
 
 
 def _labelled(records: Iterable[RecordLike]) -> list[RecordLike]:

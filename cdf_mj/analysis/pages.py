@@ -29,7 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import NoReturn
 
-from cdf_mj import __version__
+from cdf_mj._version import __version__
 from cdf_mj.records import write_atomic
 
 __all__ = [
@@ -38,10 +38,12 @@ __all__ = [
     "ScriptParser",
     "Stamp",
     "command_line",
+    "exit_status",
     "fail",
     "markdown_table",
     "read_stamp",
     "stamp_page",
+    "verdict",
     "write_page",
 ]
 
@@ -144,6 +146,11 @@ def markdown_table(header: Sequence[str], rows: Iterable[Sequence[str]]) -> list
         return "| " + " | ".join(cells) + " |"
 
     return [row(header), "|" + "---|" * len(header), *map(row, rows)]
+
+
+def verdict(ok: bool) -> str:
+    """A page's verdict on a target: ``met``, or ``**missed**`` (bold, to be seen)."""
+    return "met" if ok else "**missed**"
 
 
 def fail(prog: str, message: str) -> NoReturn:

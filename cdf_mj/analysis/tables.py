@@ -32,11 +32,13 @@ from cdf_mj.analysis.metrics import (
     planner_metrics,
     prior_brier,
 )
+from cdf_mj.analysis.pages import markdown_table
 from cdf_mj.analysis.safety import SafetyParams, safety_summary
 from cdf_mj.records import LABELS, Label, RecordLike, completed, is_imminent, paper_avoided, record_field
 
 __all__ = ["PAPER_CONFUSION", "PAPER_PLANNERS", "TableFormat", "experiment_tables", "filter_table",
-           "format_number", "format_rate", "format_scenario_summary", "margin_table", "paired_table", "planner_table"]
+           "format_number", "format_percent", "format_rate", "format_scenario_summary", "margin_table", "paired_table",
+           "planner_table"]
 
 #: The paper's Figure "Simulation results using the CDF", 1000 episodes: scenario label ->
 #: episodes predicted Cutoff, Yield, Right.
@@ -61,14 +63,14 @@ def format_rate(rate: Rate) -> str:
     return str(rate) if rate.n else "-"
 
 
-def _percent(share: float, digits: int = 1) -> str:
+def format_percent(share: float, digits: int = 1) -> str:
     """``share`` (a fraction) in per cent; ``-`` for NaN."""
     return "-" if math.isnan(share) else f"{100 * share:.{digits}f} %"
 
 
 def _paper_share(imminent: int, occurred: int) -> str:
     """The paper's avoided share of its own counts, as it rounds it."""
-    return _percent(paper_avoided(imminent, occurred), 0)
+    return format_percent(paper_avoided(imminent, occurred), 0)
 
 
 def _table(header: Sequence[str], rows: Sequence[Sequence[str]], fmt: TableFormat,
@@ -76,8 +78,7 @@ def _table(header: Sequence[str], rows: Sequence[Sequence[str]], fmt: TableForma
     """Markdown pipe table, or text columns two spaces apart under a dashed rule (the
     columns numbered in ``right`` right-aligned)."""
     if fmt == "markdown":
-        lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-        return "\n".join(lines + ["| " + " | ".join(row) + " |" for row in rows])
+        return "\n".join(markdown_table(header, rows))
     widths = [max(map(len, column)) for column in zip(header, *rows, strict=True)]
 
     def line(cells: Sequence[str]) -> str:
@@ -122,7 +123,7 @@ def _planners_markdown(metrics: Iterable[PlannerMetrics]) -> list[str]:
             pi, po = PAPER_PLANNERS[m.planner]
             paper = f"{pi} / {po} / {_paper_share(pi, po)}"
         rows.append([m.planner, str(m.imminent), str(m.collisions), format_rate(m.avoided),
-                     _percent(m.paper_avoided), paper, format_rate(m.false_alarms),
+                     format_percent(m.paper_avoided), paper, format_rate(m.false_alarms),
                      format_number(m.lead_time), format_number(m.min_gap), format_number(m.time_lost)])
     return [_table(header, rows, "markdown")]
 
@@ -130,7 +131,7 @@ def _planners_markdown(metrics: Iterable[PlannerMetrics]) -> list[str]:
 def _planners_text(metrics: Sequence[PlannerMetrics]) -> list[str]:
     """Two narrower tables, collisions and braking, each with its definitions under it."""
     collisions = [[m.planner, str(m.imminent), str(m.collisions), format_rate(m.avoided),
-                   _percent(m.paper_avoided)] for m in metrics]
+                   format_percent(m.paper_avoided)] for m in metrics]
     collisions += [[f"paper: {name}", str(pi), str(po), "-", _paper_share(pi, po)]
                    for name, (pi, po) in PAPER_PLANNERS.items() if any(m.planner == name for m in metrics)]
     braking = [[m.planner, format_rate(m.false_alarms), format_number(m.lead_time), format_number(m.min_gap),

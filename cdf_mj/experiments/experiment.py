@@ -38,7 +38,7 @@ from xml.etree import ElementTree
 
 from tqdm import tqdm
 
-from cdf_mj import __version__
+from cdf_mj._version import __version__
 from cdf_mj.config import CDFConfig, ScenarioConfig, check_seed, normalise_settings
 from cdf_mj.experiments.runner import (
     START_METHOD,

@@ -7,16 +7,32 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 from cdf_mj.extras import require
 
 if TYPE_CHECKING:
     from cdf_mj.falsify.counterexamples import Counterexample
-    from cdf_mj.falsify.run import FalsifyResult
+    from cdf_mj.falsify.evaluate import Evaluation
     from cdf_mj.falsify.search import SearchResult
+    from cdf_mj.falsify.space import SearchSpace
 
-__all__ = ["counterexample_table", "falsify_markdown", "progress_figure"]
+__all__ = ["FalsifyOutcome", "counterexample_table", "falsify_markdown", "progress_figure"]
+
+
+class FalsifyOutcome(Protocol):
+    """What :func:`falsify_markdown` reads of a finished run: a
+    :class:`cdf_mj.falsify.run.FalsifyResult` (which this module does not import: the run
+    imports its report, not the other way round)."""
+
+    @property
+    def space(self) -> SearchSpace: ...  # the space searched
+    @property
+    def search(self) -> SearchResult: ...  # the search's evaluations and generations
+    @property
+    def counterexamples(self) -> Sequence[Counterexample]: ...  # minimised, one per cluster
+    @property
+    def errors(self) -> Sequence[Evaluation]: ...  # every episode of the run that raised
 
 _UNIT = {"gap": "m", "ttc": "s", "headway": "s"}
 
@@ -81,8 +97,8 @@ def counterexample_table(found: Sequence[Counterexample], compare: Sequence[str]
     return lines
 
 
-def falsify_markdown(result: FalsifyResult, figure: str | None) -> str:
-    """``report.md`` of one run."""
+def falsify_markdown(result: FalsifyOutcome, figure: str | None) -> str:
+    """``report.md`` of one run (``figure``: the progress figure's file name beside it, or None)."""
     s, space = result.search, result.space
     compare = sorted({p for c in result.counterexamples for p in c.others})
     first = f"after {s.first_failure} episodes" if s.first_failure else "none"

@@ -1,6 +1,6 @@
 """What every ego planner is: :class:`Planner`, what it is told (:class:`PlannerContext`
-at reset, :class:`PlannerInput` each tick), the base of deciding planners, and the
-registry of planners by name.
+at reset, :class:`PlannerInput` each tick), the base of deciding planners and their
+threshold rule.
 
 A planner decides, at the planner rate (10 Hz), how the ego may accelerate: a yes/no
 planner whether it brakes fully (:meth:`Planner.brake`), a graded one the most the ego may
@@ -20,7 +20,8 @@ itself; a command at or beyond its ``hard_brake`` counts as a brake. ``brake`` o
 filtering to the end.
 
 Planners are made by name: :mod:`cdf_mj.planners.registry` (``make_planner``,
-``register``; the names below are re-exported here and by :mod:`cdf_mj.planners`).
+``register``; re-exported by :mod:`cdf_mj.planners` and :mod:`cdf_mj`). This module
+imports no planner and not the registry (the registry imports it).
 
 =============  ==============================================  ==============================
 constant       never brakes (the counterfactual run)           :mod:`cdf_mj.planners.simple`
@@ -29,12 +30,12 @@ cdf            the CDF filter with the layered rule (graded)   :mod:`cdf_mj.plan
 cdf-risk       the CDF filter with version 0.2's risk rule     :mod:`cdf_mj.planners.cdf`
 cdf-threshold  the CDF filter, brakes once P(cutoff) >= tau    :mod:`cdf_mj.planners.cdf`
                (the paper's rule)
-cv             constant-velocity conflict prediction           :mod:`cdf_mj.planners.baselines`
-cv-risk        constant velocity with the risk rule            :mod:`cdf_mj.planners.baselines`
-cv-layered     constant velocity with the layered rule         :mod:`cdf_mj.planners.baselines`
-imm            intent-only IMM conflict prediction             :mod:`cdf_mj.planners.baselines`
-imm-risk       intent-only IMM with the risk rule              :mod:`cdf_mj.planners.baselines`
-imm-layered    intent-only IMM with the layered rule           :mod:`cdf_mj.planners.baselines`
+cv             constant-velocity conflict prediction           :mod:`cdf_mj.planners.cv`
+cv-risk        constant velocity with the risk rule            :mod:`cdf_mj.planners.cv`
+cv-layered     constant velocity with the layered rule         :mod:`cdf_mj.planners.cv`
+imm            intent-only IMM conflict prediction             :mod:`cdf_mj.planners.imm`
+imm-risk       intent-only IMM with the risk rule              :mod:`cdf_mj.planners.imm`
+imm-layered    intent-only IMM with the layered rule           :mod:`cdf_mj.planners.imm`
 =============  ==============================================  ==============================
 """
 
@@ -56,21 +57,6 @@ if TYPE_CHECKING:  # annotations only: registering a planner imports no compiled
 
 __all__ = ["HARD_BRAKE_SHARE", "DecidingPlanner", "DecisionRule", "Planner", "PlannerContext", "PlannerInput",
            "Predictor", "ThresholdRule", "as_config", "hard_brake_of", "predicted_label"]
-
-#: Names that moved to :mod:`cdf_mj.planners.registry`, still read from here (PEP 562).
-_REGISTRY_NAMES = frozenset(("PLANNERS", "LazyPlanner", "PlannerSpec", "bind_planner", "make_planner",
-                             "planner_arguments", "planner_spec", "register", "shared_arguments",
-                             "stored_planner_arguments"))
-
-
-def __getattr__(name: str) -> Any:
-    """The registry's names, as before it had a module of its own."""
-    if name in _REGISTRY_NAMES:
-        from cdf_mj.planners import registry
-
-        return getattr(registry, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
 
 @dataclass(frozen=True)
 class PlannerContext:

@@ -1,21 +1,21 @@
-"""Compiled kernels of the baseline planners (:mod:`cdf_mj.planners.baselines`) and of the risk
+"""Compiled kernels of the baseline planners (:mod:`cdf_mj.planners.cv`, :mod:`cdf_mj.planners.imm`) and of the risk
 rule's test of one predicted path (:meth:`cdf_mj.planners.decision.RiskRule._path_masses`).
 
 The same steps as the NumPy and filterpy code they replace, on arrays, one call per tick:
 
 - :func:`imm_step`: one step of the intent-only IMM, as filterpy's ``IMMEstimator`` over two
-  :class:`~cdf_mj.planners.baselines.RouteKalmanFilter` runs it: the mixing, each filter's
+  :class:`~cdf_mj.planners.imm.RouteKalmanFilter` runs it: the mixing, each filter's
   Kalman predict, then (with a measurement) each filter's extended Kalman update on the
   route (the route's point and tangent at the predicted arc length, heading residual
   wrapped), the Gaussian likelihood of its residual, the mode probabilities and the
   mixing probabilities of the next step;
 - :func:`route_path`, :func:`straight_path`: predicted poses along a route at constant
   acceleration, and in a straight line at constant speed
-  (:meth:`~cdf_mj.planners.baselines.IMMPlanner.predicted_path`,
-  :func:`~cdf_mj.planners.baselines.straight_path`);
+  (:meth:`~cdf_mj.planners.imm.IMMPlanner.predicted_path`,
+  :func:`~cdf_mj.planners.baseline_common.straight_path`);
 - :func:`first_overlap`, :func:`straight_conflict`, :func:`imm_conflicts`: the first tick at
   which two cars' collision boxes overlap along two paths
-  (:func:`~cdf_mj.planners.baselines.first_conflict`), for the ``cv`` and ``imm`` predictors;
+  (:func:`~cdf_mj.planners.baseline_common.first_conflict`), for the ``cv`` and ``imm`` predictors;
 - :func:`path_mask`: which of the ego's plans (arc lengths on its route) a predicted
   obstacle path collides with, the risk rule's masses for ``cv-risk`` and ``cv-layered``.
 
@@ -109,7 +109,7 @@ def _length(table: np.ndarray, nseg: np.ndarray, r: int) -> float:  # pragma: no
 @helper
 def _heading(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, r: int, s: float, window: float,
              length: float) -> float:  # pragma: no cover - compiled
-    """:func:`cdf_mj.planners.baselines.route_heading` at one arc length ``s`` [m] of route ``r``
+    """:func:`cdf_mj.planners.baseline_common.route_heading` at one arc length ``s`` [m] of route ``r``
     (``length`` [m] long): the direction [rad] of the chord of ``2 window`` [m] about ``s``."""
     w = min(window, 0.5 * length)
     x0, y0 = _point(table, nseg, ends, r, min(max(s - w, 0.0), length - 2 * w))
@@ -158,7 +158,7 @@ def _overlap(a: np.ndarray, i: int, b: np.ndarray, j: int) -> bool:  # pragma: n
 @numba.njit(cache=True, nogil=True)
 def straight_path(x: float, y: float, th: float, v: float, times: np.ndarray) -> np.ndarray:  # pragma: no cover
     """Poses ``(K, 4)`` of a car holding its heading ``th`` [rad] and speed ``v`` [m/s] from
-    ``(x, y)`` [m] at ``times`` ``(K,)`` [s] (:func:`cdf_mj.planners.baselines.straight_path`)."""
+    ``(x, y)`` [m] at ``times`` ``(K,)`` [s] (:func:`cdf_mj.planners.baseline_common.straight_path`)."""
     out = np.empty((times.shape[0], 4))
     c, s = math.cos(th), math.sin(th)
     speed = max(v, 0.0)
@@ -177,7 +177,7 @@ def route_path(table: np.ndarray, nseg: np.ndarray, ends: np.ndarray, r: int, s:
     """Poses ``(K, 4)`` along route ``r`` at ``times`` ``(K,)`` [s] (``0, dt, ...``) from arc length
     ``s`` [m], speed ``v`` [m/s] and acceleration ``a`` [m/s^2]: speed kept in ``[0, max_speed]``,
     arc length by the trapezoid rule, heading the route's chord of ``2 window`` [m]
-    (:meth:`cdf_mj.planners.baselines.IMMPlanner.predicted_path`)."""
+    (:meth:`cdf_mj.planners.imm.IMMPlanner.predicted_path`)."""
     n = times.shape[0]
     out = np.empty((n, 4))
     length = _length(table, nseg, r)

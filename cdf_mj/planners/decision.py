@@ -37,7 +37,6 @@ Frames and units: world frame, metres, seconds; probabilities in [0, 1].
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import math
 from dataclasses import dataclass
@@ -46,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from cdf_mj.config import LayeredConfig, RiskConfig
-from cdf_mj.inference.particle_filter import ParticleFilter
+from cdf_mj.model import road
 from cdf_mj.model.conflict import (
     BRAKE,
     DEFER,
@@ -56,11 +55,9 @@ from cdf_mj.model.conflict import (
     collision_masses,
     conflict_map,
     ego_plans,
-    route_poses,
     widened,
 )
-from cdf_mj.model.following import ahead_in_lane, idm_interaction, rss_distance
-from cdf_mj.model.geometry import box_gap, boxes_overlap
+from cdf_mj.model.geometry import box_gap
 from cdf_mj.model.vehicle import CarGeometry
 from cdf_mj.planners.base import DecisionRule, PlannerContext, PlannerInput, Predictor, ThresholdRule
 
@@ -77,7 +74,7 @@ def _unit(total: float) -> float:
 
 
 __all__ = ["SLOW", "Assessment", "DecisionRule", "GivenFutures", "LayeredRule", "Layers", "Predictor", "RiskRule",
-           "ThresholdRule", "rollout_assessment"]
+           "ThresholdRule"]
 
 
 @dataclass(frozen=True)
@@ -394,16 +391,17 @@ class LayeredRule(RiskRule):
             x, y, th, v = (float(u) for u in last)
             lead = np.array([x + v * (t - t0) * math.cos(th), y + v * (t - t0) * math.sin(th), th, v])
         ego_car, lead_car = self._cars
-        if not (np.isfinite(lead).all() and ahead_in_lane(self._layout, lead, lead_car, ego, FOLLOW_WITHIN)):
+        if not (np.isfinite(lead).all()
+                and road.in_lane_ahead(self._layout, lead, lead_car, ego, within=FOLLOW_WITHIN)):
             return math.inf, math.inf, 0.0, 0.0
         ex, ey, eth, ev = (float(v) for v in ego)
         lx, ly, lth, lv = (float(v) for v in lead)
         gap = box_gap(ego_car.footprint_one(ex, ey, eth), lead_car.footprint_one(lx, ly, lth))
         v_lead = lv * math.cos(lth - eth)
         lay = self.layers
-        rss = rss_distance(ev, v_lead, self._rho, self._max_accel, self._max_brake, lead_car.max_brake)
-        idm = idm_interaction(gap, ev, v_lead, self._max_accel, lay.comfort_brake, lay.time_gap, lay.min_gap,
-                              lay.comfort_brake)
+        rss = road.rss_distance(ev, v_lead, self._rho, self._max_accel, self._max_brake, lead_car.max_brake)
+        idm = road.idm(ev, v_lead, gap, a_max=self._max_accel, b=lay.comfort_brake, time_gap=lay.time_gap,
+                       min_gap=lay.min_gap, s_star="total", gap_floor=1e-3, max_brake=lay.comfort_brake)
         room = gap - 0.5 * lay.min_gap + max(v_lead, 0.0) ** 2 / (2.0 * lead_car.max_brake) - max(ev, 0.0) * self._rho
         need = max(ev, 0.0) ** 2 / (2.0 * room) if room > 0.0 else math.inf
         return idm, gap, rss, need
@@ -501,47 +499,3 @@ class LayeredRule(RiskRule):
         ly = self.last_layers
         accel = min(max(self.last_command, -self._max_brake), self._max_accel) if ly is not None else 0.0
         return {"risk": ly.emergency if ly else 0.0, "anticipate": ly.go if ly else 0.0, "accel": accel}
-
-
-def rollout_assessment(pf: ParticleFilter, rule: RiskRule, ego_pose: np.ndarray,
-                       rng: np.random.Generator) -> Assessment:
-    """The reference for :meth:`RiskRule.assess` on a CDF filter: every particle rolled
-    forward through the filter's own model (its observation draws with beta and line of
-    sight, belief update, driver state machine with its departure hazard and mode jumps,
-    process noise and bicycle) for the rule's horizon, once with the ego going on and once
-    with it going on for the deferral and then braking (the same draws for both: ``rng``
-    is copied), each tick tested for an overlap of the two widened collision boxes.
-
-    Slow (a whole filter predict per rolled tick and plan, and a box test of every
-    particle in NumPy; about 0.3 s a tick at N = 1000): for tests and for measuring
-    how closely the compiled rule agrees (docs/DECISION.md). The filter is not changed;
-    call it after the update of a tick, before the particles move on (where the rule
-    reads them).
-    """
-    plans = rule.plans(ego_pose)
-    layout = rule._layout
-    ego_car = widened(layout.ego, rule.config.margin)
-    state = rng.bit_generator.state
-    hits = []
-    for p in (GO, DEFER, BRAKE):
-        sim = copy.copy(pf)
-        sim.pose, sim.mode, sim.belief = pf.pose.copy(), pf.mode.copy(), pf.belief.copy()
-        sim.has_belief, sim.intent, sim.theta = pf.has_belief.copy(), pf.intent.copy(), pf.theta.copy()
-        sim.rng = np.random.Generator(type(rng.bit_generator)())
-        sim.rng.bit_generator.state = state
-        obstacle_car = widened(sim.obstacle, rule.config.margin)
-        ego = route_poses(layout.route_ego, plans[p], rule.map.window)
-        speed = np.diff(np.concatenate([[rule.map.ego_arc(ego_pose)], plans[p]])) / rule._dt
-        ego[:, 3] = speed
-        hit = np.zeros(sim.n, dtype=bool)
-        current = np.asarray(ego_pose, dtype=float)
-        for k in range(plans.shape[1]):
-            sim.predict(np.stack([current, current]))  # the obstacle row is not read by predict
-            current = ego[k]
-            hit |= boxes_overlap(obstacle_car.footprint(sim.pose),
-                                 np.broadcast_to(ego_car.footprint(current), (sim.n, 4, 2)))
-        hits.append(hit)
-    w = pf.weights
-    go, deferred, brake = hits[0], hits[0] & hits[1], hits[2]
-    return Assessment(go=float(w[go].sum()), deferred=float(w[deferred].sum()), brake=float(w[brake].sum()),
-                      inside=rule.map.inside(rule.map.ego_arc(ego_pose)))

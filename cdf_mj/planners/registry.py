@@ -11,7 +11,7 @@ by a ``"module:Class"`` string (imported on first use) or by any callable::
     planner = make_planner("mine", horizon=3.0)
 
 The registry names its planners by string: it imports none of their modules (no cycle,
-and filterpy loads only with the first baseline made).
+and filterpy loads only with the first ``imm`` planner made).
 """
 
 from __future__ import annotations
@@ -228,9 +228,9 @@ register("reactive", "cdf_mj.planners.simple:ReactivePlanner")
 register("cdf", "cdf_mj.planners.cdf:CDFPlanner", shared=("cdf",))
 register("cdf-risk", "cdf_mj.planners.cdf:RiskCDFPlanner", shared=("cdf",))
 register("cdf-threshold", "cdf_mj.planners.cdf:ThresholdCDFPlanner", shared=("cdf",))
-register("cv", "cdf_mj.planners.baselines:CVPlanner")
-register("cv-risk", "cdf_mj.planners.baselines:CVRiskPlanner", shared=("risk",))
-register("cv-layered", "cdf_mj.planners.baselines:CVLayeredPlanner", shared=("risk",))
-register("imm", "cdf_mj.planners.baselines:IMMPlanner")
-register("imm-risk", "cdf_mj.planners.baselines:IMMRiskPlanner", shared=("risk",))
-register("imm-layered", "cdf_mj.planners.baselines:IMMLayeredPlanner", shared=("risk",))
+register("cv", "cdf_mj.planners.cv:CVPlanner")
+register("cv-risk", "cdf_mj.planners.cv:CVRiskPlanner", shared=("risk",))
+register("cv-layered", "cdf_mj.planners.cv:CVLayeredPlanner", shared=("risk",))
+register("imm", "cdf_mj.planners.imm:IMMPlanner")
+register("imm-risk", "cdf_mj.planners.imm:IMMRiskPlanner", shared=("risk",))
+register("imm-layered", "cdf_mj.planners.imm:IMMLayeredPlanner", shared=("risk",))
