@@ -193,17 +193,44 @@ def test_add_option_keeps_an_old_spelling_out_of_the_help():
 def test_falsify_and_estimate_apply_preset_and_set_over_the_spaces_base(capsys, tmp_path):
     out = tmp_path / "est"
     argv = ["estimate", "--method", "mc", "--planner", "constant", "--episodes", "2", "--workers", "1", "--quiet",
-            "--preset", "stop-and-wait", "--set", "beta=0.05", "--set", "timing.duration=1.0"]
+            "--preset", "slow-pull-out", "--set", "clear_distance=12.0", "--set", "timing.duration=1.0"]
     status, _, err = run_cli(capsys, *argv, "--out", str(out))
-    assert status == 0 and err.count("\n") == 1 and "--set obstacle.beta" in err, err  # read as --set reads it
+    assert status == 0 and "--set obstacle.clear_distance" in err, err  # read as --set reads it
     base = json.loads((out / "settings.json").read_text())["space_spec"]["base"]
-    assert base["obstacle"]["beta"] == 0.05 and base["timing"]["duration"] == 1.0
-    assert base["obstacle"]["stop_dwell"] == [0.5, 2.0]  # the preset's driver waits at its line
+    assert base["obstacle"]["clear_distance"] == 12.0 and base["timing"]["duration"] == 1.0
+    assert base["obstacle"]["accel"] == 1.2  # the preset's driver pulls out slowly (a dimension: with a note)
     # the same directory with another base world is another run: refused
     assert_one_line_error(*run_cli(capsys, *argv[:-4], "--out", str(out)), "space")
     assert_one_line_error(*run_cli(capsys, "falsify", "--set", "obstacle.beta=7", "--out", str(tmp_path / "f")),
                           "obstacle.beta")
     assert not (tmp_path / "f").exists()
+
+
+def test_a_set_on_a_dimension_of_the_space_is_refused_and_a_preset_on_one_is_told(capsys, tmp_path):
+    """The search sets its dimensions in every episode: a --set of one would be ignored
+    silently, so it is refused; a preset that sets one keeps its other fields, with a note."""
+    assert_one_line_error(*run_cli(capsys, "estimate", "--method", "mc", "--episodes", "2", "--set", "ego.speed=10",
+                                   "--out", str(tmp_path / "e")), "--set ego.speed", "a dimension of the space")
+    assert not (tmp_path / "e").exists()
+    status, _, err = run_cli(capsys, "estimate", "--method", "mc", "--planner", "constant", "--episodes", "2",
+                             "--workers", "1", "--quiet", "--preset", "fast-ego", "--set", "timing.duration=1.0",
+                             "--out", str(tmp_path / "p"))
+    assert status == 0 and "--preset fast-ego sets ego.speed, a dimension of the space" in err, err
+
+
+def test_a_flat_key_in_a_file_is_a_note_through_the_installed_script(tmp_path):
+    """Through the console script (where Python would show a DeprecationWarning raised in
+    ``__main__``) a flat key of version 0.1 in a preset file is one note, on every command."""
+    import shutil
+    import subprocess
+    import sys
+
+    flat = tmp_path / "flat.toml"
+    flat.write_text('description = "a file of version 0.1"\n[scenario]\nbeta = 0.2\n')
+    script = shutil.which("cdf-mj") or str(Path(sys.executable).with_name("cdf-mj"))
+    done = subprocess.run([script, "presets", str(flat)], capture_output=True, text=True, timeout=120, check=False)
+    assert done.returncode == 0 and "obstacle.beta = 0.2" in done.stdout
+    assert done.stderr.splitlines() == [f"cdf-mj: note: preset {flat}: [scenario] beta is now [scenario.obstacle] beta"]
 
 
 def test_sweep_runs_on_the_backend_it_is_given(capsys, tmp_path):

@@ -34,8 +34,8 @@ from tests.cli_helpers import assert_one_line_error, run_cli
 
 # ------------------------------------------------------------------ command line lists
 @pytest.mark.parametrize(("argv", "needle"), [
-    (["bench", "--particles", ",".join(["100"] * 20_000)], "--particles"),
-    (["bench", "--workers", ",".join(["1"] * 101)], "--workers"),
+    (["bench", "--scale-particles", ",".join(["100"] * 20_000)], "--scale-particles"),
+    (["bench", "--scale-workers", ",".join(["1"] * 101)], "--scale-workers"),
     (["sweep", "beta", "--values", ",".join(["0.5"] * 101)], "--values"),
 ])
 def test_a_list_argument_holds_at_most_100_items(capsys, argv, needle):
@@ -46,15 +46,15 @@ def test_a_list_argument_holds_at_most_100_items(capsys, argv, needle):
 
 
 def test_a_list_of_100_items_is_read():
-    from cdf_mj.cli.args import MAX_LIST_ITEMS, _comma_list, _particles
+    from cdf_mj.cli.args import MAX_LIST_ITEMS, comma_list, particle_count
     from cdf_mj.cli.sweep import MAX_SWEEP_VALUES, _value_list
 
     assert MAX_SWEEP_VALUES == MAX_LIST_ITEMS == 100
-    assert _comma_list(_particles, "positive integers")(",".join(["7"] * 100)) == [7] * 100
+    assert comma_list(particle_count, "positive integers")(",".join(["7"] * 100)) == [7] * 100
     assert _value_list("0.5, 1e-3,") == [0.5, 1e-3]
 
 
-_CHEAP = ("--episodes", "1", "--planners", "constant", "--workers", "1", "--quiet")  # fails fast before the fix
+_CHEAP = ("--episodes", "1", "--planner", "constant", "--workers", "1", "--quiet")  # fails fast before the fix
 
 
 @pytest.mark.parametrize("argv", [
@@ -280,7 +280,7 @@ def test_an_experiment_on_ray_at_a_silent_server_is_one_line(capsys, tmp_path):
     pytest.importorskip("ray", reason="the ray extra is not installed")
     with _server(None) as address:
         started = time.perf_counter()
-        status, out, err = run_cli(capsys, "experiment", "--episodes", "2", "--planners", "constant", "--backend",
+        status, out, err = run_cli(capsys, "experiment", "--episodes", "2", "--planner", "constant", "--backend",
                                    "ray", "--address", address, "--quiet", "--out", str(tmp_path / "run"))
         assert_one_line_error(status, out, err, f"no Ray cluster answers at {address}", "it said nothing")
         assert time.perf_counter() - started < 10.0

@@ -4,7 +4,7 @@
 
     cdf-mj                                                 # the commands, one line each
     cdf-mj episode --seed 7 --planner reactive            # one episode, record as JSON
-    cdf-mj episode --seed 7 --set beta=0.1 --set ego_start_spread='[-4, 4]'
+    cdf-mj episode --seed 7 --set obstacle.beta=0.1 --set ego.start_spread='[-4, 4]'
     python -m cdf_mj episode --seed 7                      # the same without the script
 
 Bad input (unknown planner, negative seed, out-of-range parameter, unreadable scene,

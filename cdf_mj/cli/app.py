@@ -12,7 +12,7 @@ from collections.abc import Callable, Sequence
 from typing import NoReturn
 
 from cdf_mj._version import __version__
-from cdf_mj.cli.args import EXIT_USAGE, PROG, CLIError, notes
+from cdf_mj.cli.args import EXIT_USAGE, PROG, CLIError, add_note, notes
 from cdf_mj.cli.bench import add_bench
 from cdf_mj.cli.episode import add_episode
 from cdf_mj.cli.experiment import add_experiment, add_reproduce
@@ -21,6 +21,7 @@ from cdf_mj.cli.presets import add_presets
 from cdf_mj.cli.render import add_render
 from cdf_mj.cli.report import add_report
 from cdf_mj.cli.sweep import add_sweep
+from cdf_mj.config.user_values import flat_key_notes
 from cdf_mj.experiments.runner import WorkerDiedError
 
 
@@ -123,7 +124,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if getattr(args, "compiles", False) and not getattr(args, "quiet", False):
         _note_first_compile()
     try:
-        status: int = args.func(args)
+        # A flat key of version 0.1 read anywhere in the command (--set, a preset, a space
+        # file) is a note printed after it has run, never a Python warning.
+        with flat_key_notes(lambda note: add_note(args, note)):
+            status: int = args.func(args)
     except BrokenPipeError:  # `cdf-mj episode | head`: the reader left; no traceback
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # Python's flush at exit
         return 1

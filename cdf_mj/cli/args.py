@@ -455,7 +455,3 @@ def seed_range(seed: int, episodes: int) -> range:
                        f"{seed + episodes - 1}, beyond the largest seed {MAX_SEED}")
     return range(seed, seed + episodes)
 
-
-# The private names of version 0.4 that earlier scripts and tests imported (the public
-# ones above replace them; no module of cdf_mj uses these).
-_comma_list, _particles = comma_list, particle_count

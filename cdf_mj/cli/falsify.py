@@ -44,16 +44,28 @@ def _space(args: argparse.Namespace) -> SearchSpace:
     ``--set`` in that order (each dimension's ends checked against the new base)."""
     from cdf_mj.falsify.space import Range, load_space
 
-    space = load_space(args.space)  # SpaceError: one line, exit 2
-    base, given = space.base, []
+    given: list[str] = []
     with flat_key_notes(lambda note: add_note(args, note)):  # as config_from_args reads them
+        space = load_space(args.space)  # SpaceError: one line, exit 2
+        base = space.base
+        searched = {d.key for d in space.dims}
         if args.preset is not None:  # its fields over the space's own preset (PresetError: one line)
-            base, given = read_preset(args.preset).config(base), ["--preset", args.preset]
+            chosen = read_preset(args.preset)
+            base, given = chosen.config(base), ["--preset", args.preset]
+            for key in sorted(searched & set(chosen.scenario)):
+                add_note(args, f"--preset {args.preset} sets {key}, a dimension of the space: each episode's "
+                               "point sets it; the preset's value is only what a minimised "
+                               "counterexample falls back to")
         if args.names is not None:  # a scene of your own with its own names (SceneError: one line)
             base = base.replace(names=read_names(args.names))
         if args.overrides:
+            values = parse_overrides(args.overrides)
+            clash = sorted(searched & set(values))
+            if clash:  # a value the search would overwrite in every episode
+                raise CLIError(f"--set {clash[0]}: a dimension of the space {space.name!r} (the search sets "
+                               "it); give it in the space's preset or drop it from the space")
             try:
-                base = apply_values(base, parse_overrides(args.overrides))
+                base = apply_values(base, values)
             except UserValueError as exc:  # the config names the field and its range
                 raise CLIError(f"--set: {exc}") from None
             given += [w for item in args.overrides for w in ("--set", item)]
