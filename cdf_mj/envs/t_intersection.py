@@ -131,9 +131,11 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
     ``speed``
     ``latency``        the obstacle pose ``latency`` steps old
     ``dropout``        with this probability per step no measurement: the observation
-                       keeps the last measured obstacle pose (before any, its start site
-                       at rest, ``layout.obstacle_start``) and
-                       ``info["obstacle_measured"]`` is False; the filter skips that update
+                       keeps the last measured obstacle pose (before any, a fixed
+                       placeholder: the map's obstacle start site at rest,
+                       ``layout.obstacle_start``, wherever the obstacle really starts, e.g.
+                       a driver family's own start) and ``info["obstacle_measured"]`` is
+                       False; the filter skips that update
     ``brake_latency``  the action's acceleration acts ``brake_latency`` steps late (until
                        the first arrives, the ego's own speed hold, as in
                        ``run_episode``); its steering at once

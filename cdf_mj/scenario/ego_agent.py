@@ -96,12 +96,9 @@ class EgoAgent:
                  planner: Planner | None = None, *, follows: bool | None = None) -> None:
         self.layout, self.config, self.driver, self.planner = layout, config, driver, planner
         self.follows = config.ego.follow if follows is None else bool(follows)
-        self.graded = bool(getattr(planner, "graded", False))
-        self.releases = bool(getattr(planner, "releases_brake", False))
         self._car = layout.ego
         self._max_brake = layout.ego.max_brake
-        hard = getattr(planner, "hard_brake", None) if self.graded else None
-        self._hard = hard_brake_of(self._max_brake) if hard is None else hard  # [m/s^2] a brake from here on
+        self._planner_kind()
         self.sensor: Sensor | None = None
         self._m: Measurement | None = None
 
@@ -113,6 +110,7 @@ class EgoAgent:
         config = self.config
         if self.planner is not None:
             self.planner.reset(PlannerContext.of(self.layout, config), rng["planner"])
+        self._planner_kind()  # as the planner is after its reset (a rule may be chosen there)
         self.sensor = Sensor(config.sensing, self.layout, rng["sensing"])
         self._m = None  # the last measurement sensed
         self._delay = CommandDelay(config.sensing.brake_latency)
@@ -177,6 +175,16 @@ class EgoAgent:
                 accel = float(ego_control(self.driver, self._car, self._m.poses[0], False)[0])
         self.accel = accel
         return np.array([accel, steer])
+
+    def _planner_kind(self) -> None:
+        """What kind of answer the planner gives: ``graded`` (a command [m/s^2]) or yes/no,
+        whether it ``releases`` its brake, and the command ``_hard`` [m/s^2] from which a
+        graded command is a brake."""
+        planner = self.planner
+        self.graded = bool(getattr(planner, "graded", False))
+        self.releases = bool(getattr(planner, "releases_brake", False))
+        hard = getattr(planner, "hard_brake", None) if self.graded else None
+        self._hard = hard_brake_of(self._max_brake) if hard is None else hard
 
     def _decide(self, planner: Planner, seen: PlannerInput) -> float:
         """The planner's command [m/s^2] on this tick's measurement: a graded planner's own,
