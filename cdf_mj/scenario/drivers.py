@@ -484,3 +484,21 @@ def make_driver(family: str, params: FamilyParams | None = None) -> WorldDriver:
     if cls is None:
         raise ValueError(f"unknown driver family {family!r}: known families are {', '.join(FAMILIES)}")
     return cls(params)
+
+
+def _idm_accel(v: float, v0: float, a: float, b: float, gap: float = math.inf, v_lead: float = 0.0) -> float:
+    return idm(v, v_lead, gap, a_max=a, b=b, time_gap=IDM_HEADWAY, min_gap=IDM_JAM, v0=v0, s_star="dynamic",
+               gap_floor=0.05)
+
+
+def __getattr__(name: str) -> Any:
+    """``idm_accel`` of version 0.3 (the families' IDM), now :func:`cdf_mj.model.road.idm`
+    with ``s_star="dynamic"``, ``gap_floor=0.05``; with a DeprecationWarning."""
+    if name != "idm_accel":
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import warnings
+
+    warnings.warn('cdf_mj.scenario.drivers.idm_accel is deprecated; use cdf_mj.model.road.idm(v, v_lead, gap, '
+                  'a_max=a, b=b, time_gap=IDM_HEADWAY, min_gap=IDM_JAM, v0=v0, s_star="dynamic", gap_floor=0.05)',
+                  DeprecationWarning, stacklevel=2)
+    return _idm_accel
