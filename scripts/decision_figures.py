@@ -41,8 +41,7 @@ import numpy as np
 from cdf_mj.analysis.pages import ScriptParser
 from cdf_mj.analysis.safety import SafetyParams, closing_speed
 from cdf_mj.config import LayeredConfig, RiskConfig, ScenarioConfig
-from cdf_mj.model.geometry import box_gap
-from cdf_mj.model.road import in_lane_ahead
+from cdf_mj.model.road import car_gap, in_lane_ahead
 from cdf_mj.presets import load_preset
 from cdf_mj.records import EpisodeRecord
 from cdf_mj.scenario.episode import run_episode
@@ -50,6 +49,9 @@ from cdf_mj.sim.scene import Scene
 
 PROG = "decision_figures"
 MAX_SEED = 200  # development seeds searched for each picture
+#: [rad] The heading off the ego's way within which the layered rule's follow layer follows
+#: a car ahead (its ``FOLLOW_WITHIN``; cdf_mj/model/road.py's table).
+FOLLOW_WITHIN = math.pi / 2
 
 
 def _anticipates(rec: EpisodeRecord) -> bool:
@@ -106,11 +108,11 @@ def series(rec: EpisodeRecord, scene: Scene) -> dict[str, np.ndarray]:
     t = np.array(rec.trace["t"])  # type: ignore[index]
     ttc, gap_ahead, rss = (np.full(len(t), np.nan) for _ in range(3))
     for k, (ego, obs) in enumerate(poses):
-        gap = box_gap(layout.ego.footprint_one(*ego[:3]), layout.obstacle.footprint_one(*obs[:3]))
+        gap = car_gap(layout.ego, ego, layout.obstacle, obs)
         closing = closing_speed(layout, poses[k])
         if closing > 1e-6:
             ttc[k] = gap / closing
-        if in_lane_ahead(layout, obs, layout.obstacle, ego) and math.cos(obs[2] - ego[2]) >= 0.0:
+        if in_lane_ahead(layout, obs, layout.obstacle, ego, within=FOLLOW_WITHIN):  # as the follow layer sees it
             gap_ahead[k] = gap
             rss[k] = params.rss_distance(ego[3], obs[3] * math.cos(obs[2] - ego[2]))
     h = rec.planner_info["history"]

@@ -1,7 +1,8 @@
 """The road's words (cdf_mj/model/road.py) on hand-placed cars on the real junction: in the
-lane by a corner or by overlap, ahead by the rear axle or the box centre, the heading a car
-is followed within, the gap, the IDM's two forms (bit for bit the formulas they replaced),
-the RSS distance against the paper's formula, and car following.
+lane by a corner or by overlap, ahead by the rear axle, the box centre or the boxes' extent
+along the route, the heading a car is followed within, the gap, the IDM's two forms (bit for
+bit the formulas they replaced), the RSS distance against the paper's formula, and car
+following.
 
 The scene's ego lane is the box y in [-3.7, 0] m along x (heading east, centre line
 y = -1.85 m); our car's box reaches 3.65 m ahead of its rear axle and 0.95 m behind it,
@@ -105,6 +106,44 @@ def test_ahead_by_rear_axle_and_by_box_centre_disagree_for_cars_of_different_len
     assert ahead(layout, ours_level, ours, ego)  # the rear axle is the default
     with pytest.raises(ValueError, match="by='centre' needs follower_car"):
         ahead(layout, level_van, van, ego, by="centre")
+
+
+def test_ahead_by_extent_counts_a_car_level_with_the_ego_or_reaching_its_tail(layout):
+    """The reactive planner's ahead: the lead's front-most corner at or past the follower's
+    rearmost, along the route; true wherever ``by="axle"`` is on the straight lane, and
+    also for a car level with the ego or overlapping its length from behind."""
+    ours = layout.ego
+    ego = [11.0, LANE_Y, 0.0, 10.0]  # its box from x = 10.05 to 14.65
+    cases = {  # name: (pose, by axle, by extent)
+        "well ahead": ([20.0, LANE_Y, 0.0, 8.0], True, True),
+        "level, next lane": ([11.0, -LANE_Y, 0.0, 8.0], False, True),  # the same arc: not further by axle
+        "overlapping from behind": ([8.0, -LANE_Y, 0.0, 8.0], False, True),  # its front at x = 11.65
+        "reversed, level": ([11.5, -LANE_Y, math.pi, 8.0], True, True),  # its rear bumper leads: x = 12.45
+        "reversed, behind": ([10.5, -LANE_Y, math.pi, 8.0], False, True),  # front-most corner x = 11.45
+        "just behind the tail": ([10.05 - FRONT - 0.01, LANE_Y, 0.0, 8.0], False, False),  # front at 10.04
+    }
+    for name, (pose, by_axle, by_extent) in cases.items():
+        assert ahead(layout, pose, ours, ego, ours, by="axle") is by_axle, name
+        assert ahead(layout, pose, ours, ego, ours, by="extent") is by_extent, name
+    same = [11.0, LANE_Y, 0.0, 10.0]  # the boundary counts: a car is ahead of its own tail
+    assert ahead(layout, same, ours, ego, ours, by="extent") and not ahead(layout, same, ours, ego, ours)
+    with pytest.raises(ValueError, match="by='extent' needs follower_car"):
+        ahead(layout, same, ours, ego, by="extent")
+    with pytest.raises(ValueError, match="must be 'axle', 'centre' or 'extent'"):
+        ahead(layout, same, ours, ego, ours, by="front")  # type: ignore[arg-type]
+
+
+def test_ahead_by_extent_is_the_reactive_planners_old_test_bit_for_bit(layout):
+    """The formula ReactivePlanner computed itself before it asked here, on random poses."""
+    rng = np.random.default_rng(34)
+    route = layout.route_ego
+    for _ in range(300):
+        ego = [float(rng.uniform(-20.0, 30.0)), float(rng.uniform(-6.0, 2.0)), float(rng.uniform(-0.5, 0.5)), 5.0]
+        obs = [float(rng.uniform(-20.0, 30.0)), float(rng.uniform(-6.0, 6.0)), float(rng.uniform(-math.pi, math.pi)),
+               5.0]
+        front = max(route.project_point(float(x), float(y))[0] for x, y in layout.obstacle.footprint_one(*obs[:3]))
+        tail = min(route.project_point(float(x), float(y))[0] for x, y in layout.ego.footprint_one(*ego[:3]))
+        assert ahead(layout, obs, layout.obstacle, ego, layout.ego, by="extent") is (front >= tail)
 
 
 def test_heading_within_the_following_heading(layout):

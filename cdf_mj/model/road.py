@@ -2,7 +2,8 @@
 cars, the intelligent driver model (IDM), the RSS safe distance, the heading a car is
 followed within, and car following. Every caller asks here: the world's measurement and
 the episode's end, the ego's and the obstacle's car following, the layered rule's follow
-layer, the driver families, the sensor, the monitor and the safety metrics. ::
+layer, the reactive planner, the driver families, the sensor, the monitor and the safety
+metrics. ::
 
     from cdf_mj.model.road import in_lane, in_lane_ahead, car_gap, idm, rss_distance
 
@@ -32,6 +33,11 @@ ahead          ``by="axle"``                the episode's end, car following, th
                ``by="centre"``              the safety metrics: the box centres are (for
                                             cars of different lengths the two disagree
                                             when the cars are nearly level)
+               ``by="extent"``              the reactive planner: the lead's box reaches
+                                            the follower's tail (its front-most corner is
+                                            at or past the follower's rearmost, along the
+                                            route): a car level with the ego, or just
+                                            behind its front, is still ahead of its tail
 in_lane_ahead  ``within=None``              the episode's end (``timing.until_clear``): a
                                             car in the lane ahead, whatever its heading
                ``within=FOLLOW_HEADING``    car following (:func:`follow_accel`): a car
@@ -78,8 +84,9 @@ __all__ = ["FOLLOW_HEADING", "IDM_DELTA", "AheadBy", "InLaneBy", "Pose", "SStar"
 Pose: TypeAlias = np.ndarray | Sequence[float]
 #: How a car's box is in the lane: ``"corner"`` a corner inside it, ``"overlap"`` the boxes meet.
 InLaneBy: TypeAlias = Literal["corner", "overlap"]
-#: Which point of a car is compared along the route: ``"axle"`` its rear axle, ``"centre"`` its box centre.
-AheadBy: TypeAlias = Literal["axle", "centre"]
+#: What of two cars is compared along the route: ``"axle"`` their rear axles, ``"centre"`` their box
+#: centres, ``"extent"`` the lead's front-most corner against the follower's rearmost.
+AheadBy: TypeAlias = Literal["axle", "centre", "extent"]
 #: The IDM's desired gap: ``"total"`` floored at 0 as a whole, ``"dynamic"`` ``s0`` plus its floored speed terms.
 SStar: TypeAlias = Literal["total", "dynamic"]
 
@@ -126,18 +133,32 @@ def route_arc(layout: Layout, pose: Pose, car: CarGeometry | None = None) -> flo
     return layout.route_ego.project_point(x, y)[0]
 
 
+def _corner_arcs(layout: Layout, pose: Pose, car: CarGeometry) -> list[float]:
+    """[m] The arc lengths along the ego's route of the points nearest to the corners of
+    the car's collision box at ``pose``."""
+    route = layout.route_ego
+    box = car.footprint_one(float(pose[0]), float(pose[1]), float(pose[2]))
+    return [route.project_point(float(x), float(y))[0] for x, y in box]
+
+
 def ahead(layout: Layout, lead: Pose, lead_car: CarGeometry, follower: Pose, follower_car: CarGeometry | None = None,
           *, by: AheadBy = "axle") -> bool:
     """Whether the car at ``lead`` is further along the ego's route than the one at
     ``follower`` (:func:`route_arc`): ``by="axle"`` their rear axles, ``by="centre"`` their
-    box centres (``follower_car`` needed). Where it is, and its heading, are not asked."""
+    box centres; ``by="extent"`` whether the lead's box reaches the follower's tail, the
+    front-most of its corners at or past the rearmost of the follower's (``follower_car``
+    needed for both). Where it is, and its heading, are not asked."""
     if by == "axle":
         return route_arc(layout, lead) > route_arc(layout, follower)
     if by == "centre":
         if follower_car is None:
             raise ValueError("ahead: by='centre' needs follower_car (the follower's box centre)")
         return route_arc(layout, lead, lead_car) > route_arc(layout, follower, follower_car)
-    raise ValueError(f"ahead: by={by!r} must be 'axle' or 'centre'")
+    if by == "extent":
+        if follower_car is None:
+            raise ValueError("ahead: by='extent' needs follower_car (the follower's rearmost corner)")
+        return max(_corner_arcs(layout, lead, lead_car)) >= min(_corner_arcs(layout, follower, follower_car))
+    raise ValueError(f"ahead: by={by!r} must be 'axle', 'centre' or 'extent'")
 
 
 def heading_within(theta_lead: float, theta_follower: float, within: float = FOLLOW_HEADING) -> bool:

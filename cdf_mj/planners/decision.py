@@ -57,7 +57,6 @@ from cdf_mj.model.conflict import (
     ego_plans,
     widened,
 )
-from cdf_mj.model.geometry import box_gap
 from cdf_mj.model.vehicle import CarGeometry
 from cdf_mj.planners.base import DecisionRule, PlannerContext, PlannerInput, Predictor, ThresholdRule
 
@@ -394,9 +393,9 @@ class LayeredRule(RiskRule):
         if not (np.isfinite(lead).all()
                 and road.in_lane_ahead(self._layout, lead, lead_car, ego, within=FOLLOW_WITHIN)):
             return math.inf, math.inf, 0.0, 0.0
-        ex, ey, eth, ev = (float(v) for v in ego)
-        lx, ly, lth, lv = (float(v) for v in lead)
-        gap = box_gap(ego_car.footprint_one(ex, ey, eth), lead_car.footprint_one(lx, ly, lth))
+        eth, ev = float(ego[2]), float(ego[3])
+        lth, lv = float(lead[2]), float(lead[3])
+        gap = road.car_gap(ego_car, ego, lead_car, lead)
         v_lead = lv * math.cos(lth - eth)
         lay = self.layers
         rss = road.rss_distance(ev, v_lead, self._rho, self._max_accel, self._max_brake, lead_car.max_brake)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from cdf_mj.model.road import ahead
 from cdf_mj.planners.base import Planner, PlannerContext, PlannerInput
 
 __all__ = ["ConstantPlanner", "ReactivePlanner"]
@@ -38,8 +39,5 @@ class ReactivePlanner(Planner):
         if not obs.obstacle_in_lane:
             return False
         layout = self._layout
-        (ex, ey, eth, _), (ox, oy, oth, _) = obs.poses.tolist()
-        route = layout.route_ego
-        front = max(route.project_point(float(x), float(y))[0] for x, y in layout.obstacle.footprint_one(ox, oy, oth))
-        tail = min(route.project_point(float(x), float(y))[0] for x, y in layout.ego.footprint_one(ex, ey, eth))
-        return bool(front >= tail)
+        ego, obstacle = obs.poses.tolist()
+        return ahead(layout, obstacle, layout.obstacle, ego, layout.ego, by="extent")
