@@ -7,23 +7,23 @@ Parts, each resumable (the same command goes on where a killed run stopped; resu
 ``OUT/<part>``):
 
 1. **Search** (:func:`cdf_mj.falsify.run.falsify`): ``--runs`` independent CMA-ES
-   searches of ``--budget`` episodes for the first planner (the issue's target: a
+   searches of ``--episodes`` episodes for the first planner (the issue's target: a
    collision of ``cdf`` within 2000 episodes in each of 5 runs), one for each other
    planner; each planner's first run replays its counterexamples on every other planner.
    The first planner's counterexamples are written to ``docs/falsify/`` so that a reader
    can replay them (``cdf-mj episode --preset docs/falsify/cdf/01-seed-S.toml --seed S
    --planner cdf``).
 2. **Probabilities** (:mod:`cdf_mj.falsify.estimate`): for every planner, cross-entropy
-   importance sampling and plain Monte Carlo on the same budget (``--estimate-budget``).
+   importance sampling and plain Monte Carlo on the same budget (``--estimate-episodes``).
 3. **Validation**: on ``--validate`` (a planner whose rate plain Monte Carlo resolves:
    ``cdf``, 1.9 % in a first 1000-episode probe, inside the issue's 0.5-5 %; ``cdf-risk``
    read 2.8 %), ``--validate-episodes`` (20 000) episodes of Monte Carlo against importance
    sampling with a fifth of them: do the intervals overlap?
 4. **Near the default world**: the first planner on the ``near-default`` space (the same
    options, each nominally near the default world's value), both estimators on
-   ``--near-budget`` episodes each.
+   ``--near-episodes`` episodes each.
 5. **A rare case with a reference**: ``cdf-risk`` on the ``rare-stop`` space (the merged car
-   stops in 1 encounter of 10^4), both estimators on ``--rare-budget`` episodes each,
+   stops in 1 encounter of 10^4), both estimators on ``--rare-episodes`` episodes each,
    against the reference 1e-4 x P(failure | the stop), the second factor by plain Monte
    Carlo with the stop pinned (400 episodes).
 
@@ -32,12 +32,15 @@ estimators run with their defaults; the seeds are the runs' seeds 0, 1, ... Resu
 as measured, whichever planner they favour. ::
 
     python scripts/falsify.py                                  # everything (about an hour on 2 cores)
-    python scripts/falsify.py --budget 100 --runs 1 --estimate-budget 200 --validate-episodes 400 \\
-        --near-budget 200 --rare-budget 200 --planners cdf,cdf-risk --doc /tmp/f.md --out /tmp/f  # a look
+    python scripts/falsify.py --episodes 100 --runs 1 --estimate-episodes 200 --validate-episodes 400 \\
+        --near-episodes 200 --rare-episodes 200 --planner cdf,cdf-risk --doc /tmp/f.md --out /tmp/f  # a look
 
 Bad input (an unknown planner, a count out of range, a result directory of other settings)
 is one line ``falsify: error: ...`` and exit status 2; episodes that raised are counted as
-no failure, named on the page, and make the exit status 1.
+no failure, named on the page, and make the exit status 1. The flags are ``cdf-mj``'s
+(``--planner``, a comma-separated list here; ``--episodes`` for a budget); the old
+``--planners``, ``--budget``, ``--estimate-budget``, ``--near-budget`` and ``--rare-budget``
+still work, with a note on stderr once the page is written.
 """
 
 from __future__ import annotations
@@ -53,6 +56,7 @@ from pathlib import Path
 
 from cdf_mj.analysis.metrics import mcnemar_exact, wilson_interval
 from cdf_mj.analysis.pages import ScriptParser, command_line, markdown_table, write_page
+from cdf_mj.cli.args import CLIError, add_option, notes
 from cdf_mj.cli.args import episode_count as _episodes
 from cdf_mj.cli.args import int_in as _int_in
 from cdf_mj.cli.args import out_path as _out_path
@@ -264,20 +268,20 @@ def run(args: argparse.Namespace) -> Parts:
     """Every part's runs (resumable, into ``args.out``)."""
     space, out, q = load_space("default"), Path(args.out), args.quiet
     searches: dict[str, list[FalsifyResult]] = {}
-    for i, planner in enumerate(args.planners):
+    for i, planner in enumerate(args.planner):
         n_runs = args.runs if i == 0 else 1
         searches[planner] = []
         for seed in range(n_runs):
-            _say(q, f"search {planner}, run {seed + 1}/{n_runs}: {args.budget} episodes")
-            compare = [p for p in args.planners if p != planner] if seed == 0 else []
-            searches[planner].append(falsify(space, planner, args.budget, out / f"search-{planner}-{seed}",
+            _say(q, f"search {planner}, run {seed + 1}/{n_runs}: {args.episodes} episodes")
+            compare = [p for p in args.planner if p != planner] if seed == 0 else []
+            searches[planner].append(falsify(space, planner, args.episodes, out / f"search-{planner}-{seed}",
                                              compare=compare, seed=seed, workers=args.workers, figure=False))
     estimates: dict[str, tuple[Estimate, Estimate]] = {}
-    for planner in args.planners:
-        _say(q, f"estimate {planner}: importance sampling and Monte Carlo, {args.estimate_budget} each")
+    for planner in args.planner:
+        _say(q, f"estimate {planner}: importance sampling and Monte Carlo, {args.estimate_episodes} each")
         estimates[planner] = (
-            estimate(space, planner, args.estimate_budget, out / f"ce-{planner}", method="ce", workers=args.workers),
-            estimate(space, planner, args.estimate_budget, out / f"mc-{planner}", method="mc", workers=args.workers))
+            estimate(space, planner, args.estimate_episodes, out / f"ce-{planner}", method="ce", workers=args.workers),
+            estimate(space, planner, args.estimate_episodes, out / f"mc-{planner}", method="mc", workers=args.workers))
     validation = None
     if args.validate != "none":
         _say(q, f"validation {args.validate}: Monte Carlo {args.validate_episodes}, importance sampling "
@@ -287,29 +291,30 @@ def run(args: argparse.Namespace) -> Parts:
                                method="mc", workers=args.workers),
                       estimate(space, args.validate, max(args.validate_episodes // 5, 10),
                                out / f"validate-ce-{args.validate}", method="ce", workers=args.workers))
-    first = args.planners[0]
-    _say(q, f"near the default world: {first} on {NEAR_SPACE}, {args.near_budget} episodes each method")
+    first = args.planner[0]
+    _say(q, f"near the default world: {first} on {NEAR_SPACE}, {args.near_episodes} episodes each method")
     near_space = load_space(NEAR_SPACE)
-    near = (first, estimate(near_space, first, args.near_budget, out / f"near-ce-{first}", method="ce",
+    near = (first, estimate(near_space, first, args.near_episodes, out / f"near-ce-{first}", method="ce",
                             workers=args.workers),
-            estimate(near_space, first, args.near_budget, out / f"near-mc-{first}", method="mc", workers=args.workers))
-    _say(q, f"rare case: {RARE_PLANNER} on {RARE_SPACE}, {args.rare_budget} episodes each method")
+            estimate(near_space, first, args.near_episodes, out / f"near-mc-{first}", method="mc",
+                     workers=args.workers))
+    _say(q, f"rare case: {RARE_PLANNER} on {RARE_SPACE}, {args.rare_episodes} episodes each method")
     rare_space = load_space(RARE_SPACE)
     dim = next(d for d in rare_space.dims if d.key == RARE_KEY)
     assert isinstance(dim, Choice)
     weight = dim.weights[dim.values.index(RARE_VALUE)]
     rare = (RARE_PLANNER, weight,
-            estimate(rare_space, RARE_PLANNER, args.rare_budget, out / "rare-ce", method="ce", workers=args.workers),
-            estimate(rare_space, RARE_PLANNER, args.rare_budget, out / "rare-mc", method="mc", workers=args.workers),
+            estimate(rare_space, RARE_PLANNER, args.rare_episodes, out / "rare-ce", method="ce", workers=args.workers),
+            estimate(rare_space, RARE_PLANNER, args.rare_episodes, out / "rare-mc", method="mc", workers=args.workers),
             estimate(pinned(rare_space, RARE_KEY, RARE_VALUE), RARE_PLANNER, RARE_REFERENCE, out / "rare-reference",
                      method="mc", workers=args.workers))
     column, stop = rare_space.keys.index(RARE_KEY), dim.values.index(RARE_VALUE)
     others = [e for part in ("rare-ce", "rare-mc") for e in _journal(out / part)
               if round(e.point[column]) != stop]
     paired = {planner: {(e.seed, e.point): e.failed for e in _journal(out / f"mc-{planner}") if e.error is None}
-              for planner in args.planners}
+              for planner in args.planner}
     return Parts(space, searches, estimates, validation, near, rare, (sum(e.failed for e in others), len(others)),
-                 paired, args.budget)
+                 paired, args.episodes)
 
 
 def _journal(directory: Path) -> list[Evaluation]:
@@ -322,21 +327,22 @@ def _journal(directory: Path) -> list[Evaluation]:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run every part and write the page; returns the exit status (1 if episodes raised)."""
     p = ScriptParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--planners", type=_planner_list, default=list(PLANNERS),
-                   help=f"comma-separated planners, the first searched --runs times (default {','.join(PLANNERS)})")
-    p.add_argument("--budget", type=_episodes, default=BUDGET, help=f"episodes per search (default {BUDGET})")
+    add_option(p, "--planner", old=("--planners",), type=_planner_list, default=list(PLANNERS), metavar="P[,P...]",
+               help=f"comma-separated planners, the first searched --runs times (default {','.join(PLANNERS)})")
+    add_option(p, "--episodes", old=("--budget",), type=_episodes, default=BUDGET,
+               help=f"episodes per search (default {BUDGET})")
     p.add_argument("--runs", type=_int_in(1, 100, "independent searches"), default=RUNS,
                    help=f"independent searches of the first planner (default {RUNS})")
-    p.add_argument("--estimate-budget", type=_episodes, default=ESTIMATE_BUDGET,
+    add_option(p, "--estimate-episodes", old=("--estimate-budget",), type=_episodes, default=ESTIMATE_BUDGET,
                    help=f"episodes per estimate, each method (default {ESTIMATE_BUDGET})")
     p.add_argument("--validate", default=VALIDATE,
                    help=f"planner of the validation (default {VALIDATE}; 'none' to skip)")
     p.add_argument("--validate-episodes", type=_episodes, default=VALIDATE_EPISODES,
                    help=f"Monte Carlo episodes of the validation (default {VALIDATE_EPISODES}); importance "
                         "sampling gets a fifth")
-    p.add_argument("--near-budget", type=_episodes, default=NEAR_BUDGET,
+    add_option(p, "--near-episodes", old=("--near-budget",), type=_episodes, default=NEAR_BUDGET,
                    help=f"episodes of each estimate near the default world (default {NEAR_BUDGET})")
-    p.add_argument("--rare-budget", type=_episodes, default=RARE_BUDGET,
+    add_option(p, "--rare-episodes", old=("--rare-budget",), type=_episodes, default=RARE_BUDGET,
                    help=f"episodes of each estimate of the rare case (default {RARE_BUDGET})")
     p.add_argument("--workers", type=_workers, default=None, help="worker processes (default: the CPU count)")
     p.add_argument("--out", type=_out_path, default="results/falsify-page", help="result directory")
@@ -344,11 +350,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--figure", type=_out_path, default=None,
                    help=f"the progress figure (default {FIGURE} for docs/FALSIFY.md, else beside --doc)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
-    args = p.parse_args(argv)
-    if len(set(args.planners)) != len(args.planners):
-        p.error(f"--planners names a planner twice: {','.join(args.planners)}")
-    if args.validate != "none" and args.validate not in args.planners:
-        p.error(f"--validate {args.validate} is not among --planners")
+    try:
+        args = p.parse_args(argv)
+    except CLIError as exc:  # a flag and its old spelling together
+        p.error(str(exc))
+    if len(set(args.planner)) != len(args.planner):
+        p.error(f"--planner names a planner twice: {','.join(args.planner)}")
+    if args.validate != "none" and args.validate not in args.planner:
+        p.error(f"--validate {args.validate} is not among --planner")
     doc = Path(args.doc)
     if doc.is_dir():
         p.error(f"--doc {doc} is a directory; give the path of the Markdown page to write")
@@ -362,19 +371,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     progress_figure({k: [r.search for r in v] for k, v in parts.searches.items()}, figure_path,
                     parts.space.failure.margin)
     if official:  # the first planner's counterexamples, for readers to replay
-        shipped = SHIPPED / args.planners[0]
+        shipped = SHIPPED / args.planner[0]
         if shipped.exists():
             shutil.rmtree(shipped)
-        write_counterexamples(parts.space, parts.searches[args.planners[0]][0].counterexamples, shipped)
+        write_counterexamples(parts.space, parts.searches[args.planner[0]][0].counterexamples, shipped)
     command = command_line("scripts/falsify.py", [
-        ("--planners", None if tuple(args.planners) == PLANNERS else ",".join(args.planners)),
-        ("--budget", None if args.budget == BUDGET else args.budget),
+        ("--planner", None if tuple(args.planner) == PLANNERS else ",".join(args.planner)),
+        ("--episodes", None if args.episodes == BUDGET else args.episodes),
         ("--runs", None if args.runs == RUNS else args.runs),
-        ("--estimate-budget", None if args.estimate_budget == ESTIMATE_BUDGET else args.estimate_budget),
+        ("--estimate-episodes", None if args.estimate_episodes == ESTIMATE_BUDGET else args.estimate_episodes),
         ("--validate", None if args.validate == VALIDATE else args.validate),
         ("--validate-episodes", None if args.validate_episodes == VALIDATE_EPISODES else args.validate_episodes),
-        ("--near-budget", None if args.near_budget == NEAR_BUDGET else args.near_budget),
-        ("--rare-budget", None if args.rare_budget == RARE_BUDGET else args.rare_budget)])
+        ("--near-episodes", None if args.near_episodes == NEAR_BUDGET else args.near_episodes),
+        ("--rare-episodes", None if args.rare_episodes == RARE_BUDGET else args.rare_episodes)])
     relative = Path(os.path.relpath(figure_path.resolve(), doc.resolve().parent)).as_posix()
     write_page(doc, page(parts, relative), command)
     _say(args.quiet, f"wrote {doc}, {figure_path}")
@@ -384,8 +393,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if errors:
         print(f"{PROG}: {errors} episode(s) raised (counted as no failure); see the journals in {args.out}",
               file=sys.stderr)
-        return 1
-    return 0
+    for text in notes(args):  # old spellings, once the page is written (an error stays one line)
+        print(f"{PROG}: note: {text}", file=sys.stderr)
+    return 1 if errors else 0
 
 
 if __name__ == "__main__":

@@ -11,7 +11,7 @@ each baseline (exact McNemar test on the discordant seeds), and the issue's targ
 (CDF avoided by the paper's formula >= 97 %, false alarms <= 3 % of episodes)::
 
     python scripts/mismatch.py                                   # 200 seeds from 1000, all presets
-    python scripts/mismatch.py --episodes 5 --presets paper,stop-and-wait --out /tmp/mm --doc /tmp/mm.md
+    python scripts/mismatch.py --episodes 5 --preset paper,stop-and-wait --out /tmp/mm --doc /tmp/mm.md
 
 The CDF always runs with ``CDFConfig()`` (its default layered rule: a graded command that
 slows gently, brakes hard only in an emergency or behind a car too close, and releases;
@@ -20,7 +20,9 @@ deceleration): its parameters and the rule's thresholds were chosen on seeds 0-1
 the default seeds 1000-1199 are held out. Every metric is the one of
 :mod:`cdf_mj.analysis.metrics` and :mod:`cdf_mj.records`. Progress goes to stderr. Bad
 input (an unknown or broken preset, a result directory of other settings) is one line
-``mismatch: error: ...`` and exit status 2, before anything runs.
+``mismatch: error: ...`` and exit status 2, before anything runs. The flags are ``cdf-mj``'s
+(``--seed``, ``--planner``; ``--preset`` a comma-separated list here); the old ``--seed0``,
+``--planners`` and ``--presets`` still work, with a note on stderr once the page is written.
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ from typing import Any, NoReturn
 from cdf_mj.analysis.metrics import PlannerMetrics, mcnemar_exact, paired_counts, planner_metrics
 from cdf_mj.analysis.pages import ScriptParser, exit_status, fail, markdown_table, write_page
 from cdf_mj.analysis.tables import format_number, format_percent, format_rate
+from cdf_mj.cli.args import CLIError, add_option, notes
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
 from cdf_mj.planners.registry import PLANNERS
@@ -214,38 +217,41 @@ def _names(text: str) -> list[str]:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the evaluation; returns the exit status (1 if some episodes failed)."""
     p = ScriptParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--presets", type=_names, default=None,
-                   help="comma-separated presets or .toml files (default: every shipped preset)")
+    add_option(p, "--preset", old=("--presets",), type=_names, default=None, metavar="P[,P...]",
+               help="comma-separated presets or .toml files (default: every shipped preset)")
     p.add_argument("--episodes", type=int, default=200, help="seeds per preset (default 200)")
-    p.add_argument("--seed0", type=int, default=1000, help="first seed (default 1000: held out)")
-    p.add_argument("--planners", type=_names, default=list(PLANNERS_DEFAULT),
-                   help=f"comma-separated planners (default {','.join(PLANNERS_DEFAULT)}); cdf is compared "
-                        "with each of the others")
+    add_option(p, "--seed", old=("--seed0",), type=int, default=1000, help="first seed (default 1000: held out)")
+    add_option(p, "--planner", old=("--planners",), type=_names, default=list(PLANNERS_DEFAULT), metavar="P[,P...]",
+               help=f"comma-separated planners (default {','.join(PLANNERS_DEFAULT)}); cdf is compared "
+                    "with each of the others")
     p.add_argument("--workers", type=int, default=None, help="worker processes (default: the CPU count)")
     p.add_argument("--out", default="results/mismatch", help="result directory, one folder per preset "
                                                              "(default results/mismatch)")
     p.add_argument("--doc", default="docs/MISMATCH.md", help="Markdown page written (default docs/MISMATCH.md)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
-    args = p.parse_args(argv)
-    if args.episodes < 1 or args.seed0 < 0 or (args.workers is not None and args.workers < 1):
-        _fail("--episodes and --workers must be at least 1, --seed0 at least 0")
-    unknown = [n for n in args.planners if n not in PLANNERS]
-    if unknown or not args.planners:
+    try:
+        args = p.parse_args(argv)
+    except CLIError as exc:  # a flag and its old spelling together
+        _fail(str(exc))
+    if args.episodes < 1 or args.seed < 0 or (args.workers is not None and args.workers < 1):
+        _fail("--episodes and --workers must be at least 1, --seed at least 0")
+    unknown = [n for n in args.planner if n not in PLANNERS]
+    if unknown or not args.planner:
         _fail(f"unknown planner(s) {', '.join(unknown) or '(none)'}: choose from {', '.join(sorted(PLANNERS))}")
-    names = args.presets if args.presets is not None else scenario_preset_names()
+    names = args.preset if args.preset is not None else scenario_preset_names()
     try:  # every preset is read and checked before anything runs
         presets = [read_preset(n) for n in names]
     except ValueError as exc:
         _fail(str(exc))
-    seeds = range(args.seed0, args.seed0 + args.episodes)
+    seeds = range(args.seed, args.seed + args.episodes)
     results = []
     for i, preset in enumerate(presets, start=1):
         if not args.quiet:
-            print(f"[{i}/{len(presets)}] preset {preset.name}: {args.episodes} seeds from {args.seed0}, "
-                  f"planners {','.join(args.planners)}", file=sys.stderr)
+            print(f"[{i}/{len(presets)}] preset {preset.name}: {args.episodes} seeds from {args.seed}, "
+                  f"planners {','.join(args.planner)}", file=sys.stderr)
         config = preset.config()
         try:
-            run = run_experiment(Path(args.out) / preset.name, seeds, args.planners, config, CDFConfig(),
+            run = run_experiment(Path(args.out) / preset.name, seeds, args.planner, config, CDFConfig(),
                                  progress=not args.quiet, workers=args.workers, resume=True)
         except SettingsMismatchError as exc:
             _fail(f"{exc} with --out, or remove {Path(args.out) / preset.name} to run preset {preset.name} again")
@@ -254,14 +260,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         results.append(PresetResult(preset, config, run.records, run.failed))
     command = "python scripts/mismatch.py" + "".join(
         f" {flag} {shlex.quote(str(v))}" for flag, v, default in (
-            ("--episodes", args.episodes, 200), ("--seed0", args.seed0, 1000),
-            ("--planners", ",".join(args.planners), ",".join(PLANNERS_DEFAULT)),
-            ("--presets", ",".join(names), ",".join(scenario_preset_names()))) if v != default)
-    doc = write_page(args.doc, mismatch_markdown(results, args.planners), command)
+            ("--episodes", args.episodes, 200), ("--seed", args.seed, 1000),
+            ("--planner", ",".join(args.planner), ",".join(PLANNERS_DEFAULT)),
+            ("--preset", ",".join(names), ",".join(scenario_preset_names()))) if v != default)
+    doc = write_page(args.doc, mismatch_markdown(results, args.planner), command)
     failed = sum(r.failed for r in results)
     if not args.quiet:
         print(f"wrote {doc}; records in {args.out}/<preset>/episodes.jsonl", file=sys.stderr)
-    return exit_status(PROG, failed)
+    status = exit_status(PROG, failed)
+    for text in notes(args):  # old spellings, once the page is written (an error stays one line)
+        print(f"{PROG}: note: {text}", file=sys.stderr)
+    return status
 
 
 if __name__ == "__main__":

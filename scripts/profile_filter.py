@@ -10,11 +10,11 @@ overlap their parents), with its calls per tick. The figures of docs/PERFORMANCE
 
     taskset -c 0 python scripts/profile_filter.py --particles 1000 --replays 20
 
-and ``--episode cdf`` profiles whole episodes of a planner instead (50 seeds, no
+and ``--planner cdf`` profiles whole episodes of a planner instead (50 seeds, no
 counterfactual) and prints the share of ``mj_step`` and of the functions with the most
-time of their own::
+time of their own (the old spelling ``--episode cdf`` still works, with a note)::
 
-    taskset -c 0 python scripts/profile_filter.py --episode cdf
+    taskset -c 0 python scripts/profile_filter.py --planner cdf
 
 cProfile adds its own overhead to every Python call, so shares, not absolute times, are
 what to read.
@@ -29,6 +29,7 @@ import sys
 
 import numpy as np
 
+from cdf_mj.cli.args import CLIError, add_option, notes
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.inference.particle_filter import ParticleFilter
 from cdf_mj.planners.base import PlannerContext
@@ -48,28 +49,39 @@ ROWS = [
 ]
 
 
+PROG = "profile_filter"
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     parser.add_argument("--particles", type=int, default=1000, help="N (default 1000)")
     parser.add_argument("--replays", type=int, default=20, help="replays of the episode (default 20)")
-    parser.add_argument("--episode", metavar="PLANNER", default=None,
-                        help="profile 50 whole episodes of this planner instead")
-    args = parser.parse_args(argv)
+    add_option(parser, "--planner", old=("--episode",), metavar="PLANNER", default=None,
+               help="profile 50 whole episodes of this planner instead")
+    try:
+        args = parser.parse_args(argv)
+    except CLIError as exc:  # a flag and its old spelling together
+        parser.error(str(exc))
     if args.particles < 1 or args.replays < 1:
         parser.error("--particles and --replays must be positive")
-    if args.episode is not None:
-        return _episodes(args.episode)
+    status = _episodes(args.planner) if args.planner is not None else _ticks(args.particles, args.replays)
+    for text in notes(args):  # old spellings, once the profile is printed
+        print(f"{PROG}: note: {text}", file=sys.stderr)
+    return status
 
+
+def _ticks(particles: int, replays: int) -> int:
+    """Profile the filter's ticks (``replays`` replays of seed 1 at ``particles``) and print the shares."""
     scene, cfg = Scene.load(), ScenarioConfig()
     poses = np.array(run_episode(cfg, 1, "constant", scene, trace=True).trace["poses"])
-    pf = ParticleFilter.from_layout(scene.layout(), CDFConfig(n_particles=args.particles), np.random.default_rng(0),
+    pf = ParticleFilter.from_layout(scene.layout(), CDFConfig(n_particles=particles), np.random.default_rng(0),
                                     cfg.timing.dt)
 
     rule = RiskRule(CDFConfig().risk)
     rule.reset(PlannerContext.of(scene.layout(), cfg))
 
     def replay() -> None:
-        for _ in range(args.replays):
+        for _ in range(replays):
             pf.reset(poses[0])
             for k in range(1, len(poses)):
                 pf.predict(poses[k - 1])
@@ -82,14 +94,14 @@ def main(argv: list[str] | None = None) -> int:
     replay()
     profiler.disable()
     stats = pstats.Stats(profiler).stats  # {(file, line, name): (cc, ncalls, tottime, cumtime, callers)}
-    ticks = args.replays * (len(poses) - 1)
+    ticks = replays * (len(poses) - 1)
     cum: dict[tuple[str, str], tuple[int, float]] = {}
     for (path, _line, name), (_cc, ncalls, _tt, ct, _callers) in stats.items():
         key = (path.rsplit("/", 1)[-1], name)
         calls, total = cum.get(key, (0, 0.0))
         cum[key] = (calls + ncalls, total + ct)
     tick = cum[(PF, "predict")][1] + cum[(PF, "update")][1] + cum[("decision.py", "assess")][1]
-    print(f"N = {args.particles}, {ticks} ticks; shares of predict + update + the risk rule's assessment "
+    print(f"N = {particles}, {ticks} ticks; shares of predict + update + the risk rule's assessment "
           "(cumulative, nested rows overlap their parents)\n")
     print("| function | share of a tick | calls per tick |\n|---|---|---|")
     for key in ROWS:

@@ -7,8 +7,8 @@ checkouts and comparing the dumps line by line. A dump holds, one JSON line each
 
 - ``reproduce``: the paper's experiment, ``cdf`` and ``reactive`` on seeds 0-999 of the
   default world, labelled (the records ``cdf-mj reproduce`` writes);
-- ``planners``: every registered planner on ``--seeds`` held-out seeds of the default world,
-  with traces;
+- ``planners``: every registered planner on ``--episodes`` held-out seeds (from ``--seed``)
+  of the default world, with traces;
 - ``presets``: every preset (the stress suite, the belief presets) with ``cdf``,
   ``imm-layered`` and ``reactive`` on the same seeds, with traces;
 - ``env``: Gymnasium trajectories (observations, rewards, infos) under seeded random
@@ -20,8 +20,10 @@ Run it on each checkout (``PYTHONPATH=CHECKOUT`` chooses the package), then comp
     PYTHONPATH=/tmp/new python scripts/record_identity.py dump /tmp/after.jsonl
     python scripts/record_identity.py compare /tmp/before.jsonl /tmp/after.jsonl
 
-A quick check while working: dump a few seeds (``--seeds 5 --groups planners presets env``)
-and compare with ``--subset`` against a full dump.
+A quick check while working: dump a few seeds (``--episodes 5 --groups planners presets env``)
+and compare with ``--subset`` against a full dump. The flags are the ``cdf-mj`` ones
+(``--seed``, ``--episodes``); the old ``--seed0`` and ``--seeds`` (a count here) still work,
+with a note on stderr after the dump.
 
 ``compare`` prints how many lines of each group agree, names the first keys that differ,
 and exits 1 when any do. The default held-out seeds, 700000-700119, are a range no page
@@ -37,6 +39,7 @@ from collections.abc import Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
+PROG = "record_identity"
 _GROUPS = ("reproduce", "planners", "presets", "env")
 _PRESET_PLANNERS = ("cdf", "imm-layered", "reactive")
 
@@ -158,23 +161,50 @@ def compare(before: str, after: str, show: int = 10, subset: bool = False) -> in
     return 1 if differ or only else 0
 
 
+def _option(parser: argparse.ArgumentParser, name: str, old: str, **kwargs: Any) -> None:
+    """``name``, with ``old`` its old spelling (:func:`cdf_mj.cli.args.add_option`, which leaves a
+    note); a checkout older than the one vocabulary (issue 34) takes both, without one."""
+    try:
+        from cdf_mj.cli.args import add_option
+    except ImportError:
+        parser.add_argument(name, old, **kwargs)
+    else:
+        add_option(parser, name, old=(old,), **kwargs)
+
+
+def _notes(args: argparse.Namespace) -> list[str]:
+    """The old spellings' notes (none where the checkout keeps none)."""
+    try:
+        from cdf_mj.cli.args import notes
+    except ImportError:
+        return []
+    return notes(args)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="record_identity", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
     d = sub.add_parser("dump", help="run the episodes and write one JSON line each")
     d.add_argument("out")
     d.add_argument("--groups", nargs="+", choices=_GROUPS, default=list(_GROUPS))
-    d.add_argument("--seed0", type=int, default=700000, help="first held-out seed (default 700000)")
-    d.add_argument("--seeds", type=int, default=120, help="held-out seeds per planner and preset (default 120)")
+    _option(d, "--seed", "--seed0", type=int, default=700000, help="first held-out seed (default 700000)")
+    _option(d, "--episodes", "--seeds", type=int, default=120,
+            help="held-out seeds per planner and preset (default 120)")
     d.add_argument("--workers", type=int, default=2)
     c = sub.add_parser("compare", help="compare two dumps; exit 1 if any line differs")
     c.add_argument("before")
     c.add_argument("after")
     c.add_argument("--subset", action="store_true", help="compare only the keys of the second dump")
-    args = parser.parse_args(argv)
-    if args.command == "dump":
-        return dump(args.out, args.groups, args.seed0, args.seeds, args.workers)
-    return compare(args.before, args.after, subset=args.subset)
+    try:
+        args = parser.parse_args(argv)
+    except ValueError as exc:  # cdf_mj.cli.args.CLIError: a flag and its old spelling together
+        parser.error(str(exc))
+    if args.command != "dump":
+        return compare(args.before, args.after, subset=args.subset)
+    status = dump(args.out, args.groups, args.seed, args.episodes, args.workers)
+    for text in _notes(args):
+        print(f"{PROG}: note: {text}", file=sys.stderr)
+    return status
 
 
 if __name__ == "__main__":

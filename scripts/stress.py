@@ -19,7 +19,7 @@ same command continues a killed run), then write a Markdown page (default docs/S
 - the issue's targets for ``cdf`` on the presets that have one, met or missed::
 
     python scripts/stress.py                                      # everything (long)
-    python scripts/stress.py --episodes 4 --presets stress-merge-brakes --doc /tmp/s.md
+    python scripts/stress.py --episodes 4 --preset stress-merge-brakes --doc /tmp/s.md
 
 Seeds: from 100000 by default. No parameter was chosen there (the CDF's and the risk
 rule's on seeds 0-199, docs/PARAMETERS.md and docs/DECISION.md), and the issue that asked
@@ -34,6 +34,9 @@ noise, as a real ego knows its own hardware). Results are as measured: a
 failure here is a finding, not an error. Progress goes to stderr. Bad input (an unknown
 or broken preset, an unknown planner, a count out of range, a result directory of other
 settings) is one line ``stress: error: ...`` and exit status 2, before anything runs.
+The flags are ``cdf-mj``'s (``--seed``, ``--planner``; ``--preset`` a comma-separated list
+here); the old ``--seed0``, ``--planners``, ``--presets`` and ``--parts`` still work, with a
+note on stderr once the page is written.
 """
 
 from __future__ import annotations
@@ -50,7 +53,7 @@ from cdf_mj.analysis.metrics import Rate, mcnemar_exact, of_planner, paired_coun
 from cdf_mj.analysis.pages import ScriptParser, command_line, markdown_table, verdict, write_page
 from cdf_mj.analysis.safety import SafetyParams
 from cdf_mj.analysis.tables import format_number, format_rate, margin_table
-from cdf_mj.cli.args import CLIError
+from cdf_mj.cli.args import CLIError, add_option, notes
 from cdf_mj.cli.args import episode_count as _episodes
 from cdf_mj.cli.args import out_path as _out_path
 from cdf_mj.cli.args import planner_list as _planner_list
@@ -272,65 +275,68 @@ def _preset_list(text: str) -> list[str]:
 
 def _command(args: argparse.Namespace, names: Sequence[str]) -> str:
     """The command line that makes this page (options that change it, when not the default)."""
-    given = (("--presets", ",".join(names), ",".join(default_presets())), ("--episodes", args.episodes, EPISODES),
-             ("--seed0", args.seed0, SEED0), ("--planners", ",".join(args.planners), ",".join(PLANNERS_DEFAULT)))
+    given = (("--preset", ",".join(names), ",".join(default_presets())), ("--episodes", args.episodes, EPISODES),
+             ("--seed", args.seed, SEED0), ("--planner", ",".join(args.planner), ",".join(PLANNERS_DEFAULT)))
     return command_line("scripts/stress.py", [(flag, v) for flag, v, default in given if v != default])
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the suite and write the page; returns the exit status (1 if some episodes failed)."""
     p = ScriptParser(prog=PROG, description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--presets", "--parts", type=_preset_list, default=None,
-                   help=f"comma-separated presets or .toml files (default: {REFERENCE} and every stress-* preset)")
+    add_option(p, "--preset", old=("--presets", "--parts"), type=_preset_list, default=None, metavar="P[,P...]",
+               help=f"comma-separated presets or .toml files (default: {REFERENCE} and every stress-* preset)")
     p.add_argument("--episodes", type=_episodes, default=EPISODES, help=f"seeds per preset (default {EPISODES})")
-    p.add_argument("--seed0", type=_non_negative_int, default=SEED0, help=f"first seed (default {SEED0}: held out)")
-    p.add_argument("--planners", type=_planner_list, default=list(PLANNERS_DEFAULT),
-                   help=f"comma-separated planners (default {','.join(PLANNERS_DEFAULT)}); cdf is compared with "
-                        "each of the others")
+    add_option(p, "--seed", old=("--seed0",), type=_non_negative_int, default=SEED0,
+               help=f"first seed (default {SEED0}: held out)")
+    add_option(p, "--planner", old=("--planners",), type=_planner_list, default=list(PLANNERS_DEFAULT),
+               metavar="P[,P...]", help=f"comma-separated planners (default {','.join(PLANNERS_DEFAULT)}); cdf is "
+                                        "compared with each of the others")
     p.add_argument("--workers", type=_workers, default=None, help="worker processes (default: the CPU count)")
     p.add_argument("--out", type=_out_path, default="results/stress",
                    help="result directory, one folder per preset (default results/stress)")
     p.add_argument("--doc", type=_out_path, default="docs/STRESS.md", help="Markdown page written "
                                                                            "(default docs/STRESS.md)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
-    args = p.parse_args(argv)
     try:
-        seeds = _seed_range(args.seed0, args.episodes)
+        args = p.parse_args(argv)
+        seeds = _seed_range(args.seed, args.episodes)
     except CLIError as exc:
         p.error(str(exc))
-    if len(set(args.planners)) != len(args.planners):
-        p.error(f"--planners names a planner twice: {','.join(args.planners)}")
+    if len(set(args.planner)) != len(args.planner):
+        p.error(f"--planner names a planner twice: {','.join(args.planner)}")
     doc = Path(args.doc)
     if doc.is_dir():
         p.error(f"--doc {doc} is a directory; give the path of the Markdown page to write")
-    names = args.presets if args.presets is not None else default_presets()
+    names = args.preset if args.preset is not None else default_presets()
     try:  # every preset is read and checked before anything runs
         presets = [read_preset(n) for n in names]
     except ValueError as exc:
         p.error(str(exc))
     twice = sorted(n for n, k in Counter(q.name for q in presets).items() if k > 1)
     if twice:
-        p.error(f"--presets names {twice[0]!r} twice (results go in OUT/<name>)")
+        p.error(f"--preset names {twice[0]!r} twice (results go in OUT/<name>)")
     runs = []
     for i, preset in enumerate(presets, start=1):
         if not args.quiet:
-            print(f"[{i}/{len(presets)}] {preset.name}: seeds {seeds[0]}-{seeds[-1]}, {','.join(args.planners)}",
+            print(f"[{i}/{len(presets)}] {preset.name}: seeds {seeds[0]}-{seeds[-1]}, {','.join(args.planner)}",
                   file=sys.stderr)
         out = Path(args.out) / preset.name
         try:
-            run = run_experiment(out, seeds, args.planners, preset.config(), CDFConfig(), progress=not args.quiet,
+            run = run_experiment(out, seeds, args.planner, preset.config(), CDFConfig(), progress=not args.quiet,
                                  workers=args.workers, resume=True)
         except SettingsMismatchError as exc:
             p.error(f"{exc} with --out, or remove {out} to run preset {preset.name} again")
         except ValueError as exc:
             p.error(str(exc))
         runs.append(PresetRun(preset, completed(run.records), run.failed))
-    write_page(doc, stress_markdown(runs, args.planners), _command(args, names))
+    write_page(doc, stress_markdown(runs, args.planner), _command(args, names))
     if not args.quiet:
         print(f"wrote {doc}; records in {args.out}/<preset>/episodes.jsonl", file=sys.stderr)
     failed = {run.preset.name: run.failed for run in runs if run.failed}
     for name, n in failed.items():  # the page says so too; the records hold the error and traceback
         print(f"{PROG}: {name}: {n} episode(s) failed; see {Path(args.out) / name}/episodes.jsonl", file=sys.stderr)
+    for text in notes(args):  # old spellings, once the page is written (an error stays one line)
+        print(f"{PROG}: note: {text}", file=sys.stderr)
     return 1 if failed else 0
 
 

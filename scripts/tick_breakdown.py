@@ -10,7 +10,7 @@ tick, inclusive of what it calls (nested rows overlap)::
     python scripts/tick_breakdown.py imm-layered --episodes 10
 
 The timers add about half a microsecond a call; cProfile's shares are in
-``scripts/profile_filter.py --episode PLANNER``. Bad arguments are one line
+``scripts/profile_filter.py --planner PLANNER``. Bad arguments are one line
 ``tick_breakdown: error: ...`` and exit status 2.
 """
 

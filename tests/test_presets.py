@@ -196,7 +196,7 @@ def _script():
 
 
 def test_mismatch_refuses_a_broken_preset_before_running(tmp_path):
-    proc = subprocess.run([sys.executable, str(SCRIPT), "--presets", "default,nope", "--out", str(tmp_path / "r"),
+    proc = subprocess.run([sys.executable, str(SCRIPT), "--preset", "default,nope", "--out", str(tmp_path / "r"),
                            "--doc", str(tmp_path / "M.md")], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2
     assert proc.stderr.strip().splitlines() == [proc.stderr.strip()]
@@ -206,7 +206,7 @@ def test_mismatch_refuses_a_broken_preset_before_running(tmp_path):
 
 def test_mismatch_runs_every_preset_end_to_end(tmp_path):
     out, doc = tmp_path / "results", tmp_path / "MISMATCH.md"
-    argv = [sys.executable, str(SCRIPT), "--episodes", "2", "--seed0", "1000", "--workers", "1", "--quiet",
+    argv = [sys.executable, str(SCRIPT), "--episodes", "2", "--seed", "1000", "--workers", "1", "--quiet",
             "--out", str(out), "--doc", str(doc)]
     proc = subprocess.run(argv, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]

@@ -60,7 +60,7 @@ RESULTS_PAGES: dict[str, str] = {
 #: Options of the page scripts that leave parts out of a page (parts or presets): a page in
 #: ``docs/`` covers every part. ``--episodes`` (fewer seeds per part) may be given; the stamp
 #: says so, and each table gives its own counts and intervals.
-SMALL_RUN_FLAGS = ("--parts", "--presets")
+SMALL_RUN_FLAGS = ("--parts", "--preset", "--presets")
 
 _STAMP = re.compile(r"<!-- made by: (?P<command>.+?) \| cdf_mj (?P<version>\S+) -->")
 
