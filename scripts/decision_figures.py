@@ -112,7 +112,7 @@ def series(rec: EpisodeRecord, scene: Scene) -> dict[str, np.ndarray]:
         closing = closing_speed(layout, poses[k])
         if closing > 1e-6:
             ttc[k] = gap / closing
-        if in_lane_ahead(layout, obs, layout.obstacle, ego, within=FOLLOW_WITHIN):  # as the follow layer sees it
+        if in_lane_ahead(layout, obs, layout.obstacle, ego, layout.ego, within=FOLLOW_WITHIN):  # as the follow layer
             gap_ahead[k] = gap
             rss[k] = params.rss_distance(ego[3], obs[3] * math.cos(obs[2] - ego[2]))
     h = rec.planner_info["history"]

@@ -51,7 +51,7 @@ def _box(layout, pose):
 def test_a_car_half_in_the_lane_is_in_it_both_ways(layout):
     box = _box(layout, [10.0, 0.0, 0.0])  # astride the centre line: y in [-0.9, 0.9]
     assert in_lane(layout, box, by="corner") and in_lane(layout, box, by="overlap")
-    assert in_lane(layout, box)  # the corner test is the default
+    assert in_lane(layout, box)  # the boxes meeting is the one definition
 
 
 def test_a_car_touching_the_lane_edge_is_in_it_both_ways_and_a_hair_off_in_neither(layout):
@@ -66,8 +66,8 @@ def test_a_crossing_car_longer_than_the_lane_is_wide_is_in_it_only_by_overlap(la
     # Heading south, its box centred on the centre line: it spans y in [-4.15, 0.45], past
     # both edges of the 3.7 m lane, with no corner inside it.
     box = _box(layout, [5.0, LANE_Y + 1.35, -math.pi / 2])
-    assert not in_lane(layout, box, by="corner")
-    assert in_lane(layout, box, by="overlap")
+    assert not in_lane(layout, box, by="corner")  # the reading of 0.3 missed it
+    assert in_lane(layout, box, by="overlap") and in_lane(layout, box)
 
 
 def test_a_corner_in_the_lane_always_means_the_boxes_overlap(layout):
@@ -103,9 +103,10 @@ def test_ahead_by_rear_axle_and_by_box_centre_disagree_for_cars_of_different_len
     ours_level = [12.0, -LANE_Y, 0.0, 10.0]
     assert ahead(layout, ours_level, ours, ego, ours, by="axle") and ahead(layout, ours_level, ours, ego, ours,
                                                                           by="centre")
-    assert ahead(layout, ours_level, ours, ego)  # the rear axle is the default
+    assert ahead(layout, level_van, van, ego, ours)  # the box centres are the one definition
+    assert ahead(layout, ours_level, ours, ego, None, by="axle")  # the reading of 0.3 needs no follower car
     with pytest.raises(ValueError, match="by='centre' needs follower_car"):
-        ahead(layout, level_van, van, ego, by="centre")
+        ahead(layout, level_van, van, ego, None)
 
 
 def test_ahead_by_extent_counts_a_car_level_with_the_ego_or_reaching_its_tail(layout):
@@ -128,7 +129,7 @@ def test_ahead_by_extent_counts_a_car_level_with_the_ego_or_reaching_its_tail(la
     same = [11.0, LANE_Y, 0.0, 10.0]  # the boundary counts: a car is ahead of its own tail
     assert ahead(layout, same, ours, ego, ours, by="extent") and not ahead(layout, same, ours, ego, ours)
     with pytest.raises(ValueError, match="by='extent' needs follower_car"):
-        ahead(layout, same, ours, ego, by="extent")
+        ahead(layout, same, ours, ego, None, by="extent")
     with pytest.raises(ValueError, match="must be 'axle', 'centre' or 'extent'"):
         ahead(layout, same, ours, ego, ours, by="front")  # type: ignore[arg-type]
 
@@ -154,20 +155,22 @@ def test_heading_within_the_following_heading(layout):
 
 
 def test_in_lane_ahead_with_and_without_the_heading_check(layout):
-    car = layout.obstacle
+    car, ours = layout.obstacle, layout.ego
     ego = [0.0, LANE_Y, 0.0, 10.0]
     merged = [20.0, LANE_Y, 0.0, 8.0]
     turning = [20.0, LANE_Y, math.radians(60.0), 8.0]  # still turning into the lane
-    assert in_lane_ahead(layout, merged, car, ego) and in_lane_ahead(layout, merged, car, ego, within=FOLLOW_HEADING)
-    assert in_lane_ahead(layout, turning, car, ego)  # the episode's end waits for it
-    assert not in_lane_ahead(layout, turning, car, ego, within=FOLLOW_HEADING)  # not yet followed
-    assert in_lane_ahead(layout, turning, car, ego, within=math.pi / 2)  # the layered rule's follow layer
-    assert not in_lane_ahead(layout, [20.0, -LANE_Y, 0.0, 8.0], car, ego)  # the other lane
-    assert not in_lane_ahead(layout, [-20.0, LANE_Y, 0.0, 8.0], car, ego)  # behind
-    # The safety metrics' variant: boxes overlapping the lane, box centres compared.
+    assert in_lane_ahead(layout, merged, car, ego, ours)
+    assert in_lane_ahead(layout, merged, car, ego, ours, within=FOLLOW_HEADING)
+    assert in_lane_ahead(layout, turning, car, ego, ours)  # the episode's end waits for it
+    assert not in_lane_ahead(layout, turning, car, ego, ours, within=FOLLOW_HEADING)  # not yet followed
+    assert in_lane_ahead(layout, turning, car, ego, ours, within=math.pi / 2)  # the layered rule's follow layer
+    assert not in_lane_ahead(layout, [20.0, -LANE_Y, 0.0, 8.0], car, ego, ours)  # the other lane
+    assert not in_lane_ahead(layout, [-20.0, LANE_Y, 0.0, 8.0], car, ego, ours)  # behind
+    # A crossing car straddling the lane: in it and ahead (box meets lane, centres compared),
+    # which the reading of 0.3 (a corner inside, rear axles) missed.
     crossing = [5.0, LANE_Y + 1.35, -math.pi / 2, 5.0]
-    assert not in_lane_ahead(layout, crossing, car, ego)
-    assert in_lane_ahead(layout, crossing, car, ego, layout.ego, lane="overlap", by="centre")
+    assert in_lane_ahead(layout, crossing, car, ego, ours)
+    assert not in_lane_ahead(layout, crossing, car, ego, None, lane="corner", by="axle")
 
 
 # ------------------------------------------------------------------------------ gap

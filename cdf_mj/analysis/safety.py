@@ -27,9 +27,10 @@ Definitions in brief (frames and names as :class:`cdf_mj.model.layout.Layout`):
   the unit vector from the ego's closest point to the obstacle's; TTC = gap / closing speed
   where that is > 0;
 - *in the lane*: the obstacle's box meets the ego lane's box
-  (:func:`cdf_mj.model.road.in_lane` ``by="overlap"``); *ahead in the lane*: in the lane,
-  and its box centre's arc length on the ego's route is greater than the ego's
-  (:func:`cdf_mj.model.road.ahead` ``by="centre"``); the RSS distance is
+  (:func:`cdf_mj.model.road.in_lane`); *ahead in the lane*: in the lane, and its box
+  centre's arc length on the ego's route is greater than the ego's
+  (:func:`cdf_mj.model.road.ahead`): the world's words, which the episode's end and car
+  following ask too; the RSS distance is
   :func:`cdf_mj.model.road.rss_distance` with :class:`SafetyParams`
   (:meth:`SafetyParams.rss_distance`);
 - *conflict area*: the square of the ego lane's width centred on the point of the ego's
@@ -351,14 +352,14 @@ class SafetyRecorder:
         ego_box, obs_box = areas.ego.footprint_one(*e[:3]), areas.obstacle.footprint_one(*o[:3])
         gap = box_gap(ego_box, obs_box)
         self._min_gap = _lower(self._min_gap, gap)
-        in_lane = road.in_lane(areas.layout, obs_box, by="overlap")
+        in_lane = road.in_lane(areas.layout, obs_box)
         closing: float | None = None
         if in_lane or (braking and self._brake_time is None):
             closing = _closing(areas.ego, areas.obstacle, e, o, gap)
         ttc = (gap / closing if closing > 0.0 else None) if closing is not None else None
         if in_lane and ttc is not None:
             self._min_ttc = _lower(self._min_ttc, ttc)
-        self._was_following = in_lane and road.ahead(areas.layout, o, areas.obstacle, e, areas.ego, by="centre")
+        self._was_following = in_lane and road.ahead(areas.layout, o, areas.obstacle, e, areas.ego)
         if self._was_following:
             self._following += 1
             if e[3] > 0.0:

@@ -7,37 +7,42 @@ metrics. ::
 
     from cdf_mj.model.road import in_lane, in_lane_ahead, car_gap, idm, rss_distance
 
-    in_lane(layout, car.footprint_one(x, y, theta))                  # a corner in the ego's lane
-    in_lane_ahead(layout, lead, lead_car, follower, within=FOLLOW_HEADING)
+    in_lane(layout, car.footprint_one(x, y, theta))                  # its box meets the ego's lane
+    in_lane_ahead(layout, lead, lead_car, follower, follower_car, within=FOLLOW_HEADING)
     car_gap(ego_car, ego_pose, lead_car, lead_pose)                  # [m] bumper to bumper
     rss_distance(v_r, v_f, rho, a_acc, b_min, b_max)                 # [m]
 
-Where callers meant different things by one word, the difference is an explicit argument
-(the records depend on each; choosing one is a change of its own, to be measured):
+One definition each, used by every caller. *In the lane*: the car's collision box meets the
+lane's box (a crossing car longer than the lane is wide straddles it with no corner inside,
+and is in it). *Ahead*: the car's box centre is further along the ego's route than the
+other's (rear axles would order two cars of different lengths wrongly when they are
+nearly level). Until version 0.3 the world's measurement, the sensor, the monitor, the
+episode's end and car following asked for a corner inside the lane and compared rear
+axles, while the safety metrics used these; the older readings stay as ``by="corner"``
+and ``by="axle"`` for comparison. Choosing one changed no record: 13 424 episodes of
+``scripts/record_identity.py`` (every planner and every preset on held-out seeds, the
+1000-seed reproduction, Gymnasium trajectories) came out byte-identical.
+
+Where callers ask different questions, the difference is an explicit argument:
 
 ============== ============================ ===============================================
 word           variant                      caller, and why
 ============== ============================ ===============================================
-in_lane        ``by="corner"``              the world's measurement (``obstacle_in_lane``),
-                                            the sensor's noisy flag, the monitor, the
-                                            episode's end and car following: a corner of
-                                            the car's box inside the lane, what the
-                                            filter's observation says
-               ``by="overlap"``             the safety metrics: the boxes meet (also a car
-                                            straddling the lane with no corner in it: a
-                                            crossing car longer than the lane is wide;
-                                            docs/SAFETY.md)
-ahead          ``by="axle"``                the episode's end, car following, the layered
-                                            rule: the lead's rear axle is further along
-                                            the ego's route
-               ``by="centre"``              the safety metrics: the box centres are (for
-                                            cars of different lengths the two disagree
-                                            when the cars are nearly level)
+in_lane        ``by="overlap"`` (default)   every caller: the world's measurement
+                                            (``obstacle_in_lane``), the sensor's noisy flag,
+                                            the monitor, the episode's end, car following,
+                                            the safety metrics
+               ``by="corner"``              the reading of version 0.3 (a corner inside)
+ahead          ``by="centre"`` (default)    every caller that asks which car is in front:
+                                            the episode's end, car following, the layered
+                                            rule's follow layer, the safety metrics
+               ``by="axle"``                the reading of version 0.3 (rear axles)
                ``by="extent"``              the reactive planner: the lead's box reaches
                                             the follower's tail (its front-most corner is
                                             at or past the follower's rearmost, along the
                                             route): a car level with the ego, or just
                                             behind its front, is still ahead of its tail
+                                            (its trigger, not an order of two cars)
 in_lane_ahead  ``within=None``              the episode's end (``timing.until_clear``): a
                                             car in the lane ahead, whatever its heading
                ``within=FOLLOW_HEADING``    car following (:func:`follow_accel`): a car
@@ -58,9 +63,9 @@ idm            ``v0=None``,                 car following and the layered rule: 
 
 World frame (x east, y north), metres, seconds, radians; poses are rear-axle
 ``[x, y, theta, v]``; "the ego's route" is ``layout.route_ego`` and "the lane"
-``layout.ego_lane``. The functions run every tick on Python floats: each gives, bit for
-bit, what its caller computed before it was moved here (``cdf_mj.model.following``, the
-drivers' ``idm_accel``, the safety metrics' own tests).
+``layout.ego_lane``. The functions run every tick on Python floats; the IDM and RSS
+distance give, bit for bit, what their callers computed before they were moved here
+(``cdf_mj.model.following``, the drivers' ``idm_accel``, the safety metrics' own).
 """
 
 from __future__ import annotations
@@ -109,15 +114,15 @@ def _lane_corners(layout: Layout) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------ where a car is
-def in_lane(layout: Layout, box: np.ndarray | Sequence[tuple[float, float]], *, by: InLaneBy = "corner") -> bool:
+def in_lane(layout: Layout, box: np.ndarray | Sequence[tuple[float, float]], *, by: InLaneBy = "overlap") -> bool:
     """Whether a car's collision box (its corners ``(4, 2)`` [m], e.g.
-    ``car.footprint_one(x, y, theta)``) is in the ego's lane: ``by="corner"`` a corner of it
-    inside the lane, boundary included; ``by="overlap"`` the two boxes meet (their
-    :func:`~cdf_mj.model.geometry.box_gap` is 0), also with no corner inside."""
-    if by == "corner":
-        return layout.ego_lane.contains_any(box)
+    ``car.footprint_one(x, y, theta)``) is in the ego's lane: the two boxes meet (their
+    :func:`~cdf_mj.model.geometry.box_gap` is 0, touching included); ``by="corner"``, the
+    reading of version 0.3: a corner of it inside the lane, boundary included."""
     if by == "overlap":
         return box_gap(box, _lane_corners(layout)) == 0.0
+    if by == "corner":
+        return layout.ego_lane.contains_any(box)
     raise ValueError(f"in_lane: by={by!r} must be 'corner' or 'overlap'")
 
 
@@ -141,19 +146,20 @@ def _corner_arcs(layout: Layout, pose: Pose, car: CarGeometry) -> list[float]:
     return [route.project_point(float(x), float(y))[0] for x, y in box]
 
 
-def ahead(layout: Layout, lead: Pose, lead_car: CarGeometry, follower: Pose, follower_car: CarGeometry | None = None,
-          *, by: AheadBy = "axle") -> bool:
+def ahead(layout: Layout, lead: Pose, lead_car: CarGeometry, follower: Pose, follower_car: CarGeometry | None,
+          *, by: AheadBy = "centre") -> bool:
     """Whether the car at ``lead`` is further along the ego's route than the one at
-    ``follower`` (:func:`route_arc`): ``by="axle"`` their rear axles, ``by="centre"`` their
-    box centres; ``by="extent"`` whether the lead's box reaches the follower's tail, the
-    front-most of its corners at or past the rearmost of the follower's (``follower_car``
-    needed for both). Where it is, and its heading, are not asked."""
-    if by == "axle":
-        return route_arc(layout, lead) > route_arc(layout, follower)
+    ``follower`` (:func:`route_arc`): their box centres; ``by="extent"`` whether the lead's
+    box reaches the follower's tail, the front-most of its corners at or past the rearmost
+    of the follower's (``follower_car`` needed for both); ``by="axle"``, the reading of
+    version 0.3: their rear axles (``follower_car`` may be None). Where it is, and its
+    heading, are not asked."""
     if by == "centre":
         if follower_car is None:
             raise ValueError("ahead: by='centre' needs follower_car (the follower's box centre)")
         return route_arc(layout, lead, lead_car) > route_arc(layout, follower, follower_car)
+    if by == "axle":
+        return route_arc(layout, lead) > route_arc(layout, follower)
     if by == "extent":
         if follower_car is None:
             raise ValueError("ahead: by='extent' needs follower_car (the follower's rearmost corner)")
@@ -168,7 +174,7 @@ def heading_within(theta_lead: float, theta_follower: float, within: float = FOL
 
 
 def in_lane_ahead(layout: Layout, lead: Pose, lead_car: CarGeometry, follower: Pose,
-                  follower_car: CarGeometry | None = None, *, lane: InLaneBy = "corner", by: AheadBy = "axle",
+                  follower_car: CarGeometry | None, *, lane: InLaneBy = "overlap", by: AheadBy = "centre",
                   within: float | None = None) -> bool:
     """Whether the car at ``lead`` (of dimensions ``lead_car``) is in the ego's lane
     (:func:`in_lane` ``by=lane``) and :func:`ahead` of the car at ``follower`` (``by``),
@@ -245,7 +251,7 @@ def follow_accel(layout: Layout, follower_car: CarGeometry, follower: Pose, lead
     has merged behind it (``after_merge.follows``)."""
     if not (np.isfinite(lead).all() and np.isfinite(follower).all()):
         return None
-    if not in_lane_ahead(layout, lead, lead_car, follower, within=FOLLOW_HEADING):
+    if not in_lane_ahead(layout, lead, lead_car, follower, follower_car, within=FOLLOW_HEADING):
         return None
     fv, lv = float(follower[3]), float(lead[3])
     gap = car_gap(follower_car, follower, lead_car, lead)

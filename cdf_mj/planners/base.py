@@ -114,7 +114,7 @@ class PlannerInput:
 
     t: float  # [s] episode time
     poses: np.ndarray  # (2, 4) measured system pose: ego, obstacle [x m, y m, theta rad, v m/s]
-    obstacle_in_lane: bool  # any corner of the obstacle's hull inside the ego lane
+    obstacle_in_lane: bool  # the obstacle's collision box meets the ego lane's (road.in_lane)
 
 
 #: Share of the ego car's maximum braking beyond which a graded command counts as a brake

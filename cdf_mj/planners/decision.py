@@ -391,7 +391,7 @@ class LayeredRule(RiskRule):
             lead = np.array([x + v * (t - t0) * math.cos(th), y + v * (t - t0) * math.sin(th), th, v])
         ego_car, lead_car = self._cars
         if not (np.isfinite(lead).all()
-                and road.in_lane_ahead(self._layout, lead, lead_car, ego, within=FOLLOW_WITHIN)):
+                and road.in_lane_ahead(self._layout, lead, lead_car, ego, ego_car, within=FOLLOW_WITHIN)):
             return math.inf, math.inf, 0.0, 0.0
         eth, ev = float(ego[2]), float(ego[3])
         lth, lv = float(lead[2]), float(lead[3])

@@ -233,8 +233,8 @@ class CDFMonitor:
                           _pose(obstacle_pose, "obstacle_pose", missing=not self.record_trace)])
         self._check_time(t)
         x, y, th = (float(v) for v in poses[1, :3])
-        in_lane = not math.isnan(x) and road.in_lane(self.layout, self.layout.obstacle.footprint_one(x, y, th),
-                                                     by="corner")  # no measurement: not in the lane
+        # No measurement (4 NaN): not in the lane.
+        in_lane = not math.isnan(x) and road.in_lane(self.layout, self.layout.obstacle.footprint_one(x, y, th))
         command = self.planner.command(PlannerInput(t=t, poses=poses, obstacle_in_lane=in_lane))
         brake = self.planner.braking
         self._last_t = t

@@ -48,7 +48,7 @@ class Measurement:
 
     t: float  # [s] episode time
     poses: np.ndarray  # (2, 4) system pose S_t: ego, obstacle [x m, y m, theta rad, v m/s], world frame
-    obstacle_in_lane: bool  # any corner of the obstacle's collision box inside the ego lane
+    obstacle_in_lane: bool  # the obstacle's collision box meets the ego lane's (road.in_lane)
 
 
 @dataclass(slots=True)
@@ -359,7 +359,7 @@ class World:
         return hit
 
     def car_ahead(self) -> bool:
-        """Whether the obstacle is ahead of the ego in the ego's lane now (any corner of its
-        collision box in the lane, its rear axle further along the ego's route)."""
+        """Whether the obstacle is ahead of the ego in the ego's lane now (its collision box
+        meets the lane, its box centre is further along the ego's route: road.in_lane_ahead)."""
         ego, obstacle = self.scene.poses()
-        return in_lane_ahead(self.layout, obstacle, self.layout.obstacle, ego)
+        return in_lane_ahead(self.layout, obstacle, self.layout.obstacle, ego, self.layout.ego)
