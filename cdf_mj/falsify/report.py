@@ -62,10 +62,15 @@ def progress_figure(runs: Mapping[str, Sequence[SearchResult]], path: str | Path
     ax.legend(loc="upper right", fontsize=8)
     ax.set_title("Falsification progress (dots: first failure of a run)", fontsize=10)
     fig.tight_layout()
+    import io
+
+    from cdf_mj.records import write_atomic
+
     path = Path(path)
-    fig.savefig(path)
+    png = io.BytesIO()  # then written whole or not at all, never through a link nor into a FIFO
+    fig.savefig(png, format=path.suffix.lstrip(".").lower() or "png")
     plt.close(fig)
-    return path
+    return write_atomic(path, png.getvalue())
 
 
 def _fmt(value: Any) -> str:

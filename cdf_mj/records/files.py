@@ -1,14 +1,18 @@
 """The files of an experiment directory: the records file (``episodes.jsonl``, one JSON
 record a line, read and checked by :func:`read_records`), the settings file
-(``settings.json``, :func:`read_settings`), and writes that survive a crash
-(:func:`write_atomic`, :func:`fsync_directory`)."""
+(``settings.json``, :func:`read_settings`), writes that survive a crash
+(:func:`write_atomic`, :func:`fsync_directory`), and the checks every output goes through
+(:func:`check_output_target`: only a regular file is ever replaced; :func:`open_no_follow`:
+an appended file is never reached through a link)."""
 
 from __future__ import annotations
 
 import dataclasses
 import enum
+import errno
 import json
 import os
+import stat
 import tempfile
 from collections.abc import Sequence
 from contextlib import suppress
@@ -23,13 +27,15 @@ from cdf_mj.inputs import (
     SETTINGS_MAX_BYTES,
     InputError,
     NotRegularFileError,
+    kind_of,
     parse_json,
     read_regular,
 )
 from cdf_mj.records.schema import check_record
 
-__all__ = ["RECORDS_FILE", "SETTINGS_FILE", "RecordsFile", "check_settings", "fsync_directory", "jsonable",
-           "load_records", "read_records", "read_settings", "write_atomic"]
+__all__ = ["RECORDS_FILE", "SETTINGS_FILE", "OutputTargetError", "RecordsFile", "check_output_target",
+           "check_settings", "fsync_directory", "jsonable", "load_records", "open_no_follow", "read_records",
+           "read_settings", "write_atomic"]
 
 def jsonable(value: Any) -> Any:
     """Configurations (dataclasses, tuples, NumPy values, enums) as plain JSON values: what
@@ -194,16 +200,75 @@ def fsync_directory(directory: str | Path) -> None:
         os.close(fd)
 
 
-def write_atomic(path: str | Path, data: str | bytes) -> Path:
-    """Write ``data`` (text as UTF-8) to ``path`` whole or not at all, never through a link.
+class OutputTargetError(ValueError):
+    """An output path where something other than a regular file is (a FIFO, a device, a
+    socket, a directory): one line naming the path and what is there; nothing was written."""
 
-    The bytes go to a new temporary file beside ``path`` (created exclusively, so a file or
-    a symlink planted under any name is never written through), are ``fsync``-ed, and the
-    file is renamed over ``path``: a symlink at ``path`` is replaced, its target untouched.
-    The directory is ``fsync``-ed after the rename. On any error the temporary file is
-    removed and ``path`` is as it was. Returns ``path``.
+    def __init__(self, message: str, kind: str) -> None:
+        super().__init__(message)
+        self.kind = kind
+
+
+def check_output_target(path: str | Path, what: str = "output") -> None:
+    """Nothing unless ``path`` is absent, a regular file or a symbolic link (an output
+    replaces the link itself, never what it points to): else :class:`OutputTargetError`
+    naming ``what``, the path and what is there (``"a FIFO (named pipe)"``, ``"a character
+    device"``, ``"a directory"``, ``"a socket"``), so that an output never replaces a device
+    or a pipe. Checked with ``lstat``; nothing is opened."""
+    try:
+        mode = os.lstat(path).st_mode
+    except FileNotFoundError:
+        return
+    except OSError:
+        return  # not reachable (a missing directory, no permission): the write itself says why
+    if stat.S_ISREG(mode) or stat.S_ISLNK(mode):
+        return
+    kind = kind_of(mode)
+    raise OutputTargetError(f"{what} {path} is {kind}: an output replaces only a regular file; move it away "
+                            "or choose another path", kind)
+
+
+def open_no_follow(path: str | Path, flags: int, what: str = "file") -> int:
+    """``os.open(path, flags)`` (mode ``0o666`` less the umask for a new file) that never
+    follows a symbolic link at ``path`` nor opens anything but a regular file: ValueError
+    naming ``what`` and the path for a link, a FIFO, a device, a socket or a directory
+    (opened non-blocking, so a FIFO cannot hang it; the descriptor is left blocking)."""
+    try:
+        fd = os.open(path, flags | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
+                     | getattr(os, "O_CLOEXEC", 0), 0o666)
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise ValueError(f"{path} is a symbolic link: the {what} must be a regular file, "
+                             "move the link away or choose another directory") from None
+        if exc.errno in (errno.EISDIR, errno.ENXIO):  # a directory; a FIFO with no reader
+            with suppress(OSError):
+                raise ValueError(f"{path} is {kind_of(os.lstat(path).st_mode)}, not a regular file: the "
+                                 f"{what} must be one; move it away or choose another directory") from None
+        raise
+    mode = os.fstat(fd).st_mode
+    if not stat.S_ISREG(mode):
+        os.close(fd)
+        raise ValueError(f"{path} is {kind_of(mode)}, not a regular file: the {what} must be one; move it "
+                         "away or choose another directory")
+    os.set_blocking(fd, True)
+    return fd
+
+
+def write_atomic(path: str | Path, data: str | bytes) -> Path:
+    """Write ``data`` (text as UTF-8) to ``path`` whole or not at all, never through a link,
+    never over anything but a regular file.
+
+    Something at ``path`` other than a regular file or a symlink (a FIFO, a device, a
+    socket, a directory) is refused before anything is written, and again just before the
+    rename (:func:`check_output_target`). The bytes go to a new temporary file beside
+    ``path`` (created exclusively, so a file or a symlink planted under any name is never
+    written through), are ``fsync``-ed, and the file is renamed over ``path``: a symlink at
+    ``path`` is replaced, its target untouched. The directory is ``fsync``-ed after the
+    rename. On any error the temporary file is removed and ``path`` is as it was. Returns
+    ``path``.
     """
     path = Path(path)
+    check_output_target(path)
     raw = data.encode("utf-8") if isinstance(data, str) else data
     fd, tmp = tempfile.mkstemp(prefix=temp_prefix(path, reserve=len(".12345678.tmp")) + ".",
                                suffix=".tmp", dir=path.parent)  # mkstemp adds 8 characters
@@ -213,6 +278,7 @@ def write_atomic(path: str | Path, data: str | bytes) -> Path:
             fh.flush()
             os.fsync(fh.fileno())
         os.chmod(tmp, 0o666 & ~_umask())
+        check_output_target(path)  # made in the meantime: still never renamed over
         os.replace(tmp, path)
     except BaseException:
         with suppress(OSError):

@@ -19,7 +19,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -47,10 +47,19 @@ _ROUNDING = 1e-9  # [s] how far a difference of two times may miss a bound by ro
 
 def write_trace(path: str | Path, header: dict[str, Any], rows: Iterable[dict[str, Any]]) -> Path:
     """Write ``header`` and then each of ``rows`` as one line of strict JSON (no NaN) to
-    ``path``; the file appears complete or not at all (:func:`cdf_mj.records.write_atomic`).
+    ``path``; the file appears complete or not at all (:func:`cdf_mj.records.write_atomic`),
+    and only if :func:`read_trace` reads it back: a trace it would refuse (more than
+    :data:`MAX_TRACE_TICKS` observations, a span over :data:`~cdf_mj.config.MAX_DURATION`,
+    times closer than :data:`MIN_TRACE_STEP`, no observation, a bad field) is a
+    :class:`TraceError` naming the path and the observation, and nothing is written.
     Returns ``path``."""
+    path = Path(path)
     lines = [json.dumps(header, allow_nan=False)]
     lines += [json.dumps(row, allow_nan=False) for row in rows]
+    try:
+        _parse(path, list(enumerate(lines)), "the trace", lambda no: f"observation {no}" if no else "the header")
+    except TraceError as exc:
+        raise TraceError(f"the trace is not saved to {path}, as read_trace would refuse it: {exc}") from None
     return write_atomic(path, "\n".join(lines) + "\n")
 
 
@@ -107,32 +116,39 @@ def read_trace(path: str | Path) -> MonitorTrace:
     except (OSError, UnicodeDecodeError) as exc:
         raise TraceError(f"{path}: cannot read the trace ({getattr(exc, 'strerror', None) or exc})") from None
     lines = [(i + 1, line) for i, line in enumerate(text.splitlines()) if line.strip()]
+    return _parse(path, lines, str(path), lambda no: f"{path}:{no}")
+
+
+def _parse(path: Path, lines: list[tuple[int, str]], whole: str, at: Callable[[int], str]) -> MonitorTrace:
+    """The trace of the numbered non-blank ``lines`` of ``path``; TraceError ``AT: what``,
+    where ``at(number)`` names a line (``file:line`` when reading; ``observation N`` when
+    checking what :func:`write_trace` would write) and ``whole`` the trace."""
     if len(lines) - 1 > MAX_TRACE_TICKS:  # counted before any line is parsed
-        raise TraceError(f"{path}: {len(lines) - 1} observations, more than the {MAX_TRACE_TICKS} a trace "
+        raise TraceError(f"{whole}: {len(lines) - 1} observations, more than the {MAX_TRACE_TICKS} a trace "
                          "may hold; split it or write fewer ticks")
     if not lines:
-        raise TraceError(f"{path}:1: empty file; a trace starts with a header line ({TRACE_FORMAT})")
+        raise TraceError(f"{at(1)}: empty file; a trace starts with a header line ({TRACE_FORMAT})")
     rows: list[tuple[int, dict[str, Any]]] = []
     for no, line in lines:
         try:
-            obj = parse_json(line, f"{path}:{no}: the line")  # nested at most MAX_DEPTH levels
+            obj = parse_json(line, f"{at(no)}: the line")  # nested at most MAX_DEPTH levels
         except InputError as exc:
             raise TraceError(str(exc)) from None
         except json.JSONDecodeError as exc:
-            raise TraceError(f"{path}:{no}: not JSON ({exc.msg} at column {exc.colno})") from None
+            raise TraceError(f"{at(no)}: not JSON ({exc.msg} at column {exc.colno})") from None
         if not isinstance(obj, dict):
-            raise TraceError(f"{path}:{no}: expected a JSON object, got {type(obj).__name__}")
+            raise TraceError(f"{at(no)}: expected a JSON object, got {type(obj).__name__}")
         rows.append((no, obj))
     no, header = rows[0]
     if header.get("format") != TRACE_FORMAT:
-        raise TraceError(f"{path}:{no}: not a monitor trace: the header's format is "
+        raise TraceError(f"{at(no)}: not a monitor trace: the header's format is "
                          f"{header.get('format')!r}, expected {TRACE_FORMAT!r}")
     valid = [f.name for f in dataclasses.fields(SceneNames)]
     unknown = sorted(set(header.get("names") or {}) - set(valid)) if isinstance(header.get("names"), dict) else []
     if "names" in header and not isinstance(header["names"], dict):
-        raise TraceError(f"{path}:{no}: the header's 'names' must be an object of SceneNames fields")
+        raise TraceError(f"{at(no)}: the header's 'names' must be an object of SceneNames fields")
     if unknown:
-        raise TraceError(f"{path}:{no}: the header's 'names' has unknown key(s) {', '.join(unknown)}; "
+        raise TraceError(f"{at(no)}: the header's 'names' has unknown key(s) {', '.join(unknown)}; "
                          f"valid: {', '.join(valid)}")
     try:
         names = SceneNames(**header["names"])
@@ -140,20 +156,20 @@ def read_trace(path: str | Path) -> MonitorTrace:
         obstacle = CarGeometry.from_dict(header["obstacle"])
         tau = float(header["tau"])
     except KeyError as exc:
-        raise TraceError(f"{path}:{no}: the header lacks {exc.args[0]!r}") from None
+        raise TraceError(f"{at(no)}: the header lacks {exc.args[0]!r}") from None
     except (TypeError, ValueError) as exc:
-        raise TraceError(f"{path}:{no}: bad header: {' '.join(str(exc).split())}") from None
+        raise TraceError(f"{at(no)}: bad header: {' '.join(str(exc).split())}") from None
     rule, threshold = header.get("rule", "threshold"), header.get("threshold", tau)
     for key, value in (("tau", tau), ("threshold", threshold)):
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
                 math.isfinite(value) and 0.0 < value <= 1.0):
-            raise TraceError(f"{path}:{no}: the header's {key!r} must be in (0, 1], got {header.get(key, value)!r}")
+            raise TraceError(f"{at(no)}: the header's {key!r} must be in (0, 1], got {header.get(key, value)!r}")
     if rule not in ("threshold", "risk", "layered"):
-        raise TraceError(f"{path}:{no}: the header's 'rule' must be 'threshold', 'risk' or 'layered', got {rule!r}")
+        raise TraceError(f"{at(no)}: the header's 'rule' must be 'threshold', 'risk' or 'layered', got {rule!r}")
     risky = rule in ("risk", "layered")  # the emergency layer's risk is the risk rule's
     keys = (*_POSTERIOR_KEYS, "risk") if risky else _POSTERIOR_KEYS
     if len(rows) < 2:
-        raise TraceError(f"{path}:{no}: the trace has no observation after its header")
+        raise TraceError(f"{at(no)}: the trace has no observation after its header")
     times: list[float] = []
     poses: list[np.ndarray] = []
     brake: list[bool] = []
@@ -166,24 +182,24 @@ def read_trace(path: str | Path) -> MonitorTrace:
             values = [float(p[k]) for k in keys]
             b = row["brake"]
         except KeyError as exc:
-            raise TraceError(f"{path}:{no}: the observation lacks {exc.args[0]!r}") from None
+            raise TraceError(f"{at(no)}: the observation lacks {exc.args[0]!r}") from None
         except (TypeError, ValueError) as exc:
-            raise TraceError(f"{path}:{no}: bad observation: {' '.join(str(exc).split())}") from None
+            raise TraceError(f"{at(no)}: bad observation: {' '.join(str(exc).split())}") from None
         if pose.shape != (2, 4) or not np.all(np.isfinite(pose)) or not math.isfinite(t):
-            raise TraceError(f"{path}:{no}: 'ego' and 'obstacle' must be 4 finite numbers each "
+            raise TraceError(f"{at(no)}: 'ego' and 'obstacle' must be 4 finite numbers each "
                              "and 't' a finite time")
         if times and not t - times[-1] >= MIN_TRACE_STEP - _ROUNDING:
-            raise TraceError(f"{path}:{no}: time {t:g} s does not follow {times[-1]:g} s by at least "
+            raise TraceError(f"{at(no)}: time {t:g} s does not follow {times[-1]:g} s by at least "
                              f"{MIN_TRACE_STEP:g} s (MIN_TRACE_STEP)")
         if times and not t - times[0] <= MAX_DURATION + _ROUNDING:
-            raise TraceError(f"{path}:{no}: time {t:g} s is {t - times[0]:g} s after the first observation "
+            raise TraceError(f"{at(no)}: time {t:g} s is {t - times[0]:g} s after the first observation "
                              f"({times[0]:g} s); a trace spans at most {MAX_DURATION:g} s (MAX_DURATION)")
         if not isinstance(b, bool):
-            raise TraceError(f"{path}:{no}: 'brake' must be true or false, got {b!r}")
+            raise TraceError(f"{at(no)}: 'brake' must be true or false, got {b!r}")
         bad = [k for k, v in zip(keys, values, strict=True)
                if not math.isfinite(v) or (v < 0.0 if k == "ess" else not 0.0 <= v <= 1.0)]
         if bad:
-            raise TraceError(f"{path}:{no}: 'posterior' has {', '.join(bad)} out of range "
+            raise TraceError(f"{at(no)}: 'posterior' has {', '.join(bad)} out of range "
                              "(probabilities in [0, 1], ess a finite number >= 0)")
         times.append(t)
         poses.append(pose)

@@ -5,7 +5,10 @@ the final rename stays on one file system), checks everything the encoder report
 exit status, every write, the final flush and ``fsync``), and only then renames it onto the
 target. On any failure the temporary file is removed, the target is left as it was, and
 :class:`EncodingError` names the path: a full disk never reports success or leaves a
-partial file.
+partial file. Only a regular file (or a symbolic link, itself replaced) is ever replaced:
+a FIFO, a device, a socket or a directory at the target is refused by name before a
+frame is encoded, and again before the rename
+(:func:`cdf_mj.records.files.check_output_target`).
 
 The temporary file is ``.STEM-PID-HEX.SUFFIX`` (the stem cut short where the name would
 pass the file system's limit, :func:`cdf_mj.records.files.temp_prefix`), ``PID`` the
@@ -39,7 +42,7 @@ from typing import IO, TYPE_CHECKING
 import numpy as np
 
 from cdf_mj.extras import require
-from cdf_mj.records.files import temp_prefix
+from cdf_mj.records.files import OutputTargetError, check_output_target, temp_prefix
 
 if TYPE_CHECKING:
     from typing_extensions import Self
@@ -120,7 +123,9 @@ def remove_stale_temporaries(path: str | Path) -> tuple[Path, ...]:
 def check_writable(path: str | Path) -> None:
     """OSError unless a :class:`FrameWriter` could write ``path``: creates and removes the
     temporary file it would write first (permissions alone miss read-only and virtual
-    file systems, and root)."""
+    file systems, and root). :class:`~cdf_mj.records.files.OutputTargetError` (a
+    ValueError naming what is there) for a target that is not a regular file or absent."""
+    check_output_target(path)
     fd, tmp = _temp_beside(Path(path))
     os.close(fd)
     tmp.unlink()
@@ -145,6 +150,7 @@ class FrameWriter:
 
     Raises:
         ValueError: an unknown suffix.
+        EncodingError: a FIFO, a device, a socket or a directory at ``path`` (naming it).
         ImportError: the ``viz`` extra is missing (one line naming it).
         EncodingError: the temporary file cannot be created (and later: any failure to
             encode or write, from :meth:`append` and :meth:`close`).
@@ -157,6 +163,11 @@ class FrameWriter:
             raise ValueError(f"{self.path}: unknown format {self.path.suffix or '(no suffix)'!r}; "
                               f"use {', '.join(FORMATS)}")
         self.fmt, self.fps = fmt, fps
+        try:  # a FIFO, a device, a socket or a directory is never replaced
+            check_output_target(self.path)
+        except OutputTargetError as exc:
+            raise EncodingError(None, f"it is {exc.kind}: an output replaces only a regular file; move it away or "
+                                "choose another path; nothing was written", str(self.path)) from None
         feature = f"writing {fmt.upper()}"
         if fmt in _OUTPUT:
             self._ffmpeg_exe: str = require("imageio_ffmpeg", "viz", feature).get_ffmpeg_exe()
@@ -260,7 +271,12 @@ class FrameWriter:
                 os.fsync(fd)
             finally:
                 os.close(fd)
+            check_output_target(self.path)  # made while encoding: still never renamed over
             os.replace(self._tmp, self.path)
+        except OutputTargetError as exc:
+            self.abort()
+            raise self._error(f"{exc.kind} was put there while encoding: an output replaces only a regular "
+                              "file") from None
         except EncodingError:
             self.abort()
             raise

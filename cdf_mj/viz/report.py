@@ -43,6 +43,7 @@ from pathlib import Path
 from cdf_mj.analysis.tables import experiment_tables
 from cdf_mj.inputs import printable
 from cdf_mj.records import write_atomic
+from cdf_mj.records.files import check_output_target
 from cdf_mj.viz.report_data import Experiment, ReportError, load_experiment
 from cdf_mj.viz.report_figures import (
     FIGURES,
@@ -113,6 +114,8 @@ def write_report(path: str | Path, out: str | Path | None = None, seeds: Sequenc
     else:
         seeds = _pick_seeds(exp, planner)
     out.mkdir(parents=True, exist_ok=True)
+    for name in (*(f"{figure}.png" for figure in FIGURES), "report.md"):
+        check_output_target(out / name)  # a FIFO or a device there: refused before any figure is drawn
 
     notes: list[str] = []
     made: dict[str, Path | str] = {
