@@ -30,7 +30,7 @@ from cdf_mj.cli.args import (
     seed_range,
     seed_value,
 )
-from cdf_mj.experiments.store import locked
+from cdf_mj.experiments.store import check_run_kind, locked
 from cdf_mj.records import RECORDS_FILE
 
 #: The one line that ``--resume`` prints on stderr (the option of earlier releases, now a no-op).
@@ -83,10 +83,12 @@ def _cmd_experiment(args: argparse.Namespace) -> int:
 
 def _remove_run(out: Path) -> None:
     """Remove the records and settings of the run in ``out`` (:data:`RUN_FILES`), under the
-    directory's lock so that a run still using it is not pulled from under it."""
+    directory's lock so that a run still using it is not pulled from under it; never those
+    of another kind of run (a falsification's settings.json: ValueError naming it)."""
     if not out.is_dir():
         return
     with locked(out):
+        check_run_kind(out, "experiment")
         for name in RUN_FILES:
             (out / name).unlink(missing_ok=True)
 

@@ -50,7 +50,7 @@ from cdf_mj.experiments.runner import (
     run_seeds,
     worker_count,
 )
-from cdf_mj.experiments.store import RecordStore, locked, write_atomic
+from cdf_mj.experiments.store import RecordStore, check_run_kind, locked, write_atomic
 from cdf_mj.planners.base import Planner
 from cdf_mj.planners.registry import PlannerSpec, bind_planner, stored_planner_arguments
 from cdf_mj.records import FAILED, RECORDS_FILE, EpisodeRecord, read_settings
@@ -292,6 +292,7 @@ def run_experiment(out_dir: str | Path, seeds: Sequence[int], planners: Sequence
     settings_path, records_path = out / "settings.json", out / RECORDS_FILE
     out.mkdir(parents=True, exist_ok=True)
     with locked(out):  # a second run into this directory is refused here, before any check
+        check_run_kind(out, "experiment")  # never over another command's settings.json
         _check_directory(out, settings, resume)
         # Whole or not at all, synced before and after the rename, never through a link.
         write_atomic(settings_path, json.dumps(settings, indent=2) + "\n")

@@ -5,15 +5,14 @@ and ``fsync``-ed, so a run killed at any moment (``SIGKILL`` included) loses at 
 seeds that were still running. :meth:`RecordStore.open` reads what an earlier run left
 (with :func:`cdf_mj.records.read_records`), cutting off a half-written last line, so that
 the run can resume without duplicating or missing an episode. :func:`locked` keeps two
-runs out of one directory.
+runs out of one directory at once, :func:`check_run_kind` two kinds of run out of it for
+ever (an ``estimate`` never replaces an experiment's ``settings.json``).
 """
 
 from __future__ import annotations
 
-import errno
 import json
 import os
-import stat
 from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager, suppress
 from pathlib import Path
@@ -22,9 +21,16 @@ from typing import IO, Any
 
 import numpy as np
 
-from cdf_mj.records import FAILED, fsync_directory, read_records, write_atomic
+from cdf_mj.inputs import SETTINGS_MAX_BYTES, parse_json, read_regular
+from cdf_mj.records import FAILED, RECORDS_FILE, SETTINGS_FILE, fsync_directory, read_records, write_atomic
+from cdf_mj.records.files import open_no_follow
 
-__all__ = ["RecordStore", "fsync_directory", "json_default", "locked", "write_atomic"]
+__all__ = ["RUN_KINDS", "RecordStore", "check_run_kind", "fsync_directory", "json_default", "locked", "run_kind",
+           "write_atomic"]
+
+#: The commands that write a ``settings.json`` into their ``--out`` directory (an
+#: experiment's has no ``kind`` key; the others say theirs).
+RUN_KINDS = ("experiment", "falsify", "estimate")
 
 
 def json_default(obj: object) -> object:
@@ -38,18 +44,47 @@ def json_default(obj: object) -> object:
 
 
 def _open_no_follow(path: Path, flags: int) -> int:
-    """``os.open`` that refuses a symlink or a non-regular file at ``path`` (ValueError naming it)."""
+    """``os.open`` that refuses a symlink or a non-regular file at ``path`` (ValueError naming
+    it): :func:`cdf_mj.records.files.open_no_follow` of the records file."""
+    return open_no_follow(path, flags, "records file")
+
+
+def run_kind(directory: str | Path) -> str | None:
+    """The kind of run (:data:`RUN_KINDS`) ``directory`` holds: its ``settings.json``'s
+    ``kind`` (``falsify``, ``estimate``), ``experiment`` for settings without one or for an
+    experiment's non-empty records file beside them; None for none, or for settings that
+    cannot be read (each command's own checks word those)."""
+    directory = Path(directory)
     try:
-        fd = os.open(path, flags | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0), 0o666)
-    except OSError as exc:
-        if exc.errno == errno.ELOOP:
-            raise ValueError(f"{path} is a symbolic link: the records file must be a regular file, "
-                             "move the link away or choose another directory") from None
-        raise
-    if not stat.S_ISREG(os.fstat(fd).st_mode):
-        os.close(fd)
-        raise ValueError(f"{path} is not a regular file: move it away or choose another directory")
-    return fd
+        data = parse_json(read_regular(directory / SETTINGS_FILE, "settings file", SETTINGS_MAX_BYTES),
+                          f"settings file {directory / SETTINGS_FILE}")
+    except FileNotFoundError:
+        data = None
+    except (OSError, ValueError):  # damaged, unreadable, not a regular file
+        return None
+    if isinstance(data, dict) and "kind" in data:
+        kind = data["kind"]
+        return kind if isinstance(kind, str) and kind in RUN_KINDS else None
+    if isinstance(data, dict) and "seeds" in data and "planners" in data:
+        return "experiment"
+    try:
+        return "experiment" if (directory / RECORDS_FILE).stat().st_size > 0 else None
+    except OSError:
+        return None
+
+
+def check_run_kind(directory: str | Path, kind: str) -> None:
+    """ValueError (one line naming ``directory`` and both kinds) if ``directory`` holds a
+    run of another kind than ``kind`` (:func:`run_kind`): every command that writes a
+    ``settings.json`` calls it first, so that none replaces another's settings."""
+    have = run_kind(directory)
+    if have is not None and have != kind:
+        raise ValueError(f"{directory} holds another kind of run ({_article(have)} {have}, by its {SETTINGS_FILE}), "
+                         f"not {_article(kind)} {kind}: a directory holds one kind of run; choose another directory")
+
+
+def _article(word: str) -> str:
+    return "an" if word[:1] in "aeiou" else "a"
 
 
 @contextmanager

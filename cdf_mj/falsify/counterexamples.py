@@ -195,9 +195,15 @@ def write_counterexamples(space: SearchSpace, found: Sequence[Counterexample], d
     """Write each counterexample as ``directory/NN-seed-S.toml`` (sets ``path``); files of
     that form left by an earlier run are removed first, so the directory holds this run's.
     ``scene_args`` (``--scene FILE --names FILE`` of a scene of your own, which a preset
-    cannot hold) go into the replay commands of the descriptions."""
+    cannot hold) go into the replay commands of the descriptions. ValueError naming
+    ``directory`` if it is a symbolic link (its files would land outside the run's
+    directory) or not a directory; nothing is removed or written then."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
+    if directory.is_symlink() or not directory.is_dir():
+        what = "a symbolic link" if directory.is_symlink() else "not a directory"
+        raise ValueError(f"{directory} is {what}: the counterexamples are written into a directory of the run's "
+                         "own; move it away or choose another directory")
     for old in directory.glob("[0-9][0-9]-seed-*.toml"):
         old.unlink()
     for i, c in enumerate(found, 1):

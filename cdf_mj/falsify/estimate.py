@@ -28,7 +28,8 @@ share of the estimate; below an effective sample size of 10, or with one failure
 carrying over a quarter, the interval is optimistic and the estimate is marked not
 reliable (:attr:`Estimate.reliable`). No failure in the last stage gives 0 with the
 bound ``3 / (n * defensive)`` (the rule of three on the mixture). At least
-:data:`MIN_CE_BUDGET` episodes.
+:data:`MIN_CE_BUDGET` episodes. An estimate of either method in which any episode raised
+(counted as no failure) is not reliable either, and says how many raised.
 
 The same command resumes a killed run: the points are drawn from generators seeded by
 the run's seed and stage, the fits are made from the journal's numbers, so it repeats no
@@ -184,21 +185,27 @@ class Estimate:
 
     @property
     def reliable(self) -> bool:
-        """Whether the interval can be read at face value: Monte Carlo's always; importance
-        sampling's where its failures' effective sample size is at least 10 and no single
-        failure carries more than a quarter of the estimate (else its normal interval is
-        optimistic: a few heavy weights carry it)."""
+        """Whether the interval can be read at face value: never where an episode raised
+        (counted as no failure, it may have hidden one); else Monte Carlo's always;
+        importance sampling's where its failures' effective sample size is at least 10 and
+        no single failure carries more than a quarter of the estimate (else its normal
+        interval is optimistic: a few heavy weights carry it)."""
+        if self.errors:
+            return False
         if self.method == "mc" or self.upper_only:
             return True
         return (self.ess or 0.0) >= 10 and (self.top_share or 0.0) <= 0.25
 
     def text(self) -> str:
         """The estimate and its interval (or the bound), for a line of output; where it is not
-        :attr:`reliable`, why: too few failures to weigh (effective sample size under 10), or
-        one failure carrying more than a quarter of it."""
+        :attr:`reliable`, why: episodes that raised (how many), too few failures to weigh
+        (effective sample size under 10), or one failure carrying more than a quarter of it."""
+        raised = f"not reliable: {self.errors} of {self.episodes} episodes raised, counted as no failure"
         if self.upper_only:
-            return f"< {self.ci[1]:.2g} (0 failures in {self.n})"
+            return f"< {self.ci[1]:.2g} (0 failures in {self.n}{'; ' + raised if self.errors else ''})"
         shown = f"{self.p:.3g} [{self.ci[0]:.2g}, {self.ci[1]:.2g}]"
+        if self.errors:
+            return f"{shown} ({raised})"
         if self.reliable:
             return shown
         if (self.ess or 0.0) < 10:

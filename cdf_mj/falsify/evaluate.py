@@ -9,7 +9,11 @@ run killed at any moment (``SIGKILL`` included) and started again with the same 
 repeats no finished episode and loses at most those in flight; the search, the
 minimisation and the estimators replay their own decisions from the journal's numbers.
 A last line cut short by the kill is dropped; any other damaged line is one error naming
-the file and the line.
+the file and the line: a line that is not JSON or is nested too deeply (read by
+:func:`cdf_mj.inputs.parse_json`), a field of the wrong type, a robustness that is not
+finite (the writer never writes one), a ``failed`` that does not follow from the
+robustness, or a key recorded again with another outcome. The journal is opened without
+following a link and only if it is a regular file, as an experiment's records file is.
 """
 
 from __future__ import annotations
@@ -27,10 +31,12 @@ import numpy as np
 from cdf_mj.config import MAX_SEED
 from cdf_mj.experiments.runner import Backend, SeedJob, SeedPool
 from cdf_mj.falsify.space import SearchSpace
-from cdf_mj.inputs import RECORDS_MAX_BYTES, read_regular
+from cdf_mj.falsify.space_check import check_joint, check_on_scene
+from cdf_mj.inputs import RECORDS_MAX_BYTES, InputError, parse_json, read_regular
 from cdf_mj.planners.registry import bind_planner
 from cdf_mj.records import OK
-from cdf_mj.sim.scene import DEFAULT_SCENE
+from cdf_mj.records.files import open_no_follow
+from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
 
 __all__ = ["JOURNAL_FILE", "Evaluation", "Evaluator", "Journal", "episode_seed", "key_of"]
 
@@ -72,10 +78,40 @@ class Evaluation:
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Evaluation:
-        return cls(planner=str(data["planner"]), seed=int(data["seed"]),
-                   point=tuple(float(x) for x in data["point"]), keep=tuple(str(k) for k in data["keep"]),
-                   robustness=float(data["robustness"]), failed=bool(data["failed"]),
-                   summary=dict(data["summary"]), error=data.get("error"))
+        """The evaluation of a journal line (:meth:`to_dict`), checked: ValueError (or
+        KeyError, TypeError) saying which field is wrong."""
+        if not isinstance(data, dict):
+            raise TypeError(f"a JSON object expected, got {type(data).__name__}")
+        planner, seed, point, keep = data["planner"], data["seed"], data["point"], data["keep"]
+        robustness, failed, summary, error = data["robustness"], data["failed"], data["summary"], data.get("error")
+        if not isinstance(planner, str):
+            raise TypeError("'planner' is not a string")
+        if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
+            raise ValueError(f"'seed' is not an integer from 0 to {MAX_SEED}")
+        if not (isinstance(point, list) and all(_number(x) and math.isfinite(x) for x in point)):
+            raise ValueError("'point' is not a list of finite numbers")
+        if not (isinstance(keep, list) and all(isinstance(k, str) for k in keep)):
+            raise TypeError("'keep' is not a list of option keys")
+        if not (_number(robustness) and math.isfinite(robustness)):
+            raise ValueError(f"its robustness {robustness!r} is not a finite number (the journal's writer "
+                             "never writes one)")
+        if not isinstance(failed, bool):
+            raise TypeError("'failed' is not true or false")
+        if not (error is None or isinstance(error, str)) or not isinstance(summary, dict):
+            raise TypeError("'error' is not a string or null, or 'summary' not an object")
+        if error is not None and (failed or robustness != ERROR_ROBUSTNESS):
+            raise ValueError(f"an episode that raised has robustness {ERROR_ROBUSTNESS:g} and did not fail, got "
+                             f"robustness {robustness!r} and failed {failed}")
+        if error is None and failed != (robustness <= 0.0):
+            raise ValueError(f"'failed' is {'true' if failed else 'false'} for robustness {robustness!r} (an episode "
+                             "fails where its robustness is <= 0)")
+        return cls(planner=planner, seed=seed, point=tuple(float(x) for x in point), keep=tuple(keep),
+                   robustness=float(robustness), failed=failed, summary=summary, error=error)
+
+
+def _number(value: object) -> bool:
+    """Whether ``value`` is a JSON number (an int or a float, not a bool)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
 
 
 def key_of(planner: str, seed: int, point: Sequence[float], keep: Sequence[str] = ()) -> str:
@@ -89,29 +125,43 @@ class Journal:
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         self.entries: dict[str, Evaluation] = {}
-        if self.path.exists():
-            self._read()
-        self._fh: IO[str] = open(self.path, "a", encoding="utf-8")  # noqa: SIM115 - closed by close()
+        # Never through a link, never a FIFO or a device: refused before anything is read or written.
+        fd = open_no_follow(self.path, os.O_RDWR | os.O_APPEND | os.O_CREAT, "journal")
+        try:
+            self._read(fd)
+            self._fh: IO[str] = os.fdopen(fd, "a", encoding="utf-8")
+        except BaseException:
+            os.close(fd)
+            raise
 
-    def _read(self) -> None:
+    def _read(self, fd: int) -> None:
         raw = read_regular(self.path, "journal", RECORDS_MAX_BYTES)
         complete = raw.rfind(b"\n") + 1
-        for number, line in enumerate(raw[:complete].decode("utf-8", errors="replace").splitlines(), 1):
+        first: dict[str, int] = {}  # key -> the line it was first recorded on
+        for number, line in enumerate(raw[:complete].splitlines(), 1):
             if not line.strip():
                 continue
             try:
-                data = json.loads(line)
+                data = parse_json(line, f"{self.path}: line {number}")
                 ev = Evaluation.from_dict(data)
                 if data.get("key") != key_of(ev.planner, ev.seed, ev.point, ev.keep):
                     raise ValueError("its key does not match its contents")
-            except (ValueError, KeyError, TypeError) as exc:
-                raise ValueError(f"{self.path}: line {number} is not an evaluation ({exc}); the file is damaged: "
+            except (ValueError, KeyError, TypeError) as exc:  # JSONDecodeError, UnicodeDecodeError, InputError
+                why = ("nested too deeply" if isinstance(exc, InputError) else
+                       "not UTF-8 text" if isinstance(exc, UnicodeDecodeError) else
+                       f"no {exc}" if isinstance(exc, KeyError) else " ".join(str(exc).split())[:200])
+                raise ValueError(f"{self.path}: line {number} is not an evaluation ({why}); the file is damaged: "
                                  "move it away or choose another directory") from None
-            self.entries[data["key"]] = ev
+            key = data["key"]
+            if key in self.entries and self.entries[key] != ev:
+                raise ValueError(f"{self.path}: line {number} records an episode of line {first[key]} again with "
+                                 "another outcome (each episode has one); the file is damaged: move it away or "
+                                 "choose another directory")
+            first.setdefault(key, number)
+            self.entries[key] = ev
         if complete < len(raw):  # a line cut short by a killed run
-            with open(self.path, "r+b") as fh:
-                fh.truncate(complete)
-                os.fsync(fh.fileno())
+            os.ftruncate(fd, complete)
+            os.fsync(fd)
 
     def get(self, planner: str, seed: int, point: Sequence[float], keep: Sequence[str] = ()) -> Evaluation | None:
         return self.entries.get(key_of(planner, seed, point, keep))
@@ -149,12 +199,18 @@ class Evaluator:
     evaluator, or use it in a ``with`` block, to stop them);
     ``on_episode`` is called with the count of episodes each call settles, run or found in
     the journal (for a progress bar). :attr:`errors` keeps every episode asked for that
-    raised (the caller reports them and exits 1).
+    raised (the caller reports them and exits 1). The space is checked as a whole on the
+    scene first (:mod:`cdf_mj.falsify.space_check`): SpaceError naming the file and the
+    dimensions, before any episode.
     """
 
     def __init__(self, space: SearchSpace, planners: Sequence[str], journal: Journal, *,
                  scene: str | Path = DEFAULT_SCENE, backend: Backend = "process", workers: int | None = None,
                  address: str | None = None, on_episode: Callable[[int], None] | None = None) -> None:
+        # The space as a whole, on this scene, before any episode (SpaceError naming the file
+        # and the dimensions): values the world refuses together or on this scene.
+        check_joint(space)
+        check_on_scene(space, Scene.load(scene, names=space.base.names))
         self.space = space
         self.journal = journal
         self.job = SeedJob(config=space.base, scene=str(scene), planners=tuple(planners),

@@ -25,9 +25,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from cdf_mj import __version__
+from cdf_mj._version import __version__
 from cdf_mj.experiments.runner import Backend
-from cdf_mj.experiments.store import locked
+from cdf_mj.experiments.store import check_run_kind, locked
 from cdf_mj.falsify.counterexamples import Counterexample, find_counterexamples, write_counterexamples
 from cdf_mj.falsify.estimate import Estimate, cross_entropy, monte_carlo
 from cdf_mj.falsify.evaluate import JOURNAL_FILE, Evaluation, Evaluator, Journal
@@ -35,6 +35,7 @@ from cdf_mj.falsify.search import Generation, SearchResult, run_search
 from cdf_mj.falsify.space import SearchSpace
 from cdf_mj.inputs import SETTINGS_MAX_BYTES, InputError, parse_json, read_text
 from cdf_mj.records import jsonable, write_atomic
+from cdf_mj.records.files import check_output_target
 from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
 
 __all__ = ["SETTINGS", "FalsifyResult", "estimate", "falsify"]
@@ -84,7 +85,9 @@ def _scene_settings(scene: str | Path, space: SearchSpace) -> dict[str, Any]:
 def _settings(out: Path, wanted: dict[str, Any]) -> None:
     """Write ``wanted`` to ``out/settings.json``, or check it against what is there; a
     directory whose journal holds no episode yet takes the new settings (it binds nothing).
-    Keys a directory made by an earlier version lacks (``scene_files``) are not compared."""
+    Keys a directory made by an earlier version lacks (``scene_files``) are not compared;
+    a directory of another kind of run (an experiment's) is refused whatever it holds."""
+    check_run_kind(out, wanted["kind"])
     path = out / SETTINGS
     journal = out / JOURNAL_FILE
     if path.exists() and journal.exists() and journal.stat().st_size > 0:
@@ -149,6 +152,8 @@ def falsify(space: SearchSpace, planner: str, budget: int, out: str | Path, *, c
               **_scene_settings(scene, space)}
     with ExitStack() as stack:
         out_dir, journal = _open(out, wanted, stack)
+        for name in ("summary.json", "report.md", *(("progress.png",) if figure else ())):
+            check_output_target(out_dir / name)  # a FIFO or a device there: refused before the search
         evaluator = Evaluator(space, [planner, *compare], journal, scene=scene, backend=backend, workers=workers,
                               address=address, on_episode=on_episode)
         stack.callback(evaluator.close)
@@ -182,6 +187,7 @@ def estimate(space: SearchSpace, planner: str, budget: int, out: str | Path, *, 
               **_scene_settings(scene, space)}
     with ExitStack() as stack:
         out_dir, journal = _open(out, wanted, stack)
+        check_output_target(out_dir / "estimate.json")  # a FIFO or a device there: refused before any episode
         evaluator = Evaluator(space, [planner], journal, scene=scene, backend=backend, workers=workers,
                               address=address, on_episode=on_episode)
         stack.callback(evaluator.close)
