@@ -21,12 +21,19 @@ seed, planner, error and traceback) and the run goes on; a planner that calls
 ``sys.exit()`` (raises ``SystemExit``) is a failed episode too, not the end of the run. Only
 ``KeyboardInterrupt`` (Ctrl-C) stops the run. Successful records carry
 ``"status": "ok"``. The records are persisted by :mod:`cdf_mj.experiments.store`.
+
+A process pool's workers ignore ``SIGINT`` while they wait for work and take it only while
+they run a seed, so Ctrl-C (sent to the whole process group) stops the seeds in flight and
+reaches the caller as one ``KeyboardInterrupt``, without a traceback from each idle worker.
+A pool never starts more workers than the seeds it is given (:func:`worker_count`; a
+:class:`SeedPool` grows up to its ``workers`` as larger batches come).
 """
 
 from __future__ import annotations
 
 import os
 import resource
+import signal
 import socket
 import sys
 import threading
@@ -183,6 +190,9 @@ def _die_with_parent(parent: int) -> None:
 
 def _init_process(job: SeedJob, parent: int, die_with_parent: bool) -> None:
     global _WORKER
+    # Ctrl-C goes to the whole process group: an idle worker, waiting for its next seed,
+    # would print a traceback of its own and die. It takes SIGINT only while it runs one.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     if die_with_parent:
         _die_with_parent(parent)
     _WORKER = SeedWorker(job)
@@ -195,7 +205,11 @@ WorkItem = tuple[int, tuple[str, ...]] | tuple[int, tuple[str, ...], ScenarioCon
 
 def _run_in_process(*item: Any) -> SeedResult:
     assert _WORKER is not None, "worker not initialised"
-    return _WORKER.run(*item)
+    signal.signal(signal.SIGINT, signal.default_int_handler)  # Ctrl-C stops this seed: sent back as its result
+    try:
+        return _WORKER.run(*item)
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 class _Serial:
@@ -390,18 +404,31 @@ class SeedPool:
                  address: str | None = None) -> None:
         cluster_default = backend == "ray" and address is not None and workers is None
         n = check_backend(backend, workers)
+        self._kind = backend
         self._where = effective_backend(backend, n, 2)
         if self._where == "ray" and address is not None:
             require("ray", "ray", "the ray backend")
             _probe_ray_address(address)
         self._job, self._n, self._address = job, (0 if cluster_default else n), address
         self._backend: _Serial | _Processes | _Ray | None = None
+        self._size = 0  # workers of the running process pool (1: this process)
 
     def run(self, todo: Sequence[WorkItem]) -> Iterator[SeedResult]:
-        """One :class:`SeedResult` per item, in completion order."""
+        """One :class:`SeedResult` per item, in completion order. A process pool has at
+        most one worker per item of the largest batch so far (``workers=1024`` on 4 seeds
+        starts 4): one started for a smaller batch is replaced by a larger one when a
+        larger batch comes, up to ``workers``."""
         if not todo:
             return iter(())
-        if self._backend is None:
+        if self._where == "process":
+            want = worker_count(self._kind, self._n, len(todo))
+            if self._backend is not None and want > self._size:
+                self.close()  # a larger batch than the pool was started for
+            if self._backend is None:
+                where = effective_backend(self._kind, want, len(todo))
+                self._backend = _BACKENDS[where](self._job, want, self._address)
+                self._size = want
+        elif self._backend is None:
             self._backend = _BACKENDS[self._where](self._job, self._n, self._address)
         return self._backend.run(todo)
 
