@@ -23,7 +23,7 @@ from cdf_mj.scenario.episode import run_episode
 def test_routes_are_followed_into_their_lanes(scene):
     """Obstacle that never sees the ego (beta = 0): the left-turner ends in the ego's lane
     heading east, the right-turner in the far lane heading west; the ego keeps its lane."""
-    far_ego = ScenarioConfig(obstacle={"beta": 0.0}, ego={"start_spread": (-200.0, -200.0)}, timing={"duration": 8.0})
+    far_ego = ScenarioConfig(obstacle={"beta": 0.0}, ego={"start_spread": (-105.0, -105.0)}, timing={"duration": 8.0})
     for p_left, lane_y, heading in ((1.0, -1.85, 0.0), (0.0, 1.85, np.pi)):
         rec = run_episode(far_ego.replace(obstacle={"p_left": p_left}), seed=1, planner="constant",
                           scene=scene, label=False, trace=True)

@@ -20,6 +20,7 @@ from cdf_mj.traits import within as _within
 
 __all__ = ["AFTER_MERGE", "DRIVER_FAMILIES", "FLAT_KEYS", "GROUPS", "MAX_ACCEL", "MAX_BRAKE", "MAX_DURATION",
            "MAX_EPISODES", "MAX_LENGTH", "MAX_PARTICLES", "MAX_SEED", "MAX_SPEED", "MAX_START_SPREAD",
+           "MAX_TOLD_LATENCY", "MAX_TOLD_STD",
            "MAX_WORKERS", "SCENARIO_KEYS", "VERSION_0_1_WORLD", "AfterMerge", "Ego", "FlatKeyWarning", "Observation",
            "ObstacleDriver", "ProcessNoise", "Pursuit", "ScenarioConfig", "SceneNames", "Sensing", "Timing",
            "check_seed", "scenario_key"]
@@ -40,6 +41,11 @@ MAX_SEED = 2**53 - 1
 MAX_WORKERS = 1024
 #: Shift of the ego start along its route, either way: a junction scene's scale [m].
 MAX_START_SPREAD = 200.0
+#: What a planner may be told of its own sensing (``sensing.told``; the bounds of
+#: ``PlannerContext``): the measurement's and the brake's latency together [s], and the
+#: std of the measured position [m].
+MAX_TOLD_LATENCY = 10.0
+MAX_TOLD_STD = 100.0
 
 
 def check_seed(seed: object, name: str = "seed") -> int:
@@ -422,6 +428,14 @@ class ScenarioConfig:
             v = getattr(self.sensing, name)
             _check(v < ticks, f"sensing.{name}", v, f"fewer ticks than the episode's {ticks} "
                                                      f"(timing.duration / timing.dt)")
+        sensing, dt = self.sensing, self.timing.dt
+        if sensing.told:  # what the planner is told: within what a planner takes (PlannerContext.of)
+            told = (sensing.latency + sensing.brake_latency) * dt
+            _check(told <= MAX_TOLD_LATENCY, "sensing.latency + sensing.brake_latency",
+                   sensing.latency + sensing.brake_latency, f"at most {MAX_TOLD_LATENCY:g} s of timing.dt = {dt:g} s "
+                   f"ticks where sensing.told (it tells the planner {told:g} s)")
+            _check(sensing.pos <= MAX_TOLD_STD, "sensing.pos", sensing.pos,
+                   f"at most {MAX_TOLD_STD:g} m where sensing.told (the std it tells the planner)")
 
     if not TYPE_CHECKING:  # the flat reads of version 0.1: not for the package's own code
         def __getattr__(self, name: str) -> Any:

@@ -27,7 +27,8 @@ from typing import Any
 import numpy as np
 
 from cdf_mj.falsify.evaluate import Evaluation, Evaluator, episode_seed
-from cdf_mj.falsify.space import Choice
+from cdf_mj.falsify.space import Choice, SpaceError
+from cdf_mj.inputs import printable
 
 __all__ = ["Generation", "SearchResult", "run_search"]
 
@@ -95,6 +96,9 @@ def run_search(evaluator: Evaluator, planner: str, budget: int, *, seed: int = 0
 
     space = evaluator.space
     d = len(space.dims)
+    if d < 2:  # CMA-ES itself would stop with "not yet initialized (dimension needed)"
+        raise SpaceError(f"space {printable(space.source or space.name)}: the search (CMA-ES) needs at least 2 "
+                         f"dimensions, this space has {d}; add one, or estimate its failure rate instead")
     lam0 = popsize or 4 + int(3 * math.log(max(d, 2)))
     minstd = [0.5 / len(dim.values) if isinstance(dim, Choice) else 0.0 for dim in space.dims]
     rng = np.random.default_rng([int(seed), 7])

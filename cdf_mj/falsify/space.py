@@ -57,7 +57,15 @@ import numpy as np
 
 from cdf_mj.config import ScenarioConfig
 from cdf_mj.config.user_values import UserValueError, apply_values, coerce_value, dotted_key
-from cdf_mj.inputs import PRESET_MAX_BYTES, TOML_SUFFIX, is_path, packaged_files, parse_user_toml, read_named
+from cdf_mj.inputs import (
+    PRESET_MAX_BYTES,
+    TOML_SUFFIX,
+    is_path,
+    packaged_files,
+    parse_user_toml,
+    printable,
+    read_named,
+)
 from cdf_mj.presets import PresetError, read_preset
 
 __all__ = ["MARGINS", "MARGIN_CAP", "MAX_DIMS", "MAX_VALUES", "Choice", "Dim", "FailureSpec", "Range",
@@ -254,7 +262,10 @@ def space_names() -> list[str]:
 
 
 def _finite_number(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    try:
+        return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    except OverflowError:  # a 400-digit integer: no float holds it
+        return False
 
 
 def _spell(key: str) -> str:
@@ -334,8 +345,9 @@ def _weights(raw: Any, n: int, at: str) -> tuple[float, ...]:
     if (not isinstance(raw, list) or len(raw) != n or not all(_finite_number(w) and w >= 0 for w in raw)
             or not sum(raw) > 0):
         raise SpaceError(f"{at}: weights must be {n} finite numbers >= 0 (one per value), not all 0, got {raw!r}")
-    total = float(sum(raw))
-    return tuple(float(w) / total for w in raw)
+    scaled = [float(w) / float(max(raw)) for w in raw]  # weights of 1e308 sum to infinity; scaled, they do not
+    total = sum(scaled)
+    return tuple(w / total for w in scaled)
 
 
 def parse_space(text: str, name: str, source: str, root: Path | None = None) -> SearchSpace:
@@ -410,7 +422,8 @@ def load_space(name_or_path: str | Path) -> SearchSpace:
     in it."""
     named = read_named(name_or_path, "space", _PACKAGED[0], SpaceError, folder=_PACKAGED[1],
                        max_bytes=PRESET_MAX_BYTES, suffix=SUFFIX)
-    return parse_space(named.text, named.name, named.source, root=None if named.path is None else named.path.parent)
+    name = printable(named.name)  # a file's name, printed by the commands: escape codes and newlines escaped
+    return parse_space(named.text, name, named.source, root=None if named.path is None else named.path.parent)
 
 
 # ------------------------------------------------------------------------ densities

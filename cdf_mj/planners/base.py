@@ -49,7 +49,7 @@ from typing import TYPE_CHECKING, Any, ClassVar, Protocol, TypeVar
 
 import numpy as np
 
-from cdf_mj.config import MAX_SPEED, ScenarioConfig
+from cdf_mj.config import MAX_SPEED, MAX_TOLD_LATENCY, MAX_TOLD_STD, ScenarioConfig
 from cdf_mj.model.layout import Layout
 
 if TYPE_CHECKING:  # annotations only: registering a planner imports no compiled kernel
@@ -83,11 +83,12 @@ class PlannerContext:
             raise TypeError(f"PlannerContext.layout must be a Layout, got {type(self.layout).__name__}")
         std = self.measurement_std
         if not (isinstance(std, tuple) and len(std) == 4 and all(
-                not isinstance(v, bool) and isinstance(v, (int, float, np.floating)) and 0 <= v <= 100 for v in std)):
+                not isinstance(v, bool) and isinstance(v, (int, float, np.floating)) and 0 <= v <= MAX_TOLD_STD
+                for v in std)):
             raise ValueError(f"PlannerContext.measurement_std={std!r} is out of range: must be 4 stds in "
-                             "[0, 100] [m, m, rad, m/s]")
+                             f"[0, {MAX_TOLD_STD:g}] [m, m, rad, m/s]")
         for name, low, high, unit in (("dt", 0, 1.0, "s"), ("nominal_speed", 0, MAX_SPEED, "m/s"),
-                                      ("speed_gain", 0, 1000.0, "1/s"), ("latency", None, 10.0, "s")):
+                                      ("speed_gain", 0, 1000.0, "1/s"), ("latency", None, MAX_TOLD_LATENCY, "s")):
             v = getattr(self, name)
             ok = not isinstance(v, bool) and isinstance(v, (int, float, np.floating)) and v <= high and (
                 v > low if low is not None else v >= 0)

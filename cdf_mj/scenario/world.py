@@ -149,9 +149,9 @@ class World:
         self._s0 = layout.route_ego.project(layout.ego_start[:2])[0]
         self._s_conflict = layout.route_ego.project(layout.conflict)[0]
         lo, hi = config.ego.start_spread
-        # A start before the route's first waypoint starts at it (heading along the route);
-        # past its end there is no heading to take.
-        if self._s0 + hi + 1.0 > layout.route_ego.length:
+        # A start off the route is refused: before its first waypoint the ego would start at
+        # that waypoint while the record kept the offset drawn; past its end there is no heading.
+        if self._s0 + lo < 0.0 or self._s0 + hi + 1.0 > layout.route_ego.length:
             raise ValueError(f"ego.start_spread=({lo:g}, {hi:g}) m puts the ego's start off its route in "
                              f"{scene.source}: its start site is {self._s0:.1f} m along a route of "
                              f"{layout.route_ego.length:.1f} m (and the start needs 1 m of route ahead)")
