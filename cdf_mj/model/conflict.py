@@ -32,7 +32,6 @@ World frame (x east, y north), metres, seconds, radians; poses are rear-axle
 
 from __future__ import annotations
 
-import dataclasses
 import functools
 import math
 from dataclasses import dataclass
@@ -177,8 +176,9 @@ class ConflictMap:
 
 
 def widened(car: CarGeometry, margin: float) -> CarGeometry:
-    """``car`` with ``margin`` [m] added to each half size of its collision box."""
-    return dataclasses.replace(car, hull_half=car.hull_half + margin) if margin else car
+    """``car`` with ``margin`` [m] added to each half size of its collision box (a car at
+    :class:`CarGeometry`'s largest size too: :meth:`CarGeometry.padded`)."""
+    return car.padded(margin) if margin else car
 
 
 def _overlaps(car_a: CarGeometry, poses_a: np.ndarray, car_b: CarGeometry, poses_b: np.ndarray,

@@ -21,14 +21,14 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
 from cdf_mj.config import MAX_ACCEL
 from cdf_mj.model.geometry import box_corners_one, rotated_corners
 
-__all__ = ["CAR_LENGTH", "CAR_SIZE", "CAR_WIDTH", "CarGeometry"]
+__all__ = ["CAR_LENGTH", "CAR_SIZE", "CAR_WIDTH", "CarGeometry", "unit_hint"]
 
 #: [m] the collision box's length of anything that drives on a road, from a 1:40 model
 #: (MuJoCo's example car, ``model/car/car.xml``, is 0.2 m long) to a road train; a length
@@ -40,9 +40,10 @@ CAR_WIDTH = (0.02, 10.0)
 CAR_SIZE = 30.0
 
 
-def _unit_hint(value: float, high: float, low: float = 0.0) -> str:
+def unit_hint(value: float, high: float, low: float = 0.0) -> str:
     """For a length ``value`` [m] beyond ``high``: the smaller units in which it would lie
-    in ``[low, high]`` (none for a value within twice the bound: too close to tell)."""
+    in ``[low, high]``, as ``"; millimetres?"`` to end a message (``""`` for a value within
+    twice the bound: too close to tell). Every check of a car's lengths words it so."""
     units = [unit for factor, unit in ((1000.0, "millimetres"), (100.0, "centimetres"))
              if value > 2.0 * high and low <= value / factor <= high]
     return f"; {' or '.join(units)}?" if units else ""
@@ -53,7 +54,7 @@ def _box_problem(half: np.ndarray) -> str:
     for size, (low, high), word in ((2.0 * float(half[0]), CAR_LENGTH, "long"),
                                     (2.0 * float(half[1]), CAR_WIDTH, "wide")):
         if not low <= size <= high:
-            hint = _unit_hint(size, high, low) if size > high else "; metres expected"
+            hint = unit_hint(size, high, low) if size > high else "; metres expected"
             return f"makes the box {size:g} m {word}: a car is {low:g}-{high:g} m {word}{hint}"
     return ""
 
@@ -137,7 +138,7 @@ class CarGeometry:
                 bad.append(f"hull_half={value.tolist()} {implausible}")
             elif (far := float(np.max(np.abs(value)))) > CAR_SIZE:
                 bad.append(f"{name}={value.tolist()} reaches {far:g} m from the rear axle: a car's "
-                           f"parts are within {CAR_SIZE:g} m of it{_unit_hint(far, CAR_SIZE)}")
+                           f"parts are within {CAR_SIZE:g} m of it{unit_hint(far, CAR_SIZE)}")
             else:
                 object.__setattr__(self, name, value)
         for name in ("wheelbase", "hull_height"):
@@ -150,7 +151,7 @@ class CarGeometry:
                 bad.append(f"{name}={value!r} must be a finite number > 0 [m]")
             elif number > CAR_SIZE:
                 bad.append(f"{name}={number:g} m: a car's is at most {CAR_SIZE:g} m"
-                           f"{_unit_hint(number, CAR_SIZE)}")
+                           f"{unit_hint(number, CAR_SIZE)}")
             else:
                 object.__setattr__(self, name, number)
         for name, unit, sides in (("accel_range", "m/s^2", "braking < 0 < acceleration"),
@@ -200,6 +201,30 @@ class CarGeometry:
                              f"{'; ' if missing and unknown else ''}"
                              f"{'unknown ' + ', '.join(unknown) if unknown else ''}")
         return cls(**data)  # type: ignore[arg-type]  # the constructor checks every value
+
+    def padded(self, margin: float) -> CarGeometry:
+        """This car with ``margin`` [m] added to each half size of its collision box (a
+        safety envelope: the box of a car at :data:`CAR_LENGTH`'s or :data:`CAR_WIDTH`'s
+        bound grows past it by ``2 * margin``, so that every car the constructor takes can
+        be padded). ValueError unless ``margin`` is a finite number of at most
+        :data:`CAR_SIZE` that leaves the box a size (a negative one shrinks it); 0 gives
+        this very car."""
+        try:
+            pad = float(margin)
+        except (TypeError, ValueError):
+            pad = math.nan
+        if not (math.isfinite(pad) and abs(pad) <= CAR_SIZE and np.all(self.hull_half + pad > 0)):
+            raise ValueError(f"CarGeometry.padded: margin={margin!r} must be a finite number [m] of at most "
+                             f"{CAR_SIZE:g} that leaves the box a size")
+        if pad == 0.0:
+            return self
+        out = object.__new__(CarGeometry)  # every field as checked, but the padded box
+        for f in fields(self):
+            object.__setattr__(out, f.name, getattr(self, f.name))
+        half = self.hull_half + pad
+        half.flags.writeable = False
+        object.__setattr__(out, "hull_half", half)
+        return out
 
     @property
     def length(self) -> float:

@@ -20,7 +20,7 @@ import mujoco
 import numpy as np
 
 from cdf_mj.config import SceneNames
-from cdf_mj.model.vehicle import CarGeometry
+from cdf_mj.model.vehicle import CAR_SIZE, CarGeometry, unit_hint
 from cdf_mj.sim.checks import SceneError
 from cdf_mj.sim.scene import Scene
 
@@ -36,7 +36,10 @@ class TrackedCar:
             of the :class:`SceneNames`). Any body: planar or free joints, a mocap body, a
             child of other moving bodies.
         rear_axle: ``(x, y)`` [m] the rear axle's centre in that body's frame (a chassis
-            origin at the car's centre: ``(-wheelbase / 2, 0)`` or so). The pose given to
+            origin at the car's centre: ``(-wheelbase / 2, 0)`` or so), within
+            :data:`~cdf_mj.model.vehicle.CAR_SIZE` of the body's origin as every part of a
+            :class:`~cdf_mj.model.vehicle.CarGeometry` is (beyond it, a ValueError says which
+            smaller unit it looks like: ``(-1350.0, 0.0)``, millimetres?). The pose given to
             the filter is this point's.
         heading: [rad] the car's forward direction in the body frame, from the body's x
             axis about its z axis (0: x forward; ``pi / 2``: y forward).
@@ -59,6 +62,9 @@ class TrackedCar:
         if not all(math.isfinite(v) for v in (x, y, heading)):
             raise ValueError(f"TrackedCar: rear_axle must be (x, y) [m] and heading [rad] finite, got "
                              f"rear_axle={self.rear_axle!r}, heading={self.heading!r}")
+        if (far := math.hypot(x, y)) > CAR_SIZE:
+            raise ValueError(f"TrackedCar: rear_axle=({x:g}, {y:g}) is {far:g} m from the body's origin: a car's "
+                             f"rear axle is within {CAR_SIZE:g} m of its body{unit_hint(far, CAR_SIZE)}")
         object.__setattr__(self, "rear_axle", (x, y))
         object.__setattr__(self, "heading", heading)
         if self.geometry is not None and not isinstance(self.geometry, CarGeometry):
