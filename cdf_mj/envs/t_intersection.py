@@ -460,6 +460,7 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
                 raise RuntimeError("the CDF monitor has not run: call reset() first")
             if self.posterior_in_observation:
                 p = decision.posterior
+                assert p is not None  # the env's monitor runs the cdf planner
                 obs = np.r_[obs, p.p_left, p.p_seen, p.p_cutoff]
             if self.command_in_observation:
                 obs = np.r_[obs, decision.accel]
@@ -472,7 +473,7 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
         w = self.world
         d = self._monitor.decision if self._monitor is not None else None
         info: dict[str, Any] = {
-            "posterior": d.posterior.to_dict() if d is not None else None,
+            "posterior": d.posterior.to_dict() if d is not None and d.posterior is not None else None,
             "brake": bool(d.brake) if d is not None else False,
             "accel": float(d.accel) if d is not None else None,
             "collision": collision, "label": self._label,

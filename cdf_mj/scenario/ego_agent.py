@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -35,9 +36,11 @@ from cdf_mj.model.layout import Layout
 from cdf_mj.model.road import follow_accel
 from cdf_mj.planners.base import Planner, PlannerContext, PlannerInput, hard_brake_of
 from cdf_mj.scenario.sensing import CommandDelay, JerkLimiter, Sensor
-from cdf_mj.scenario.world import Measurement
 
-__all__ = ["EgoAgent"]
+if TYPE_CHECKING:  # annotations only: the monitor imports PlannerCommand without MuJoCo
+    from cdf_mj.scenario.world import Measurement
+
+__all__ = ["EgoAgent", "PlannerCommand"]
 
 
 def _answer(planner: Planner, wants: object) -> bool:
@@ -60,6 +63,52 @@ def _command(planner: Planner, command: object) -> float:
         raise TypeError(f"planner {name!r} ({type(planner).__name__}.command) returned {command!r}: it must "
                         "return an acceleration cap [m/s^2] (-inf: the full brake, inf: none)")
     return float(command)
+
+
+class PlannerCommand:
+    """A planner's answer on each tick as a command [m/s^2], what the ego (:class:`EgoAgent`)
+    and the monitor (:class:`~cdf_mj.scenario.monitor.CDFMonitor`) act on: a graded
+    planner's own command, or a yes/no planner's full brake (``-inf``; its first yes held
+    unless it ``releases_brake``) or none (``inf``).
+
+    After each call ``braking`` is whether it brakes on this tick (a graded command at or
+    beyond the planner's ``hard_brake``, else :func:`~cdf_mj.planners.base.hard_brake_of`
+    the car's ``max_brake`` [m/s^2]) and ``brake_time`` [s] the first tick it did. Call
+    :meth:`reset` after the planner's own reset (a rule may be chosen there).
+    """
+
+    def __init__(self, planner: Planner | None, max_brake: float) -> None:
+        self.planner, self.max_brake = planner, max_brake
+        self.reset()
+
+    def reset(self) -> None:
+        """Start an episode: no brake yet; read the planner's kind: ``graded`` (a command
+        [m/s^2]) or yes/no, whether it ``releases`` its brake, and the command ``hard``
+        [m/s^2] from which a graded command is a brake."""
+        planner = self.planner
+        self.graded = bool(getattr(planner, "graded", False))
+        self.releases = bool(getattr(planner, "releases_brake", False))
+        hard = getattr(planner, "hard_brake", None) if self.graded else None
+        self.hard = hard_brake_of(self.max_brake) if hard is None else hard
+        self.braking = False  # a yes/no planner's brake, held
+        self.brake_time: float | None = None
+
+    def __call__(self, seen: PlannerInput) -> float:
+        """The planner's command [m/s^2] on this tick's measurement ``seen``."""
+        planner = self.planner
+        if planner is None:
+            raise RuntimeError("PlannerCommand: no planner to ask")
+        if self.graded:
+            command = _command(planner, planner.command(seen))
+            wants = command <= -self.hard
+        else:
+            wants = _answer(planner, planner.brake(seen))
+            wants = wants if self.releases else (self.braking or wants)
+            command = -math.inf if wants else math.inf
+        self.braking = wants
+        if wants and self.brake_time is None:
+            self.brake_time = seen.t
+        return command
 
 
 class EgoAgent:
@@ -98,7 +147,7 @@ class EgoAgent:
         self.follows = config.ego.follow if follows is None else bool(follows)
         self._car = layout.ego
         self._max_brake = layout.ego.max_brake
-        self._planner_kind()
+        self._command = PlannerCommand(planner, self._max_brake)
         self.sensor: Sensor | None = None
         self._m: Measurement | None = None
 
@@ -110,7 +159,7 @@ class EgoAgent:
         config = self.config
         if self.planner is not None:
             self.planner.reset(PlannerContext.of(self.layout, config), rng["planner"])
-        self._planner_kind()  # as the planner is after its reset (a rule may be chosen there)
+        self._command.reset()  # the planner's kind as it is after its reset (a rule may be chosen there)
         self.sensor = Sensor(config.sensing, self.layout, rng["sensing"])
         self._m = None  # the last measurement sensed
         self._delay = CommandDelay(config.sensing.brake_latency)
@@ -119,8 +168,6 @@ class EgoAgent:
         # what they were before graded commands existed).
         self._actuator: Callable[[float], float] = \
             JerkLimiter(config.ego.jerk_limit, config.timing.dt) if self.graded else float
-        self._braking = False  # a yes/no planner's brake, held
-        self.brake_time: float | None = None
         self.deviated: float | None = None
         self.acting = False
         self.accel = math.nan
@@ -142,8 +189,8 @@ class EgoAgent:
         if planner is None:
             raise RuntimeError("EgoAgent.act needs a planner; a controller of its own uses sense() and drive()")
         seen = self.sense(m)
-        command = self._delay(self._decide(planner, seen))  # as it acts, sensing.brake_latency ticks on
-        self.acting = command <= -self._hard
+        command = self._delay(self._command(seen))  # as it acts, sensing.brake_latency ticks on
+        self.acting = command <= -self._command.hard
         # The ego's own controller (its speed hold, and its car following), capped by the command.
         controls = ego_control(self.driver, self._car, m.poses[0], False)
         nominal = float(controls[0])
@@ -176,26 +223,17 @@ class EgoAgent:
         self.accel = accel
         return np.array([accel, steer])
 
-    def _planner_kind(self) -> None:
-        """What kind of answer the planner gives: ``graded`` (a command [m/s^2]) or yes/no,
-        whether it ``releases`` its brake, and the command ``_hard`` [m/s^2] from which a
-        graded command is a brake."""
-        planner = self.planner
-        self.graded = bool(getattr(planner, "graded", False))
-        self.releases = bool(getattr(planner, "releases_brake", False))
-        hard = getattr(planner, "hard_brake", None) if self.graded else None
-        self._hard = hard_brake_of(self._max_brake) if hard is None else hard
+    @property
+    def graded(self) -> bool:
+        """Whether the planner gives a graded command [m/s^2] (else yes/no to the full brake)."""
+        return self._command.graded
 
-    def _decide(self, planner: Planner, seen: PlannerInput) -> float:
-        """The planner's command [m/s^2] on this tick's measurement: a graded planner's own,
-        or a yes/no planner's full brake (``-inf``, held unless it releases) or none (``inf``)."""
-        if self.graded:
-            command = _command(planner, planner.command(seen))
-            wants = command <= -self._hard
-        else:
-            wants = _answer(planner, planner.brake(seen))
-            self._braking = wants = wants if self.releases else (self._braking or wants)
-            command = -math.inf if wants else math.inf
-        if wants and self.brake_time is None:
-            self.brake_time = seen.t
-        return command
+    @property
+    def releases(self) -> bool:
+        """Whether a yes/no planner may release its brake (else its first yes is held)."""
+        return self._command.releases
+
+    @property
+    def brake_time(self) -> float | None:
+        """[s] The first tick its planner wanted the brake, None if it has not."""
+        return self._command.brake_time

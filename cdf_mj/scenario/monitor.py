@@ -27,6 +27,11 @@ after which :meth:`CDFMonitor.step` reads the poses and observes them::
         decision = monitor.step()
         mujoco.mj_step(model, data, nstep=nstep)
 
+``planner=`` (of both) puts another registered planner in the CDF's place, to compare
+them on your testbed as the package's tables do: ``CDFMonitor(layout, planner="imm-layered")``,
+``"reactive"``, or one of yours (``cdf_mj.register``); its decisions have ``posterior``
+None and its trace no posterior.
+
 This module imports neither MuJoCo nor :mod:`cdf_mj.sim` until :func:`attach` is called
 (or a :class:`~cdf_mj.sim.scene.Scene` is given). How a car's body is read is
 :mod:`cdf_mj.sim.tracking` (:class:`TrackedCar`), the trace file is
@@ -50,9 +55,11 @@ from cdf_mj.inference.particle_filter import ParticleFilter, Posterior
 from cdf_mj.model import road
 from cdf_mj.model.layout import Layout
 from cdf_mj.model.vehicle import CarGeometry
-from cdf_mj.planners.base import PlannerContext, PlannerInput
+from cdf_mj.planners.base import DecidingPlanner, Planner, PlannerContext, PlannerInput
 from cdf_mj.planners.cdf import CDFPlanner
+from cdf_mj.planners.registry import bind_planner
 from cdf_mj.records import jsonable
+from cdf_mj.scenario.ego_agent import PlannerCommand
 from cdf_mj.scenario.trace_file import TRACE_FORMAT, MonitorTrace, TraceError, read_trace, write_trace
 
 if TYPE_CHECKING:
@@ -74,10 +81,15 @@ class Decision:
 
     t: float  # [s] simulated time of the measurement
     poses: np.ndarray  # (2, 4) measured system pose: ego, obstacle [x m, y m, yaw rad, v m/s]
-    posterior: Posterior  # P(left), P(right), P(seen), P(cutoff), effective sample size
+    # P(left), P(right), P(seen), P(cutoff), effective sample size; None for a planner
+    # without a posterior (``reactive``, ``imm-*``, ``cv-*``, a user's: CDFMonitor.has_posterior).
+    # Annotated Posterior, as the Gymnasium env (always the cdf) reads it so.
+    posterior: Posterior | None
     brake: bool  # the rule brakes hard now: its command is at or beyond LayeredConfig.hard_brake
     # (the layered rule), or it brakes fully (the risk rule may release; the paper's threshold
-    # rule, P(cutoff) >= tau, holds it from the first yes)
+    # rule, P(cutoff) >= tau, holds it from the first yes); for another planner: its graded
+    # command at or beyond its hard_brake, or its yes (held unless it releases_brake), as
+    # the ego of run_episode reads it (cdf_mj.scenario.ego_agent.PlannerCommand)
     brake_time: float | None  # [s] the first step at which it braked hard
     accel: float = math.nan  # [m/s^2] the acceleration to apply until the next step, negative when
     # braking: the ego's speed hold towards its nominal speed (speed_gain (v_nominal - v)),
@@ -118,6 +130,42 @@ def _show(value: object) -> str:
     return text if len(text) <= 80 else text[:77] + "..."
 
 
+def _name(planner: Planner) -> str:
+    """A planner's name for messages and the trace header."""
+    return str(getattr(planner, "name", None) or type(planner).__name__)
+
+
+def _planner(planner: object, cdf: CDFConfig) -> Planner:
+    """The monitor's planner: a registered name built as experiments build it (with what it
+    takes of ``cdf``: :func:`~cdf_mj.planners.registry.bind_planner`), or a Planner object;
+    ValueError naming the registered planners, or TypeError naming what was given."""
+    if isinstance(planner, Planner):
+        return planner
+    if not isinstance(planner, str):
+        raise TypeError(f"CDFMonitor: planner must be a registered planner's name or a cdf_mj.planners.Planner, "
+                        f"got {_show(planner)} of type {type(planner).__name__}")
+    if planner == "cdf":  # the same filter and rule as the `cdf` planner, built as ever
+        return CDFPlanner(cdf)
+    try:
+        return bind_planner(planner, cdf).make()
+    except ValueError as exc:
+        raise ValueError(f"CDFMonitor: {exc}") from None
+
+
+def _rule_of(planner: Planner) -> dict[str, Any]:
+    """The header's ``rule`` (its name, None without one) and ``threshold`` (where it has
+    one in (0, 1]) of a planner without a posterior."""
+    rule = planner.rule if isinstance(planner, DecidingPlanner) else None
+    name = getattr(rule, "name", None)
+    if name not in ("threshold", "risk", "layered"):
+        return {"rule": None}
+    value = getattr(rule, "threshold", None) if name == "threshold" else getattr(getattr(rule, "config", None),
+                                                                                 "brake", None)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and 0 < value <= 1):
+        return {"rule": name}
+    return {"rule": name, "threshold": float(value)}
+
+
 class CDFMonitor:
     """The CDF particle filter watching two cars whose simulation someone else steps.
 
@@ -143,6 +191,16 @@ class CDFMonitor:
             not brake (:class:`~cdf_mj.planners.base.PlannerContext`); default the
             scenario's ego speed, 13.4 m/s (:func:`cdf_mj.config.scaled` scales it for a
             testbed at another scale). Give your ego's cruise speed if it is another.
+        planner: what decides instead of the CDF, to compare rules on your testbed as the
+            package's tables do: a registered name (``"imm-layered"``, ``"reactive"``,
+            ``"cv-layered"``, one of yours from :func:`~cdf_mj.planners.register`; built
+            by :func:`~cdf_mj.planners.registry.bind_planner` with what it takes of
+            ``cdf``, as experiments build it) or a :class:`~cdf_mj.planners.base.Planner`
+            object. Default ``"cdf"``: the CDF filter with ``cdf``'s rule. ValueError
+            listing the registered names for an unknown one; TypeError for an object that
+            is not a Planner. A planner without a posterior (anything but the ``cdf*``
+            planners) gives ``Decision.posterior`` None, has no :attr:`filter`, and its
+            trace holds no posterior (:meth:`save_trace`).
 
     The decision rule assumes that its decisions are carried out: the ego applies
     ``Decision.accel`` (its speed hold towards ``nominal_speed`` capped by the rule's
@@ -161,7 +219,7 @@ class CDFMonitor:
                  cdf: CDFConfig | None = None, rng: np.random.Generator | int | None = None, *,
                  ego: CarGeometry | None = None, obstacle: CarGeometry | None = None,
                  source: PoseSource | None = None, record_trace: bool = True,
-                 nominal_speed: float | None = None) -> None:
+                 nominal_speed: float | None = None, planner: str | Planner = "cdf") -> None:
         self.scene: Scene | None = None
         if not isinstance(layout, Layout):
             if not callable(getattr(layout, "layout", None)):
@@ -187,12 +245,22 @@ class CDFMonitor:
         self.record_trace = record_trace
         self.rng = rng if isinstance(rng, np.random.Generator) else \
             np.random.default_rng(None if rng is None else check_seed(rng, "rng"))
-        self.planner = CDFPlanner(self.cdf)  # the same filter and rule as the `cdf` planner
+        self.planner: Planner = _planner(planner, self.cdf)
+        self._command = PlannerCommand(self.planner, self.layout.ego.max_brake)
         self.reset()
 
     @property
+    def has_posterior(self) -> bool:
+        """Whether the planner is a CDF filter (``cdf``, ``cdf-risk``, ``cdf-threshold``):
+        only then has a decision a ``posterior`` and the monitor a :attr:`filter`."""
+        return isinstance(self.planner, CDFPlanner)
+
+    @property
     def filter(self) -> ParticleFilter:
-        """The particle filter of the current episode."""
+        """The particle filter of the current episode; AttributeError for a planner without one."""
+        if not isinstance(self.planner, CDFPlanner):
+            raise AttributeError(f"CDFMonitor.filter: planner {_name(self.planner)!r} has no particle filter "
+                                 "(only the cdf planners have one); its decisions have posterior None")
         return self.planner.filter
 
     def reset(self) -> None:
@@ -203,6 +271,7 @@ class CDFMonitor:
         other draws; build a new monitor with the same ``rng`` seed to repeat one exactly."""
         self._last_t: float | None = None
         self.planner.reset(self.context, self.rng)
+        self._command.reset()  # the planner's kind as it is after its reset
         self.decision: Decision | None = None
         self.trace: list[dict[str, Any]] = []
         forget = getattr(self.source, "forget", None)
@@ -235,10 +304,10 @@ class CDFMonitor:
         x, y, th = (float(v) for v in poses[1, :3])
         # No measurement (4 NaN): not in the lane.
         in_lane = not math.isnan(x) and road.in_lane(self.layout, self.layout.obstacle.footprint_one(x, y, th))
-        command = self.planner.command(PlannerInput(t=t, poses=poses, obstacle_in_lane=in_lane))
-        brake = self.planner.braking
+        command = self._command(PlannerInput(t=t, poses=poses, obstacle_in_lane=in_lane))
+        brake = self._command.braking
         self._last_t = t
-        post = self.planner.posterior
+        post = self.planner.posterior if isinstance(self.planner, CDFPlanner) else None
         ctx, car = self.context, self.layout.ego
         hold = ctx.speed_gain * (ctx.nominal_speed - float(poses[0, 3]))  # the ego's speed hold
         accel = min(max(min(hold, command), -car.max_brake), car.max_accel)
@@ -246,14 +315,16 @@ class CDFMonitor:
                                  brake_time=self.brake_time, accel=accel)
         if self.record_trace:
             row = {"t": t, "ego": poses[0].tolist(), "obstacle": poses[1].tolist(),
-                   "posterior": post.to_dict(), "brake": self.decision.brake, "accel": accel}
-            self.trace.append(row | {k: float(v) for k, v in self.planner.rule.values().items()})
+                   **({"posterior": post.to_dict()} if post is not None else {}),
+                   "brake": self.decision.brake, "accel": accel}
+            rule = self.planner.rule if isinstance(self.planner, DecidingPlanner) else None
+            self.trace.append(row | ({k: float(v) for k, v in rule.values().items()} if rule is not None else {}))
         return self.decision
 
     @property
     def brake_time(self) -> float | None:
         """[s] the first observation at which the rule braked, None if it has not."""
-        t = self.planner.decision_time
+        t = self._command.brake_time
         return round(t, 6) if t is not None else None
 
     def step(self) -> Decision:
@@ -284,19 +355,28 @@ class CDFMonitor:
     def trace_header(self) -> dict[str, Any]:
         """The first line of a trace file: format, scene names, configs, the decision rule and
         the threshold of what it brakes on (``risk`` for the risk rule, P(cutoff) for the
-        threshold rule), car geometries."""
+        threshold rule), car geometries. Another planner than ``cdf`` is named
+        (``"planner"``); one without a posterior has ``"posterior": false``, no ``cdf`` nor
+        ``tau``, and its rule's name and threshold where it has them (else ``"rule": null``)."""
+        if not isinstance(self.planner, CDFPlanner):
+            return {"format": TRACE_FORMAT, "names": jsonable(self.scenario.names),
+                    "scenario": jsonable(self.scenario), "planner": _name(self.planner), "posterior": False,
+                    **_rule_of(self.planner),
+                    "ego": self.layout.ego.to_dict(), "obstacle": self.layout.obstacle.to_dict()}
+        cdf = self.planner.cdf  # the planner's own (cdf-risk and cdf-threshold set their rule)
         return {"format": TRACE_FORMAT, "names": jsonable(self.scenario.names),
-                "scenario": jsonable(self.scenario), "cdf": jsonable(self.cdf),
-                "tau": float(self.cdf.tau), "rule": self.planner.rule.name,
-                "threshold": float(self.cdf.tau if self.cdf.decision == "threshold" else self.cdf.risk.brake),
+                "scenario": jsonable(self.scenario), "cdf": jsonable(cdf),
+                "tau": float(cdf.tau), "rule": self.planner.rule.name,
+                "threshold": float(cdf.tau if cdf.decision == "threshold" else cdf.risk.brake),
                 "ego": self.layout.ego.to_dict(),
-                "obstacle": self.layout.obstacle.to_dict()}
+                "obstacle": self.layout.obstacle.to_dict()} | (
+                    {"planner": _name(self.planner)} if _name(self.planner) != "cdf" else {})
 
     def save_trace(self, path: str | Path) -> Path:
         """Write the trace since the last :meth:`reset` as JSON lines: the header
         (:meth:`trace_header`), then one object per observation ``{"t", "ego", "obstacle",
-        "posterior", "brake"}`` (and ``"risk"`` with the risk rule). The file appears complete
-        or not at all."""
+        "posterior", "brake", "accel"}`` (and ``"risk"`` with the risk rule; no
+        ``"posterior"`` for a planner without one). The file appears complete or not at all."""
         return write_trace(path, self.trace_header(), self.trace)
 
 
@@ -305,7 +385,8 @@ def attach(model: mujoco.MjModel, data: mujoco.MjData, names: SceneNames | None 
            rng: np.random.Generator | int | None = None, *,
            ego: TrackedCar | CarGeometry | None = None,
            obstacle: TrackedCar | CarGeometry | None = None,
-           record_trace: bool = True, nominal_speed: float | None = None) -> CDFMonitor:
+           record_trace: bool = True, nominal_speed: float | None = None,
+           planner: str | Planner = "cdf") -> CDFMonitor:
     """A :class:`CDFMonitor` on your model and data; :meth:`CDFMonitor.step` then reads
     the poses from ``data`` and observes them.
 
@@ -315,8 +396,9 @@ def attach(model: mujoco.MjModel, data: mujoco.MjData, names: SceneNames | None 
     geometry given nothing else of that car is read, so a wrong ``front_axle`` cannot give
     a wrong wheelbase, and a car without an eye site or a named hull is fine. ``names``
     defaults to ``scenario.names``; ``nominal_speed`` is the monitor's (the ego's cruise
-    speed [m/s], default the scenario's). SceneError lists every problem of the junction; a
-    missing body or car element is one SceneError naming it and the fix.
+    speed [m/s], default the scenario's), ``planner`` what decides (default ``"cdf"``; a
+    registered name or a Planner: :class:`CDFMonitor`). SceneError lists every problem of
+    the junction; a missing body or car element is one SceneError naming it and the fix.
     """
     from cdf_mj.sim.scene import read_layout
     from cdf_mj.sim.tracking import BodyPoseSource, TrackedCar, find_bodies
@@ -337,7 +419,7 @@ def attach(model: mujoco.MjModel, data: mujoco.MjData, names: SceneNames | None 
     layout = read_layout(model, names, ego=tracked[0].geometry, obstacle=tracked[1].geometry)
     source = BodyPoseSource(model, data, bodies, tracked)  # SceneError: data of another model
     return CDFMonitor(layout, scenario, cdf, rng, source=source, record_trace=record_trace,
-                      nominal_speed=nominal_speed)
+                      nominal_speed=nominal_speed, planner=planner)
 
 
 #: Names that moved to :mod:`cdf_mj.sim.tracking`, read from there on first access (it

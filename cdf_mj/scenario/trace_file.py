@@ -6,7 +6,11 @@ JSON lines: a header object (``"format": TRACE_FORMAT``, the scene names, the sc
 CDF configs, the decision rule and its threshold, both cars' geometries), then one object
 per observation ``{"t", "ego", "obstacle", "posterior", "brake"}`` (and ``"risk"`` with the
 risk rule): time [s], rear-axle poses ``[x m, y m, yaw rad, v m/s]`` in the world frame,
-the posterior's probabilities, the brake decision. ::
+the posterior's probabilities, the brake decision. A monitor with another planner than
+``cdf`` names it in the header (``"planner"``); one without a posterior (``reactive``,
+``imm-*``, ``cv-*``, a user's) writes ``"posterior": false`` there, no ``cdf`` nor ``tau``,
+its rule's name (``null`` for a planner without one) and threshold where it has them, and
+observations without ``"posterior"``. ::
 
     from cdf_mj.scenario.trace_file import read_trace
 
@@ -75,7 +79,10 @@ class MonitorTrace:
     and obstacle, world frame; ``posterior`` maps ``t`` and each probability (``p_left``,
     ``p_right``, ``p_seen``, ``p_cutoff``, ``ess``, and ``risk`` for the risk rule) to (K,)
     arrays. ``rule`` is the decision rule (``threshold`` for traces written before the
-    risk rule) and ``threshold`` the value at which it brakes on its quantity.
+    risk rule; None for a planner without one) and ``threshold`` the value at which it
+    brakes on its quantity (NaN where unknown). ``planner`` names the monitor's planner;
+    for one without a posterior (:attr:`has_posterior` False) ``posterior`` holds only
+    ``t`` (and ``risk`` with the risk rule) and ``tau`` is NaN.
     """
 
     path: Path
@@ -88,8 +95,14 @@ class MonitorTrace:
     poses: np.ndarray
     posterior: dict[str, np.ndarray]
     brake: np.ndarray  # (K,) bool: the brake decision per observation
-    rule: str = "threshold"
+    rule: str | None = "threshold"
     threshold: float = math.nan
+    planner: str = "cdf"
+
+    @property
+    def has_posterior(self) -> bool:
+        """Whether the trace holds the CDF posterior (written by a ``cdf`` planner)."""
+        return "p_cutoff" in self.posterior
 
     @property
     def brake_time(self) -> float | None:
@@ -150,24 +163,33 @@ def _parse(path: Path, lines: list[tuple[int, str]], whole: str, at: Callable[[i
     if unknown:
         raise TraceError(f"{at(no)}: the header's 'names' has unknown key(s) {', '.join(unknown)}; "
                          f"valid: {', '.join(valid)}")
+    planner, has_post = header.get("planner", "cdf"), header.get("posterior", True)
+    if not isinstance(planner, str) or not planner:
+        raise TraceError(f"{at(no)}: the header's 'planner' must be a planner's name, got {planner!r}")
+    if not isinstance(has_post, bool):
+        raise TraceError(f"{at(no)}: the header's 'posterior' must be true or false, got {has_post!r}")
     try:
         names = SceneNames(**header["names"])
         ego = CarGeometry.from_dict(header["ego"])
         obstacle = CarGeometry.from_dict(header["obstacle"])
-        tau = float(header["tau"])
+        tau = float(header["tau"]) if has_post else math.nan
     except KeyError as exc:
         raise TraceError(f"{at(no)}: the header lacks {exc.args[0]!r}") from None
     except (TypeError, ValueError) as exc:
         raise TraceError(f"{at(no)}: bad header: {' '.join(str(exc).split())}") from None
-    rule, threshold = header.get("rule", "threshold"), header.get("threshold", tau)
+    rule = header.get("rule", "threshold")
+    threshold = header.get("threshold", tau if has_post else math.nan)
     for key, value in (("tau", tau), ("threshold", threshold)):
+        if not has_post and key not in header:  # a planner without a posterior: none, or not known
+            continue
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not (
                 math.isfinite(value) and 0.0 < value <= 1.0):
             raise TraceError(f"{at(no)}: the header's {key!r} must be in (0, 1], got {header.get(key, value)!r}")
-    if rule not in ("threshold", "risk", "layered"):
-        raise TraceError(f"{at(no)}: the header's 'rule' must be 'threshold', 'risk' or 'layered', got {rule!r}")
+    if rule not in ("threshold", "risk", "layered") and not (rule is None and not has_post):
+        raise TraceError(f"{at(no)}: the header's 'rule' must be 'threshold', 'risk' or 'layered'"
+                         f"{' (or null)' if not has_post else ''}, got {rule!r}")
     risky = rule in ("risk", "layered")  # the emergency layer's risk is the risk rule's
-    keys = (*_POSTERIOR_KEYS, "risk") if risky else _POSTERIOR_KEYS
+    keys = (*(_POSTERIOR_KEYS if has_post else ()), *(("risk",) if risky else ()))
     if len(rows) < 2:
         raise TraceError(f"{at(no)}: the trace has no observation after its header")
     times: list[float] = []
@@ -178,7 +200,7 @@ def _parse(path: Path, lines: list[tuple[int, str]], whole: str, at: Callable[[i
         try:
             t = float(row["t"])
             pose = np.array([row["ego"], row["obstacle"]], dtype=float)
-            p = {**row["posterior"], **({"risk": row["risk"]} if risky else {})}
+            p = {**(row["posterior"] if has_post else {}), **({"risk": row["risk"]} if risky else {})}
             values = [float(p[k]) for k in keys]
             b = row["brake"]
         except KeyError as exc:
@@ -209,4 +231,5 @@ def _parse(path: Path, lines: list[tuple[int, str]], whole: str, at: Callable[[i
     posterior = {"t": np.array(times)} | {k: np.array(v) for k, v in post.items()}
     return MonitorTrace(path=path, header=header, names=names, ego=ego, obstacle=obstacle, tau=tau,
                         times=np.array(times), poses=np.array(poses), posterior=posterior,
-                        brake=np.array(brake, dtype=bool), rule=rule, threshold=float(threshold))
+                        brake=np.array(brake, dtype=bool), rule=rule, threshold=float(threshold),
+                        planner=planner)

@@ -6,7 +6,8 @@ the scene names and both cars' :class:`~cdf_mj.model.vehicle.CarGeometry`. This 
 draws the scene's junction (the MJCF file the user's simulation ran on, its moving bodies
 hidden) with both cars' collision boxes at the traced poses (red ego, blue obstacle,
 interpolated between ticks), the braking stripe, and the posterior panel of
-``cdf-mj render`` (:mod:`cdf_mj.viz.panel`). ::
+``cdf-mj render`` (:mod:`cdf_mj.viz.panel`); a trace of a planner without a posterior
+(``CDFMonitor(planner="imm-layered")``) gets its rule's risk there, or none. ::
 
     from cdf_mj.viz.trace import render_trace
     render_trace("episode.jsonl", "my_junction.xml", "episode.mp4")
@@ -137,11 +138,14 @@ def _replay(trace: MonitorTrace) -> Replay:
     record = cast(EpisodeRecord, _TraceRecord(seed=trace.path.name, brake_time=trace.brake_time,
                                                  trace={"brake": trace.brake.tolist()}))
     k = len(trace.times)
+    # A planner without a posterior: its rule's risk alone where it has one, else no panel
+    # of probabilities ("no filter").
+    shown = [key for key in ("p_left", "p_seen", "p_cutoff", "risk") if key in trace.posterior]
+    tau: float | None = trace.threshold if math.isfinite(trace.threshold) else None
     return Replay(record=record, label=None, times=times, poses=poses, seen=np.zeros(k, dtype=bool),
                   belief=np.zeros((k, 4)), particles=None,
-                  posterior={key: trace.posterior[key] for key in ("t", "p_left", "p_seen", "p_cutoff", "risk")
-                             if key in trace.posterior},
-                  tau=trace.threshold)
+                  posterior={key: trace.posterior[key] for key in ("t", *shown)} if shown else None,
+                  tau=tau if shown else None)
 
 
 def render_trace(trace: str | Path, scene: str | Path, out: str | Path, *,
@@ -180,7 +184,8 @@ def render_trace(trace: str | Path, scene: str | Path, out: str | Path, *,
     with FrameWriter(req.out, req.fps) as writer, \
             Offscreen(model, req.width, req.height, max_geom=model.ngeom + 64) as gl:
         gl.use_camera(req.camera_id)
-        panel = _TracePanel(replay, gl.width, gl.height, f"trace {tr.path.name}  monitor")
+        panel = _TracePanel(replay, gl.width, gl.height,
+                            f"trace {tr.path.name}  {'monitor' if tr.planner == 'cdf' else tr.planner}")
         for rt in rel:
             t = t0 + float(rt)
             poses = replay.pose_at(t)
