@@ -10,7 +10,7 @@ import pytest
 from cdf_mj.model import road
 
 
-def test_the_old_following_module_reads_the_roads_words():
+def test_the_old_following_module_reads_the_roads_words(scene):
     from cdf_mj.model import following
 
     with pytest.warns(DeprecationWarning, match=r"cdf_mj\.model\.road\.follow_accel"):
@@ -23,7 +23,13 @@ def test_the_old_following_module_reads_the_roads_words():
     v, v_lead, gap, a, b, t_gap, s0, brake = 10.0, 6.0, 12.0, 2.0, 3.0, 1.5, 2.0, 4.0
     desired = s0 + v * t_gap + v * (v - v_lead) / (2.0 * math.sqrt(a * b))
     assert interaction(gap, v, v_lead, a, b, t_gap, s0, brake) == max(a * (1.0 - (desired / gap) ** 2), -brake)
-    assert callable(ahead_in_lane)
+    # the 0.3 reading of "in the lane, ahead": a corner inside, rear axles; a crossing car
+    # straddling the lane is in it now and was not then
+    layout = scene.layout()
+    car, ego, crossing = layout.obstacle, [0.0, -1.85, 0.0, 10.0], [5.0, -1.85 + 1.35, -math.pi / 2, 5.0]
+    assert ahead_in_lane(layout, [20.0, -1.85, 0.0, 8.0], car, ego)  # a merged car ahead
+    assert not ahead_in_lane(layout, crossing, car, ego, math.pi / 2)
+    assert road.in_lane_ahead(layout, crossing, car, ego, layout.ego, within=math.pi / 2)
     with pytest.raises(AttributeError, match="no attribute 'nope'"):
         _ = following.nope
 

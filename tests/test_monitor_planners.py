@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from junctions import junction_scene
 
 from cdf_mj.config import ScenarioConfig
 from cdf_mj.model.driver import ego_control
@@ -42,16 +43,17 @@ def user_planner():
     PLANNERS.pop("slow-car-brake", None)
 
 
-def _monitored(scene: Scene, seed: int, planner: str | Planner) -> tuple[CDFMonitor, World, list[bool]]:
+def _monitored(scene: Scene, seed: int, planner: str | Planner,
+               config: ScenarioConfig = CONFIG) -> tuple[CDFMonitor, World, list[bool]]:
     """Episode ``seed`` of the world with the monitor as the ego's planner: fed the true poses
     each tick, the ego drives its speed hold capped as ``Decision.accel`` says (through the
     actuator's jerk limit for a graded planner, as run_episode's ego). Returns the monitor,
     the world at the end and the brake decision of each tick (the true poses of each tick
     in ``monitor.trace``)."""
-    world = World(scene, CONFIG)
+    world = World(scene, config)
     world.reset(seed)
-    monitor = CDFMonitor(world.layout, CONFIG, rng=world.rng["planner"], planner=planner)
-    actuator = JerkLimiter(CONFIG.ego.jerk_limit, CONFIG.timing.dt) if monitor.planner.graded else float
+    monitor = CDFMonitor(world.layout, config, rng=world.rng["planner"], planner=planner)
+    actuator = JerkLimiter(config.ego.jerk_limit, config.timing.dt) if monitor.planner.graded else float
     brakes = []
     while not world.done:
         m = world.measure()
@@ -86,6 +88,23 @@ def test_the_monitor_brakes_as_run_episode_with_that_planner(scene: Scene, plann
         assert all(brakes[k:]) and monitor.decision.accel == -monitor.layout.ego.max_brake
     with pytest.raises(AttributeError, match=f"planner '{planner}' has no particle filter"):
         _ = monitor.filter
+
+
+@pytest.mark.parametrize(("planner", "seed"), [
+    ("imm-layered", 24),  # two hard brakes, released between
+    ("cv-risk", 24),  # the risk rule switching its brake on and off for 13 s behind the merged car
+])
+def test_the_monitor_brakes_as_run_episode_on_a_junction_and_driver_it_was_not_written_for(planner: str,
+                                                                                           seed: int):
+    """A rotated, mirrored junction of 3.2 m lanes and an aggressive driver of the families
+    written apart from every model: every brake and release of the monitor is the episode's."""
+    scene = junction_scene(rotation=0.7, mirror=True, lane_width=3.2)
+    config = CONFIG.with_values({"obstacle.family": "aggressive"})
+    rec = run_episode(config, seed=seed, planner=planner, scene=scene, label=False)
+    monitor, world, _ = _monitored(scene, seed, planner, config)
+    assert len(rec.planner_info["brakes"]) >= 2  # the case exercises releases
+    assert monitor.planner.summary()["brakes"] == rec.planner_info["brakes"]
+    assert world.collision == rec.collision_with and world.min_gap == pytest.approx(rec.min_gap)
 
 
 def test_a_users_registered_planner_is_monitored_as_run_episode_runs_it(scene: Scene, user_planner: str,
