@@ -133,9 +133,18 @@ def dump(path: str, groups: Sequence[str], seed0: int, n: int, workers: int) -> 
 
 
 def _read(path: str) -> dict[str, str]:
+    out: dict[str, str] = {}
     with open(path, encoding="utf-8") as f:
-        rows = [json.loads(line) for line in f if line.strip()]
-    return {json.dumps(r["key"]): json.dumps(r["record"], sort_keys=True) for r in rows}
+        for no, line in enumerate(f, 1):
+            if not line.strip():
+                continue
+            try:
+                row = json.loads(line)
+                out[json.dumps(row["key"])] = json.dumps(row["record"], sort_keys=True)
+            except (ValueError, KeyError, TypeError):
+                raise ValueError(f"{path}, line {no}: not a line of a dump (a JSON object with key and "
+                                 "record)") from None
+    return out
 
 
 def compare(before: str, after: str, show: int = 10, subset: bool = False) -> int:
@@ -199,9 +208,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = parser.parse_args(argv)
     except ValueError as exc:  # cdf_mj.cli.args.CLIError: a flag and its old spelling together
         parser.error(str(exc))
-    if args.command != "dump":
-        return compare(args.before, args.after, subset=args.subset)
-    status = dump(args.out, args.groups, args.seed, args.episodes, args.workers)
+    try:
+        if args.command != "dump":
+            return compare(args.before, args.after, subset=args.subset)
+        status = dump(args.out, args.groups, args.seed, args.episodes, args.workers)
+    except (OSError, ValueError, KeyError) as exc:  # a missing or damaged dump, an unwritable path
+        print(f"{PROG}: error: {exc}", file=sys.stderr)
+        return 2
     for text in _notes(args):
         print(f"{PROG}: note: {text}", file=sys.stderr)
     return status
