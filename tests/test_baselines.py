@@ -168,4 +168,4 @@ def test_paired_table_counts_seed_by_seed():
             rec("cdf", 3, "Right", brake=1.0), rec("imm", 3, "Right", brake=1.2),
             rec("cdf", 4, "Yield"), rec("imm", 4, "Yield", brake=1.5),
             rec("cdf", 5, "Yield", brake=0.9)]  # seed 5: the IMM did not run it, not counted
-    assert paired_table(recs, [("cdf", "imm")]).splitlines()[2] == "| cdf / imm | 0 | 1 | 1 | 1 | 1 |"
+    assert paired_table(recs, [("cdf", "imm")]).splitlines()[2] == "| cdf / imm | 0 | 1 | 1 | 1 | 1 | 0 | 0 |"

@@ -77,9 +77,9 @@ def test_cli_experiment_prints_both_tables(tmp_path, capsys):
     assert main(["experiment", "--episodes", "3", "--seed", "40", "--planner", "reactive,constant",
                  "--out", str(tmp_path / "r"), "--quiet"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert "Collisions with the obstacle" in lines and "Braking" in lines
-    assert sum(line.startswith("reactive ") for line in lines) == 2  # one row in each table
-    assert sum(line.startswith("constant ") for line in lines) == 2
+    assert "Collisions with the obstacle" in lines and "Braking" in lines and "Every intervention" in lines
+    assert sum(line.startswith("reactive ") for line in lines) == 3  # one row in each table
+    assert sum(line.startswith("constant ") for line in lines) == 3
     tables = lines[lines.index("Collisions with the obstacle"):]
     assert max(map(len, tables)) <= 100
     assert len(load_records(tmp_path / "r")) == 6

@@ -27,7 +27,9 @@ RECORDS = [
 ]
 
 #: experiment_tables(RECORDS) as the Markdown of docs/RESULTS.md was printed before the
-#: text format existed (derived once, from the version of commit de8a0eb).
+#: text format existed (derived once, from the version of commit de8a0eb), with the hard-brake
+#: false alarms so named and the table of every intervention (issue 35) added; these records
+#: carry no ``intervention``, and the table says so.
 MARKDOWN = r"""CDF predictions (5 episodes): ours | paper
 
 | scenario \ prediction | Cutoff | Yield | Right | total |
@@ -38,10 +40,21 @@ MARKDOWN = r"""CDF predictions (5 episodes): ours | paper
 
 Cutoff recall: 100.0 % [34.2, 100.0] (2/2) (paper 100 %)
 
-| planner | collisions imminent | collisions occurred | avoided (95 % CI) | (imminent - occurred) / imminent | paper: imminent / occurred / avoided | false alarms (95 % CI) | median lead time [s] | median min gap [m] | mean time lost, no collision [s] |
+| planner | collisions imminent | collisions occurred | avoided (95 % CI) | (imminent - occurred) / imminent | paper: imminent / occurred / avoided | hard-brake false alarms (95 % CI) | median lead time [s] | median min gap [m] | mean time lost, no collision [s] |
 |---|---|---|---|---|---|---|---|---|---|
 | cdf | 2 | 2 | 50.0 % [9.5, 90.5] (1/2) | 0.0 % | 417 / 9 / 98 % | 20.0 % [3.6, 62.4] (1/5) | 1.00 | 2.00 | 0.87 |
 | reactive | 2 | 1 | 50.0 % [9.5, 90.5] (1/2) | 50.0 % | 404 / 213 / 47 % | 20.0 % [3.6, 62.4] (1/5) | 0.00 | 2.00 | 1.00 |
+
+Every intervention:
+
+| planner | hard-brake false alarms (95 % CI) | interventions, not Cutoff (95 % CI) | time lost at the fixed point vs constant, not Cutoff [s] (seeds) | median peak deceleration, intervening, not Cutoff [m/s²] | interventions in Cutoff (95 % CI) |
+|---|---|---|---|---|---|
+| cdf | 20.0 % [3.6, 62.4] (1/5) | - | - | - | - |
+| reactive | 20.0 % [3.6, 62.4] (1/5) | - | - | - | - |
+
+Interventions: episodes in which the planner's command held the ego below its own controller (speed hold and car following) by more than 10 % of the car's full brake on some tick, hard brake or not. False alarms count hard brakes only (the hard-brake false alarms). Time lost at the fixed point: when the ego passes timing.label_distance beyond the conflict point, minus when the same seed's `constant` ego (which follows too) does, pairs without a collision (an ego that never got there is extrapolated at its nominal speed: a lower bound).
+No `constant` episodes in these records: no time lost at the fixed point and no hard subset ('-').
+Records without `intervention` (written before it was kept): cdf 5, reactive 5; the intervention columns count the others ('-' where none).
 
 1 failed episode(s) left out of these tables (their records hold the error and traceback)."""  # noqa: E501
 

@@ -2,6 +2,13 @@
 shares, each planner's outcomes, the CDF's predictions, seed-by-seed comparisons, the
 braking threshold's operating curve and the Brier scores of the filters' probabilities.
 
+No action is free: besides hard brakes (:func:`~cdf_mj.records.is_false_alarm`), every
+intervention is counted (:func:`~cdf_mj.records.intervened`: the planner held the ego below
+its own controller by more than a tolerance), with its peak deceleration, and the time lost
+is measured at a fixed point (the ego passing ``timing.label_distance`` beyond the conflict
+point) against the same seed's ``constant`` ego, which follows a slower car too. The Cutoff
+seeds on which that ego's ACC alone hit the obstacle are the hard subset.
+
 Every count applies a rule of :mod:`cdf_mj.records` (:func:`~cdf_mj.records.avoided`,
 :func:`~cdf_mj.records.is_false_alarm`, :func:`~cdf_mj.records.lead_time`, ...); the
 tables (:mod:`cdf_mj.analysis.tables`), the report's figures and the sweeps print and draw
@@ -26,7 +33,7 @@ import math
 import statistics
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 import numpy as np
@@ -40,10 +47,12 @@ from cdf_mj.records import (
     braked,
     completed,
     hit_obstacle,
+    intervened,
     is_false_alarm,
     is_imminent,
     lead_time,
     paper_avoided,
+    pass_time,
     prediction,
     record_field,
 )
@@ -266,7 +275,7 @@ class PlannerMetrics:
     imminent: int  # episodes labelled Cutoff (is_imminent)
     collisions: int  # episodes in which the ego touched the obstacle, any label (hit_obstacle)
     avoided: Rate  # Cutoff episodes without a collision with the obstacle (avoided), of the Cutoff ones
-    false_alarms: Rate  # episodes not labelled Cutoff in which the planner braked (is_false_alarm), of all
+    false_alarms: Rate  # episodes not labelled Cutoff in which the planner braked hard (is_false_alarm), of all
     lead_time: float  # [s] median lead_time over braking Cutoff episodes (NaN if none)
     min_gap: float  # [m] median of the smallest gap between the cars, over all episodes
     time_lost: float  # [s] mean over episodes without a collision (NaN if none)
@@ -278,6 +287,24 @@ class PlannerMetrics:
     false_discovery: Rate = Rate(0, 0)  # episodes not labelled Cutoff, of those in which it braked
     collisions_yield: int = 0  # Yield episodes with a collision with the obstacle
     collisions_right: int = 0  # Right episodes with a collision with the obstacle
+    # Every intervention (records.intervened: held below its own controller by more than the
+    # tolerance, hard brake or not), over the records that carry ``intervention``:
+    interventions: dict[str, Rate] = field(default_factory=dict)  # label -> episodes with one, of that label's
+    false_interventions: Rate = Rate(0, 0)  # episodes not labelled Cutoff with one, of those
+    intervention_recall: Rate = Rate(0, 0)  # Cutoff episodes with one, of those
+    peak_decel: float = math.nan  # [m/s^2] median peak deceleration over the non-Cutoff episodes with one
+    # [s] mean over episodes not labelled Cutoff of pass_time minus the same seed's reference
+    # (``constant``) record's: the time lost at the fixed point (timing.label_distance past the
+    # conflict point), so that following a slower car, which the reference ego does too, is
+    # not charged. Pairs in which either ego collided are left out; NaN without a pair.
+    time_lost_fixed: float = math.nan
+    time_lost_fixed_seeds: int = 0  # the seeds (pairs) it is the mean of
+    time_lost_fixed_by_label: dict[str, float] = field(default_factory=dict)  # label -> the same per label
+    # The hard subset: Cutoff seeds on which the reference (``constant``) ego, its ACC alone,
+    # hit the obstacle; and those of them it avoided.
+    hard_cutoffs: int = 0
+    hard_avoided: Rate = Rate(0, 0)
+    without_intervention: int = 0  # its records without ``intervention`` (written before it was kept)
 
     @property
     def paper_avoided(self) -> float:
@@ -289,14 +316,21 @@ class PlannerMetrics:
         """Flat, JSON- and CSV-ready view (rates as fractions with their 95 % interval)."""
         row: dict[str, float | int | str | None] = {"planner": self.planner, "episodes": self.episodes,
                                                     "imminent": self.imminent, "collisions": self.collisions}
-        for name in ("avoided", "false_alarms", "recall", "false_alarms_yield", "false_discovery"):
-            rate: Rate = getattr(self, name)
+        rates = {name: getattr(self, name) for name in ("avoided", "false_alarms", "recall", "false_alarms_yield",
+                                                        "false_discovery", "false_interventions",
+                                                        "intervention_recall", "hard_avoided")}
+        rates |= {f"interventions_{lab}": rate for lab, rate in self.interventions.items()}
+        for name, rate in rates.items():
             lo, hi = rate.interval
             row.update({name: rate.value, f"{name}_lo": lo, f"{name}_hi": hi, f"{name}_k": rate.k,
                         f"{name}_n": rate.n})
         row.update({"lead_time": self.lead_time, "min_gap": self.min_gap, "time_lost": self.time_lost,
                     "brier_left": self.brier_left, "brier_seen": self.brier_seen,
-                    "collisions_yield": self.collisions_yield, "collisions_right": self.collisions_right})
+                    "collisions_yield": self.collisions_yield, "collisions_right": self.collisions_right,
+                    "peak_decel": self.peak_decel, "time_lost_fixed": self.time_lost_fixed,
+                    "time_lost_fixed_seeds": self.time_lost_fixed_seeds, "hard_cutoffs": self.hard_cutoffs,
+                    "without_intervention": self.without_intervention})
+        row.update({f"time_lost_fixed_{lab}": value for lab, value in self.time_lost_fixed_by_label.items()})
         return row
 
 
@@ -304,12 +338,47 @@ def _median(values: list[float]) -> float:
     return float(statistics.median(values)) if values else math.nan
 
 
-def planner_metrics(records: Iterable[RecordLike]) -> dict[str, PlannerMetrics]:
+def _mean(values: list[float]) -> float:
+    return float(statistics.fmean(values)) if values else math.nan
+
+
+def _intervention_metrics(recs: list[RecordLike], by_label: Mapping[str, list[RecordLike]],
+                          reference: Mapping[int, RecordLike]) -> dict[str, Any]:
+    """The intervention fields of one planner's :class:`PlannerMetrics` from its labelled
+    records ``recs`` (``by_label``) and the reference planner's records by seed."""
+    have = {lab: [r for r in by_label[lab] if intervened(r) is not None] for lab in LABELS}
+    others = have[Label.YIELD] + have[Label.RIGHT]
+    lost: dict[str, list[float]] = {lab: [] for lab in LABELS}
+    for lab in LABELS:
+        for r in have[lab]:
+            ref = reference.get(record_field(r, "seed"))
+            if ref is not None and pass_time(ref) is not None and not (
+                    record_field(r, "collision") or record_field(ref, "collision")):
+                lost[lab].append(pass_time(r) - pass_time(ref))  # type: ignore[operator]
+    lost_others = lost[Label.YIELD] + lost[Label.RIGHT]
+    hard = [r for r in by_label[Label.CUTOFF] if (ref := reference.get(record_field(r, "seed"))) is not None
+            and is_imminent(ref) and hit_obstacle(ref)]
+    def rate(recs: list[RecordLike]) -> Rate:
+        return Rate(sum(1 for r in recs if intervened(r)), len(recs))
+
+    return {"interventions": {str(lab): rate(have[lab]) for lab in LABELS},
+            "false_interventions": rate(others), "intervention_recall": rate(have[Label.CUTOFF]),
+            "peak_decel": _median([record_field(r, "intervention")["peak_decel"] for r in others if intervened(r)]),
+            "time_lost_fixed": _mean(lost_others), "time_lost_fixed_seeds": len(lost_others),
+            "time_lost_fixed_by_label": {str(lab): _mean(lost[lab]) for lab in LABELS},
+            "hard_cutoffs": len(hard), "hard_avoided": Rate(sum(map(avoided, hard)), len(hard)),
+            "without_intervention": len(recs) - sum(map(len, have.values()))}
+
+
+def planner_metrics(records: Iterable[RecordLike], reference: str = "constant") -> dict[str, PlannerMetrics]:
     """:class:`PlannerMetrics` per planner name, in order of first appearance; failed
-    episodes (``"status": "failed"``) and unlabelled ones are left out."""
+    episodes (``"status": "failed"``) and unlabelled ones are left out. ``reference`` names
+    the planner whose records, seed by seed, time lost at the fixed point is measured
+    against and whose collisions make the hard subset (none of its records: NaN and 0)."""
     by_planner: dict[str, list[RecordLike]] = {}
     for rec in _labelled(records):
         by_planner.setdefault(record_field(rec, "planner"), []).append(rec)
+    ref = {record_field(r, "seed"): r for r in by_planner.get(reference, ())}
     out: dict[str, PlannerMetrics] = {}
     for name, recs in by_planner.items():
         by_label: dict[str, list[RecordLike]] = {lab: [] for lab in LABELS}
@@ -327,13 +396,14 @@ def planner_metrics(records: Iterable[RecordLike]) -> dict[str, PlannerMetrics]:
             avoided=Rate(sum(map(avoided, recs)), sum(map(is_imminent, recs))),
             false_alarms=Rate(sum(map(is_false_alarm, recs)), len(recs)),
             lead_time=_median(leads), min_gap=_median([record_field(r, "min_gap") for r in recs]),
-            time_lost=float(statistics.fmean(intact)) if intact else math.nan,
+            time_lost=_mean(intact),
             brier_left=brier["p_left"], brier_seen=brier["p_seen"],
             recall=cutoff_recall(recs),
             false_alarms_yield=Rate(sum(map(is_false_alarm, by_label[Label.YIELD])), len(by_label[Label.YIELD])),
             false_discovery=Rate(sum(map(is_false_alarm, recs)), sum(map(braked, recs))),
             collisions_yield=sum(map(hit_obstacle, by_label[Label.YIELD])),
-            collisions_right=sum(map(hit_obstacle, by_label[Label.RIGHT])))
+            collisions_right=sum(map(hit_obstacle, by_label[Label.RIGHT])),
+            **_intervention_metrics(recs, by_label, ref))
     return out
 
 
@@ -351,15 +421,21 @@ class PairedCounts:
     false_alarm_both: int
     hit_only_first: int = 0  # episodes of any label in which only the first hits the obstacle
     hit_only_second: int = 0  # (the paper's count of collisions)
+    # Episodes not labelled Cutoff, both records carrying ``intervention``, in which only the
+    # first, only the second, or both intervene (records.intervened; for McNemar's test).
+    intervene_only_first: int = 0
+    intervene_only_second: int = 0
+    intervene_both: int = 0
 
 
 def paired_counts(records: Iterable[RecordLike], first: str, second: str) -> PairedCounts:
     """:class:`PairedCounts` of planners ``first`` and ``second`` (collisions by
     :func:`~cdf_mj.records.hit_obstacle`, false alarms by
-    :func:`~cdf_mj.records.is_false_alarm`)."""
+    :func:`~cdf_mj.records.is_false_alarm`, interventions by
+    :func:`~cdf_mj.records.intervened`)."""
     by_key = {(record_field(r, "planner"), record_field(r, "seed")): r for r in _labelled(records)}
     seeds = sorted({s for p, s in by_key if p == first} & {s for p, s in by_key if p == second})
-    counts = [0] * 7
+    counts = [0] * 10
     for seed in seeds:
         a, b = by_key[(first, seed)], by_key[(second, seed)]
         counts[5] += hit_obstacle(a) and not hit_obstacle(b)
@@ -373,6 +449,11 @@ def paired_counts(records: Iterable[RecordLike], first: str, second: str) -> Pai
             counts[2] += alarm_a and not alarm_b
             counts[3] += alarm_b and not alarm_a
             counts[4] += alarm_a and alarm_b
+            did_a, did_b = intervened(a), intervened(b)
+            if did_a is not None and did_b is not None:
+                counts[7] += did_a and not did_b
+                counts[8] += did_b and not did_a
+                counts[9] += did_a and did_b
     return PairedCounts(first, second, len(seeds), *counts)
 
 

@@ -4,7 +4,10 @@ Markdown for the docs.
 :func:`experiment_tables` prints the paper's two tables beside ours (the one that
 ``cdf-mj experiment`` prints); :func:`planner_table`, :func:`paired_table`,
 :func:`filter_table` and :func:`format_scenario_summary` are the Markdown tables of
-docs/ANALYSIS.md and of the calibration. Every number comes from
+docs/ANALYSIS.md and of the calibration. Every page's planner table counts every
+intervention, not only hard brakes: a page script adds :data:`INTERVENTION_COLUMNS`
+(:func:`intervention_cells`) to its rows and prints :func:`intervention_notes` under them,
+or prints :func:`intervention_table`. Every number comes from
 :mod:`cdf_mj.analysis.metrics`, so the tables, the report's figures and the sweeps agree. ::
 
     from cdf_mj.analysis.tables import experiment_tables
@@ -16,6 +19,7 @@ docs/ANALYSIS.md and of the calibration. Every number comes from
 from __future__ import annotations
 
 import math
+import textwrap
 from collections.abc import Collection, Iterable, Sequence
 from typing import Literal
 
@@ -36,8 +40,9 @@ from cdf_mj.analysis.pages import markdown_table
 from cdf_mj.analysis.safety import SafetyParams, safety_summary
 from cdf_mj.records import LABELS, Label, RecordLike, completed, is_imminent, paper_avoided, record_field
 
-__all__ = ["PAPER_CONFUSION", "PAPER_PLANNERS", "TableFormat", "experiment_tables", "filter_table",
-           "format_number", "format_percent", "format_rate", "format_scenario_summary", "margin_table", "paired_table",
+__all__ = ["INTERVENTION_COLUMNS", "PAPER_CONFUSION", "PAPER_PLANNERS", "TableFormat", "experiment_tables",
+           "filter_table", "format_number", "format_percent", "format_rate", "format_scenario_summary",
+           "intervention_cells", "intervention_notes", "intervention_table", "margin_table", "paired_table",
            "planner_table"]
 
 #: The paper's Figure "Simulation results using the CDF", 1000 episodes: scenario label ->
@@ -93,6 +98,66 @@ def _check_format(fmt: str) -> None:
         raise ValueError(f"unknown table format {fmt!r}: choose one of {', '.join(_FORMATS)}")
 
 
+# ----------------------------------------------------------------- every intervention
+#: The columns every page's planner table gains (:func:`intervention_cells`), after its
+#: false alarms, which are hard brakes only (:func:`intervention_notes` says so).
+INTERVENTION_COLUMNS = ("interventions, not Cutoff (95 % CI)",
+                        "time lost at the fixed point vs constant, not Cutoff [s] (seeds)",
+                        "median peak deceleration, intervening, not Cutoff [m/s²]")
+
+
+def intervention_cells(m: PlannerMetrics) -> list[str]:
+    """The cells of :data:`INTERVENTION_COLUMNS` for one planner (``-`` where its records
+    carry no ``intervention``, or no same-seed ``constant`` record is there)."""
+    lost = f"{format_number(m.time_lost_fixed)} ({m.time_lost_fixed_seeds})" if m.time_lost_fixed_seeds else "-"
+    return [format_rate(m.false_interventions), lost, format_number(m.peak_decel)]
+
+
+def intervention_notes(metrics: Iterable[PlannerMetrics], reference: str = "constant") -> list[str]:
+    """Lines to print under a planner table with :data:`INTERVENTION_COLUMNS`: what they
+    count, that "false alarms" are hard brakes, the hard subset (Cutoff seeds on which the
+    ``reference`` ego's ACC alone hit the obstacle) and each planner's share of it avoided,
+    and what is missing (records without ``intervention``, no ``reference`` records)."""
+    metrics = list(metrics)
+    lines = ["Interventions: episodes in which the planner's command held the ego below its own controller "
+             "(speed hold and car following) by more than 10 % of the car's full brake on some tick, hard brake "
+             "or not. False alarms count hard brakes only (the hard-brake false alarms). Time lost at the fixed "
+             f"point: when the ego passes timing.label_distance beyond the conflict point, minus when the same "
+             f"seed's `{reference}` ego (which follows too) does, pairs without a collision (an ego that never "
+             "got there is extrapolated at its nominal speed: a lower bound)."]
+    hard = next((m.hard_cutoffs for m in metrics if m.planner == reference), 0)
+    if any(m.planner == reference for m in metrics):
+        avoided = ", ".join(f"{m.planner} {m.hard_avoided.k}/{m.hard_avoided.n}" for m in metrics)
+        lines.append(f"Hard subset: {hard} Cutoff seed(s) on which `{reference}`'s ACC alone hit the obstacle"
+                     + (f"; avoided: {avoided}." if hard else "."))
+    else:
+        lines.append(f"No `{reference}` episodes in these records: no time lost at the fixed point and no hard "
+                     "subset ('-').")
+    missing = [f"{m.planner} {m.without_intervention}" for m in metrics if m.without_intervention]
+    if missing:
+        lines.append(f"Records without `intervention` (written before it was kept): {', '.join(missing)}; the "
+                     "intervention columns count the others ('-' where none).")
+    return lines
+
+
+def intervention_table(metrics: Iterable[PlannerMetrics], fmt: TableFormat = "markdown") -> str:
+    """Every planner's interventions: hard-brake false alarms, :data:`INTERVENTION_COLUMNS`
+    and the interventions in Cutoff episodes, then :func:`intervention_notes`."""
+    _check_format(fmt)
+    metrics = list(metrics)
+    if fmt == "text":
+        header = ["planner", "interventions, not Cutoff", "time lost [s] (seeds)", "peak decel [m/s²]"]
+        rows = [[m.planner, *intervention_cells(m)] for m in metrics]
+        return "\n".join([_table(header, rows, "text", right=(2, 3)),
+                          "time lost: at the fixed point, vs constant; peak decel: median over intervening, "
+                          "not Cutoff.", *(textwrap.fill(line, 100) for line in intervention_notes(metrics))])
+    header = ["planner", "hard-brake false alarms (95 % CI)", *INTERVENTION_COLUMNS,
+              "interventions in Cutoff (95 % CI)"]
+    rows = [[m.planner, format_rate(m.false_alarms), *intervention_cells(m), format_rate(m.intervention_recall)]
+            for m in metrics]
+    return "\n".join([_table(header, rows, "markdown"), "", *intervention_notes(metrics)])
+
+
 # ----------------------------------------------------------------- the experiment
 def _confusion_part(cdf: list[RecordLike], fmt: TableFormat) -> list[str]:
     """The CDF's confusion matrix beside the paper's, and its Cutoff recall."""
@@ -110,11 +175,12 @@ def _confusion_part(cdf: list[RecordLike], fmt: TableFormat) -> list[str]:
             f"Cutoff recall: {cutoff_recall(cdf)} (paper 100 %)", ""]
 
 
-def _planners_markdown(metrics: Iterable[PlannerMetrics]) -> list[str]:
-    """One Markdown table of every planner, as docs/RESULTS.md shows it."""
+def _planners_markdown(metrics: Sequence[PlannerMetrics]) -> list[str]:
+    """The Markdown tables of every planner, as docs/RESULTS.md shows them: collisions and
+    hard brakes, then every intervention (:func:`intervention_table`)."""
     header = ["planner", "collisions imminent", "collisions occurred", "avoided (95 % CI)",
               "(imminent - occurred) / imminent", "paper: imminent / occurred / avoided",
-              "false alarms (95 % CI)", "median lead time [s]", "median min gap [m]",
+              "hard-brake false alarms (95 % CI)", "median lead time [s]", "median min gap [m]",
               "mean time lost, no collision [s]"]
     rows = []
     for m in metrics:
@@ -125,7 +191,7 @@ def _planners_markdown(metrics: Iterable[PlannerMetrics]) -> list[str]:
         rows.append([m.planner, str(m.imminent), str(m.collisions), format_rate(m.avoided),
                      format_percent(m.paper_avoided), paper, format_rate(m.false_alarms),
                      format_number(m.lead_time), format_number(m.min_gap), format_number(m.time_lost)])
-    return [_table(header, rows, "markdown")]
+    return [_table(header, rows, "markdown"), "", "Every intervention:", "", intervention_table(metrics)]
 
 
 def _planners_text(metrics: Sequence[PlannerMetrics]) -> list[str]:
@@ -145,11 +211,15 @@ def _planners_text(metrics: Sequence[PlannerMetrics]) -> list[str]:
         "paper's formula: (imminent - occurred) / imminent, so a collision in a Yield episode counts too.",
         "",
         "Braking",
-        _table(["planner", "false alarms (95 % CI)", "lead time [s]", "min gap [m]", "time lost [s]"], braking,
-               "text", right=(2, 3, 4)),
-        "false alarms: episodes not labelled Cutoff in which the planner braked / all episodes.",
+        _table(["planner", "hard-brake false alarms (95 % CI)", "lead time [s]", "min gap [m]", "time lost [s]"],
+               braking, "text", right=(2, 3, 4)),
+        "hard-brake false alarms: episodes not labelled Cutoff in which it braked hard / all episodes.",
         "lead time: median of (obstacle enters the ego lane - brake) over braking Cutoff episodes.",
-        "min gap: median smallest distance between the cars; time lost: mean, episodes without collision.",
+        "min gap: median smallest distance between the cars; time lost: at the end, vs the nominal speed,",
+        "mean over the episodes without collision.",
+        "",
+        "Every intervention",
+        intervention_table(metrics, "text"),
         "",
         "Definitions, and how the paper counts: docs/RESULTS.md.",
     ]
@@ -158,11 +228,12 @@ def _planners_text(metrics: Sequence[PlannerMetrics]) -> list[str]:
 def experiment_tables(records: Iterable[RecordLike], fmt: TableFormat = "text") -> str:
     """The paper's two tables beside ours: the CDF's predictions against the scenario
     labels (if the records hold CDF episodes), and every planner's collisions (imminent,
-    occurred, avoided, and the paper's formula) and braking (false alarms, lead time, gap,
-    time lost), with 95 % Wilson intervals.
+    occurred, avoided, and the paper's formula), braking (hard-brake false alarms, lead
+    time, gap, time lost) and every intervention (:func:`intervention_table`), with 95 %
+    Wilson intervals.
 
     ``fmt="text"`` prints aligned columns that fit 100 characters, the planner comparison
-    split in two tables with the definition of each figure under them; ``fmt="markdown"``
+    split in three tables with the definition of each figure under them; ``fmt="markdown"``
     gives the pipe tables of docs/RESULTS.md. Failed episodes are left out and counted in
     a last line.
     """
@@ -193,32 +264,38 @@ def format_scenario_summary(summary: dict[str, Rate], planner: str) -> str:
 
 
 def planner_table(records: Iterable[RecordLike]) -> str:
-    """Markdown: every planner's avoided collisions, false alarms, lead time, gap, time lost
-    and, for the filters, the Brier scores of P(left) and P(seen) over all ticks."""
-    header = ["planner", "episodes", "imminent", "collisions", "avoided (95 % CI)", "false alarms (95 % CI)",
-              "median lead time [s]", "median min gap [m]", "mean time lost, no collision [s]",
-              "Brier P(left)", "Brier P(seen)"]
+    """Markdown: every planner's avoided collisions, hard-brake false alarms, interventions
+    (:data:`INTERVENTION_COLUMNS`), lead time, gap, time lost and, for the filters, the Brier
+    scores of P(left) and P(seen) over all ticks; then :func:`intervention_notes`."""
+    header = ["planner", "episodes", "imminent", "collisions", "avoided (95 % CI)",
+              "hard-brake false alarms (95 % CI)", *INTERVENTION_COLUMNS, "median lead time [s]",
+              "median min gap [m]", "mean time lost at the end, no collision [s]", "Brier P(left)", "Brier P(seen)"]
+    metrics = list(planner_metrics(records).values())
     rows = [[m.planner, str(m.episodes), str(m.imminent), str(m.collisions), format_rate(m.avoided),
-             format_rate(m.false_alarms), format_number(m.lead_time), format_number(m.min_gap),
-             format_number(m.time_lost), format_number(m.brier_left, 3), format_number(m.brier_seen, 3)]
-            for m in planner_metrics(records).values()]
-    return _table(header, rows, "markdown")
+             format_rate(m.false_alarms), *intervention_cells(m), format_number(m.lead_time),
+             format_number(m.min_gap), format_number(m.time_lost), format_number(m.brier_left, 3),
+             format_number(m.brier_seen, 3)]
+            for m in metrics]
+    return "\n".join([_table(header, rows, "markdown"), "", *intervention_notes(metrics)])
 
 
 def paired_table(records: Iterable[RecordLike], pairs: Sequence[tuple[str, str]]) -> str:
     """Markdown: two planners compared seed by seed (common random numbers), on the seeds
     both ran (:func:`~cdf_mj.analysis.metrics.paired_counts`): Cutoff episodes in which
     only the first or only the second collides with the obstacle, and episodes not
-    labelled Cutoff in which only the first, only the second, or both brake (false alarms)."""
+    labelled Cutoff in which only the first, only the second, or both brake hard (false
+    alarms), and in which only the first or only the second intervenes."""
     records = list(records)
     header = ["pair", "collides only with the first", "only with the second",
-              "false alarm only with the first", "only with the second", "both"]
+              "hard-brake false alarm only with the first", "only with the second", "both",
+              "intervenes, not Cutoff, only with the first", "only with the second"]
     rows = []
     for first, second in pairs:
         c = paired_counts(records, first, second)
         rows.append([f"{first} / {second}", *map(str, (c.collides_only_first, c.collides_only_second,
                                                        c.false_alarm_only_first, c.false_alarm_only_second,
-                                                       c.false_alarm_both))])
+                                                       c.false_alarm_both, c.intervene_only_first,
+                                                       c.intervene_only_second))])
     return _table(header, rows, "markdown")
 
 

@@ -25,7 +25,12 @@ or as an :class:`EpisodeRecord`:
                       occurred")
 :func:`avoided`       a Cutoff episode without a collision with the obstacle
 :func:`braked`        the planner decided to brake
-:func:`is_false_alarm` a labelled episode not labelled Cutoff in which the planner braked
+:func:`is_false_alarm` a labelled episode not labelled Cutoff in which the planner braked (a
+                      hard-brake false alarm)
+:func:`intervened`    the planner held the ego below its own controller by more than the
+                      tolerance on some tick (None: a record without ``intervention``)
+:func:`is_false_intervention` an intervention in a labelled episode not labelled Cutoff
+:func:`pass_time`     [s] the ego passed ``timing.label_distance`` beyond the conflict point
 :func:`lead_time`     [s] obstacle enters the ego lane - brake decision, in a braking Cutoff
                       episode
 :func:`prediction`    the planner's predicted label
@@ -38,10 +43,13 @@ from cdf_mj.records.counting import (
     braked,
     completed,
     hit_obstacle,
+    intervened,
     is_false_alarm,
+    is_false_intervention,
     is_imminent,
     lead_time,
     paper_avoided,
+    pass_time,
     prediction,
     record_field,
 )
@@ -57,9 +65,20 @@ from cdf_mj.records.files import (
     read_settings,
     write_atomic,
 )
-from cdf_mj.records.schema import FAILED, LABELS, OK, EpisodeRecord, Label, Labels, RecordLike, check_record
+from cdf_mj.records.schema import (
+    FAILED,
+    INTERVENTION_KEYS,
+    LABELS,
+    OK,
+    EpisodeRecord,
+    Label,
+    Labels,
+    RecordLike,
+    check_record,
+)
 
-__all__ = ["FAILED", "LABELS", "OK", "RECORDS_FILE", "SETTINGS_FILE", "EpisodeRecord", "Label", "Labels",
-           "RecordLike", "RecordsFile", "avoided", "braked", "check_record", "check_settings", "completed",
-           "fsync_directory", "hit_obstacle", "is_false_alarm", "is_imminent", "jsonable", "lead_time", "load_records",
-           "paper_avoided", "prediction", "read_records", "read_settings", "record_field", "write_atomic"]
+__all__ = ["FAILED", "INTERVENTION_KEYS", "LABELS", "OK", "RECORDS_FILE", "SETTINGS_FILE", "EpisodeRecord", "Label",
+           "Labels", "RecordLike", "RecordsFile", "avoided", "braked", "check_record", "check_settings", "completed",
+           "fsync_directory", "hit_obstacle", "intervened", "is_false_alarm", "is_false_intervention", "is_imminent",
+           "jsonable", "lead_time", "load_records", "paper_avoided", "pass_time", "prediction", "read_records",
+           "read_settings", "record_field", "write_atomic"]

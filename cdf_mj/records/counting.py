@@ -1,6 +1,6 @@
 """The rules that read one record (a dict of the records file, or an
 :class:`~cdf_mj.records.schema.EpisodeRecord`): what counts as imminent, avoided, braked, a
-false alarm, the lead time and the prediction, so that a rate means the same wherever it
+(hard-brake) false alarm, an intervention, the lead time and the prediction, so that a rate means the same wherever it
 is printed or drawn (the table is in :mod:`cdf_mj.records`)."""
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ from typing import Any
 
 from cdf_mj.records.schema import FAILED, Label, RecordLike
 
-__all__ = ["avoided", "braked", "completed", "hit_obstacle", "is_false_alarm", "is_imminent", "lead_time",
-           "paper_avoided", "prediction", "record_field"]
+__all__ = ["avoided", "braked", "completed", "hit_obstacle", "intervened", "is_false_alarm", "is_false_intervention",
+           "is_imminent", "lead_time", "paper_avoided", "pass_time", "prediction", "record_field"]
 
 def completed(records: Iterable[RecordLike]) -> list[RecordLike]:
     """The records of episodes that ran to the end (``"status": "failed"`` left out)."""
@@ -49,9 +49,41 @@ def braked(rec: RecordLike) -> bool:
 
 
 def is_false_alarm(rec: RecordLike) -> bool:
-    """The planner braked in a labelled episode that is not a Cutoff (Yield or Right)."""
+    """The planner braked in a labelled episode that is not a Cutoff (Yield or Right): a
+    hard-brake false alarm (slowing is not counted here; see :func:`is_false_intervention`)."""
     label = record_field(rec, "label")
     return label is not None and label != Label.CUTOFF and braked(rec)
+
+
+def _intervention(rec: RecordLike) -> Mapping[str, Any] | None:
+    """The record's ``intervention`` (None in a record written before it was kept)."""
+    return rec.get("intervention") if isinstance(rec, Mapping) else getattr(rec, "intervention", None)
+
+
+def intervened(rec: RecordLike) -> bool | None:
+    """The planner held the ego below its own controller (speed hold, car following) by
+    more than the record's tolerance on at least one tick, hard brake or not; None for a
+    record without ``intervention``."""
+    info = _intervention(rec)
+    return None if info is None else info["ticks"] > 0
+
+
+def is_false_intervention(rec: RecordLike) -> bool | None:
+    """The planner intervened (:func:`intervened`) in a labelled episode that is not a
+    Cutoff (Yield or Right); None for a record without ``intervention``."""
+    did = intervened(rec)
+    if did is None:
+        return None
+    label = record_field(rec, "label")
+    return label is not None and label != Label.CUTOFF and did
+
+
+def pass_time(rec: RecordLike) -> float | None:
+    """[s] when the ego's rear axle got ``timing.label_distance`` past the conflict point
+    (extrapolated at the nominal speed where it never did: a lower bound); None for a
+    record without ``intervention``."""
+    info = _intervention(rec)
+    return None if info is None else float(info["pass_time"])
 
 
 def lead_time(rec: RecordLike) -> float | None:

@@ -10,7 +10,8 @@ from dataclasses import MISSING, asdict, dataclass, field, fields
 from enum import Enum
 from typing import Any, TypeAlias, Union, get_args, get_origin, get_type_hints
 
-__all__ = ["FAILED", "LABELS", "OK", "EpisodeRecord", "Label", "Labels", "RecordLike", "check_record"]
+__all__ = ["FAILED", "INTERVENTION_KEYS", "LABELS", "OK", "EpisodeRecord", "Label", "Labels", "RecordLike",
+           "check_record"]
 
 #: The ``status`` of a stored record: the episode ran to its end, or raised.
 OK, FAILED = "ok", "failed"
@@ -71,6 +72,9 @@ class EpisodeRecord:
     # The world's options drawn for it: the obstacle's driver family and parameters, its
     # behaviour after merging, the ego's sensing (what was dropped).
     world: dict[str, Any] | None = None
+    # Every intervention of the planner, not only hard brakes (:data:`INTERVENTION_KEYS`);
+    # None in records written before it was kept.
+    intervention: dict[str, Any] | None = None
     trace: dict[str, Any] | None = None  # per-tick arrays when asked for
 
     def to_dict(self) -> dict[str, Any]:
@@ -164,6 +168,49 @@ def check_record(data: object) -> None:
         return
     EpisodeRecord.from_dict(data)
     _check_planner_info(data.get("planner_info") or {})
+    if data.get("intervention") is not None:
+        _check_intervention(data["intervention"])
+
+
+#: The keys of a record's ``intervention`` and what each holds. A tick is intervening when
+#: the planner's command as it acts is below the ego's own acceleration (speed hold and car
+#: following) by more than ``tolerance`` (cdf_mj.scenario.ego_agent.intervention_tolerance_of).
+INTERVENTION_KEYS: dict[str, str] = {
+    "tolerance": "[m/s^2] the tolerance of an intervening tick",
+    "first": "[s] the first intervening tick, null if none",
+    "ticks": "how many ticks intervened",
+    "time": "[s] their duration (ticks x timing.dt)",
+    "peak_decel": "[m/s^2] the most deceleration applied on an intervening tick (0 if none)",
+    "pass_time": "[s] when the ego's rear axle got timing.label_distance past the conflict point; "
+                 "extrapolated at the nominal speed from the end when it did not (a lower bound)",
+    "passed": "whether it got there (pass_time measured, not extrapolated)",
+}
+
+
+def _check_intervention(value: object) -> None:
+    """ValueError naming the key unless ``value`` is a record's ``intervention``: an object
+    of :data:`INTERVENTION_KEYS`, times and decelerations finite and >= 0, ``ticks`` a
+    non-negative integer, ``passed`` true or false, ``first`` null exactly when ``ticks`` is 0."""
+    if not isinstance(value, Mapping):
+        raise ValueError(f"field 'intervention' must be an object or null, got {type(value).__name__}")
+    for key in INTERVENTION_KEYS:
+        if key not in value:
+            raise ValueError(f"field 'intervention.{key}' is missing")
+        v = value[key]
+        if key == "passed":
+            ok = isinstance(v, bool)
+        elif key == "ticks":
+            ok = isinstance(v, int) and not isinstance(v, bool) and v >= 0
+        else:
+            ok = (v is None and key == "first") or (
+                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0)
+        if not ok:
+            kind = {"passed": "true or false", "ticks": "a non-negative integer",
+                    "first": "a finite time >= 0 or null"}.get(key, "a finite number >= 0")
+            raise ValueError(f"field 'intervention.{key}' must be {kind}, got {v!r}"[:120])
+    if (value["first"] is None) != (value["ticks"] == 0):
+        raise ValueError(f"field 'intervention.first' is {value['first']!r} with {value['ticks']} intervening "
+                         "ticks: it is null exactly when there are none")
 
 
 #: The per-tick probabilities of a filter's history that the metrics read.

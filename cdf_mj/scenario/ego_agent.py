@@ -40,7 +40,18 @@ from cdf_mj.scenario.sensing import CommandDelay, JerkLimiter, Sensor
 if TYPE_CHECKING:  # annotations only: the monitor imports PlannerCommand without MuJoCo
     from cdf_mj.scenario.world import Measurement
 
-__all__ = ["EgoAgent", "PlannerCommand"]
+__all__ = ["INTERVENTION_SHARE", "EgoAgent", "PlannerCommand", "intervention_tolerance_of"]
+
+#: The share of the ego car's full brake (``max_brake``) by which the planner's command must
+#: be below the ego's own acceleration for a tick to count as an intervention.
+INTERVENTION_SHARE = 0.1
+
+
+def intervention_tolerance_of(car_max_brake: float) -> float:
+    """[m/s^2] How far below the ego's own acceleration the planner's command must be for a
+    tick to be intervening, for an ego car braking at most ``car_max_brake`` [m/s^2]
+    (:data:`INTERVENTION_SHARE` of it: 0.4877 m/s^2 for the default car's 4.877 m/s^2)."""
+    return INTERVENTION_SHARE * car_max_brake
 
 
 def _answer(planner: Planner, wants: object) -> bool:
@@ -139,6 +150,16 @@ class EgoAgent:
     its nominal controller's acceleration, else None), ``acting`` (the full brake acts on
     this tick: the decision ``brake_latency`` late) and ``accel`` [m/s^2] (the acceleration
     it commanded on this tick).
+
+    Interventions (every one counted, not only hard brakes): ``own`` [m/s^2] is what its
+    own controller would apply on this tick without the planner (speed hold and, where it
+    ``follows``, the IDM behind the measured car ahead), within the car's brake;
+    ``command`` [m/s^2] the planner's command as it acts (``brake_latency`` late; +-inf as
+    given); the tick is ``intervening`` when that command, read within the car's brake, is
+    below ``own`` by more than ``tolerance`` (:func:`intervention_tolerance_of` the car's
+    ``max_brake``). Per episode: ``first_intervention`` [s] (None if none),
+    ``intervention_ticks`` and ``intervention_peak`` [m/s^2, >= 0] (the most deceleration
+    applied on an intervening tick; 0 without one).
     """
 
     def __init__(self, layout: Layout, config: ScenarioConfig, driver: DriverModel,
@@ -147,6 +168,7 @@ class EgoAgent:
         self.follows = config.ego.follow if follows is None else bool(follows)
         self._car = layout.ego
         self._max_brake = layout.ego.max_brake
+        self.tolerance = intervention_tolerance_of(self._max_brake)  # [m/s^2]
         self._command = PlannerCommand(planner, self._max_brake)
         self.sensor: Sensor | None = None
         self._m: Measurement | None = None
@@ -171,6 +193,11 @@ class EgoAgent:
         self.deviated: float | None = None
         self.acting = False
         self.accel = math.nan
+        self.own = self.command = math.nan
+        self.intervening = False
+        self.first_intervention: float | None = None
+        self.intervention_ticks = 0
+        self.intervention_peak = 0.0
 
     def sense(self, m: Measurement) -> PlannerInput:
         """What the ego measures of the tick's true measurement ``m`` (``config.sensing``; the
@@ -191,21 +218,35 @@ class EgoAgent:
         seen = self.sense(m)
         command = self._delay(self._command(seen))  # as it acts, sensing.brake_latency ticks on
         self.acting = command <= -self._command.hard
-        # The ego's own controller (its speed hold, and its car following), capped by the command.
+        # The ego's own controller: its speed hold and its car following, within its brake.
         controls = ego_control(self.driver, self._car, m.poses[0], False)
-        nominal = float(controls[0])
-        accel = min(nominal, command)
-        if self.follows and command > -self._max_brake:
+        nominal = own = float(controls[0])
+        if self.follows:
             layout = self.layout
             behind = follow_accel(layout, layout.ego, m.poses[0], layout.obstacle, seen.poses[1], self.config.ego,
                                   max_brake=self.config.ego.follow_brake)
             if behind is not None:
-                accel = min(accel, behind)
-        controls[0] = self._actuator(max(accel, -self._max_brake))  # the car's brake, the actuator's jerk limit
+                own = min(own, behind)
+        own = max(own, -self._max_brake)
+        # Capped by the command, within the car's brake, through the actuator's jerk limit.
+        controls[0] = self._actuator(max(min(own, command), -self._max_brake))
         if controls[0] < nominal - 1e-9 and self.deviated is None:
             self.deviated = m.t
         self.accel = float(controls[0])
+        self._count(m.t, own, command)
         return controls
+
+    def _count(self, t: float, own: float, command: float) -> None:
+        """Keep tick ``t`` [s]'s own acceleration and planner's command [m/s^2] and whether
+        it intervened (the command, read within the car's brake, below ``own`` by more than
+        the tolerance); count it in the episode's interventions."""
+        self.own, self.command = own, command
+        self.intervening = max(command, -self._max_brake) < own - self.tolerance
+        if self.intervening:
+            if self.first_intervention is None:
+                self.first_intervention = t
+            self.intervention_ticks += 1
+            self.intervention_peak = max(self.intervention_peak, -self.accel)
 
     def drive(self, accel: float, steer: float) -> np.ndarray:
         """Controls ``[accel m/s^2, steer rad]`` for a controller outside the package (the

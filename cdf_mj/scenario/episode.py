@@ -68,6 +68,11 @@ class EpisodeTick:
     planner: Planner  # the planner after its tick (a filter's particles of time t, ...)
     world: World  # the world after the tick (read only)
     command: float = math.nan  # [m/s^2] the acceleration the ego's actuator applied over the tick
+    own: float = math.nan  # [m/s^2] what the ego's own controller (speed hold, following) would apply
+    # [m/s^2] the planner's command as it acts (sensing.brake_latency late), clipped to the
+    # car's [-max_brake, max_accel] so that it is finite
+    planner_command: float = math.nan
+    intervening: bool = False  # that command is below own by more than the tolerance (EgoAgent)
 
 
 #: Called after every tick of an episode with its :class:`EpisodeTick`.
@@ -77,10 +82,14 @@ Observer = Callable[[EpisodeTick], None]
 @dataclass
 class TraceRecorder:
     """The observer behind a record's ``trace``: per tick the time [s], the system pose,
-    the obstacle's mode, whether it saw the ego, its belief and the ego's brake flag."""
+    the obstacle's mode, whether it saw the ego, its belief, the ego's brake flag, the
+    planner's ``command`` as it acts and the ego's ``own`` acceleration [m/s^2]
+    (:class:`EpisodeTick`'s ``planner_command`` and ``own``) and whether the tick was
+    ``intervening``."""
 
     trace: dict[str, list[Any]] = field(
-        default_factory=lambda: {k: [] for k in ("t", "poses", "mode", "seen", "belief", "brake")})
+        default_factory=lambda: {k: [] for k in ("t", "poses", "mode", "seen", "belief", "brake", "command", "own",
+                                                 "intervening")})
 
     def __call__(self, step: EpisodeTick) -> None:
         tick, tr = step.tick, self.trace
@@ -90,6 +99,9 @@ class TraceRecorder:
         tr["seen"].append(tick.seen)
         tr["belief"].append(tick.belief.tolist())
         tr["brake"].append(step.braking)
+        tr["command"].append(step.planner_command)
+        tr["own"].append(step.own)
+        tr["intervening"].append(step.intervening)
 
 
 @dataclass
@@ -109,6 +121,7 @@ class _Run:
     end_time: float = 0.0
     label_hit: bool | None = None  # the label's outcome, where this run is the counterfactual up to it
     world: dict[str, Any] = field(default_factory=dict)
+    intervention: dict[str, Any] = field(default_factory=dict)  # EpisodeRecord.intervention
 
 
 def _simulate(scene: Scene, config: ScenarioConfig, seed: int, planner: Planner,
@@ -118,13 +131,15 @@ def _simulate(scene: Scene, config: ScenarioConfig, seed: int, planner: Planner,
     world.reset(seed)
     ego = EgoAgent(world.layout, config, world.driver, planner, follows=config.ego.follow and not holds_speed)
     ego.reset(world.rng)
+    car = world.layout.ego
     while not world.done:
         m = world.measure()  # the truth at the start of the tick
         controls = ego.act(m)  # what the ego senses, decides and commands
         tick = world.step(controls)  # the obstacle acts, the physics steps
         if observers:
             step = EpisodeTick(measurement=m, braking=ego.acting, tick=tick, planner=planner, world=world,
-                               command=ego.accel)
+                               command=ego.accel, own=ego.own, intervening=ego.intervening,
+                               planner_command=min(max(ego.command, -car.max_brake), car.max_accel))
             for observe in observers:
                 observe(step)
     # Up to the label's outcome this run was the constant-speed run if its ego held its speed.
@@ -140,7 +155,22 @@ def _simulate(scene: Scene, config: ScenarioConfig, seed: int, planner: Planner,
                 first_seen=world.first_seen, yielded=world.yielded, entered=world.entered_lane,
                 collision=world.collision, collision_time=world.collision_time,
                 min_gap=world.min_gap, brake_time=ego.brake_time, time_lost=world.time_lost,
-                end_time=world.end_time, label_hit=world.label_outcome if same else None, world=info)
+                end_time=world.end_time, label_hit=world.label_outcome if same else None, world=info,
+                intervention=_intervention(world, ego))
+
+
+def _intervention(world: World, ego: EgoAgent) -> dict[str, Any]:
+    """A run's ``EpisodeRecord.intervention``: the ego's interventions and when it passed the
+    fixed point ``timing.label_distance`` past the conflict point. Where it never got there
+    ``pass_time`` is extrapolated from the end at its nominal speed: end_time + remaining /
+    ego.speed, a lower bound of when it would have."""
+    pass_time = world.pass_time
+    passed = pass_time is not None
+    if pass_time is None:
+        pass_time = world.end_time + world.pass_remaining / world.config.ego.speed
+    return {"tolerance": ego.tolerance, "first": ego.first_intervention, "ticks": ego.intervention_ticks,
+            "time": round(ego.intervention_ticks * world.config.timing.dt, 6), "peak_decel": ego.intervention_peak,
+            "pass_time": round(float(pass_time), 6), "passed": passed}
 
 
 def _label(intent: int, counterfactual_collision: bool) -> str:
@@ -228,6 +258,6 @@ def run_episode(config: ScenarioConfig | None = None, seed: int = 0,
         collision_with=run.collision, collision_time=run.collision_time,
         min_gap=float(run.min_gap), brake_time=run.brake_time, time_lost=run.time_lost,
         end_time=run.end_time, counterfactual_collision=cf_collision, planner_info=info,
-        safety=safety.result().to_dict(), world=run.world,
+        safety=safety.result().to_dict(), world=run.world, intervention=run.intervention,
         trace=recorder.trace if recorder else None,
     )

@@ -59,7 +59,7 @@ from cdf_mj.planners.base import DecidingPlanner, Planner, PlannerContext, Plann
 from cdf_mj.planners.cdf import CDFPlanner
 from cdf_mj.planners.registry import bind_planner
 from cdf_mj.records import jsonable
-from cdf_mj.scenario.ego_agent import PlannerCommand
+from cdf_mj.scenario.ego_agent import PlannerCommand, intervention_tolerance_of
 from cdf_mj.scenario.trace_file import TRACE_FORMAT, MonitorTrace, TraceError, read_trace, write_trace
 
 if TYPE_CHECKING:
@@ -311,12 +311,17 @@ class CDFMonitor:
         ctx, car = self.context, self.layout.ego
         hold = ctx.speed_gain * (ctx.nominal_speed - float(poses[0, 3]))  # the ego's speed hold
         accel = min(max(min(hold, command), -car.max_brake), car.max_accel)
+        # Every intervention (EgoAgent's rule; the speed hold is the monitor's own controller).
+        own = min(max(hold, -car.max_brake), car.max_accel)
+        acts = min(max(command, -car.max_brake), car.max_accel)
+        intervening = acts < own - intervention_tolerance_of(car.max_brake)
         self.decision = Decision(t=t, poses=poses, posterior=post, brake=brake,
                                  brake_time=self.brake_time, accel=accel)
         if self.record_trace:
             row = {"t": t, "ego": poses[0].tolist(), "obstacle": poses[1].tolist(),
                    **({"posterior": post.to_dict()} if post is not None else {}),
-                   "brake": self.decision.brake, "accel": accel}
+                   "brake": self.decision.brake, "accel": accel, "command": acts, "own": own,
+                   "intervening": intervening}
             rule = self.planner.rule if isinstance(self.planner, DecidingPlanner) else None
             self.trace.append(row | ({k: float(v) for k, v in rule.values().items()} if rule is not None else {}))
         return self.decision

@@ -6,7 +6,10 @@ JSON lines: a header object (``"format": TRACE_FORMAT``, the scene names, the sc
 CDF configs, the decision rule and its threshold, both cars' geometries), then one object
 per observation ``{"t", "ego", "obstacle", "posterior", "brake"}`` (and ``"risk"`` with the
 risk rule): time [s], rear-axle poses ``[x m, y m, yaw rad, v m/s]`` in the world frame,
-the posterior's probabilities, the brake decision. A monitor with another planner than
+the posterior's probabilities, the brake decision; and, in traces that count every
+intervention, ``"command"`` (the planner's command as it acts, within the car's limits) and
+``"own"`` (the ego's own controller's acceleration) [m/s^2] and ``"intervening"`` (the
+command below ``own`` by more than the tolerance). A monitor with another planner than
 ``cdf`` names it in the header (``"planner"``); one without a posterior (``reactive``,
 ``imm-*``, ``cv-*``, a user's) writes ``"posterior": false`` there, no ``cdf`` nor ``tau``,
 its rule's name (``null`` for a planner without one) and threshold where it has them, and
@@ -24,7 +27,7 @@ import dataclasses
 import json
 import math
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -98,6 +101,20 @@ class MonitorTrace:
     rule: str | None = "threshold"
     threshold: float = math.nan
     planner: str = "cdf"
+    # (K,) per observation, where the trace holds them (else NaN, NaN, False): the planner's
+    # command as it acts and the ego's own acceleration [m/s^2], and whether it intervened
+    command: np.ndarray = field(default_factory=lambda: np.empty(0))
+    own: np.ndarray = field(default_factory=lambda: np.empty(0))
+    intervening: np.ndarray = field(default_factory=lambda: np.empty(0, dtype=bool))
+
+    def __post_init__(self) -> None:
+        k = len(self.times)
+        for name, fill in (("command", math.nan), ("own", math.nan), ("intervening", False)):
+            n = len(getattr(self, name))
+            if n == 0:  # not in the trace: NaN or False per observation
+                object.__setattr__(self, name, np.full(k, fill, dtype=type(fill)))
+            elif n != k:
+                raise ValueError(f"MonitorTrace: {name} has {n} values for {k} observations")
 
     @property
     def has_posterior(self) -> bool:
@@ -112,6 +129,27 @@ class MonitorTrace:
 
 
 _POSTERIOR_KEYS = ("p_left", "p_right", "p_seen", "p_cutoff", "ess")
+#: Per-observation fields of a trace that counts every intervention: optional, but a trace
+#: whose first observation holds one holds it in every observation.
+_INTERVENTION_KEYS = ("command", "own", "intervening")
+
+
+def _intervention_values(row: dict[str, Any], keys: tuple[str, ...], where: str) -> list[float | bool]:
+    """The observation ``row``'s values of ``keys`` (of :data:`_INTERVENTION_KEYS`):
+    ``command`` and ``own`` finite numbers [m/s^2], ``intervening`` true or false; TraceError
+    ``WHERE: what`` for one missing or of another kind."""
+    out: list[float | bool] = []
+    for key in keys:
+        if key not in row:
+            raise TraceError(f"{where}: the observation lacks {key!r} (the first observation has it)")
+        v = row[key]
+        ok = isinstance(v, bool) if key == "intervening" else (
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v))
+        if not ok:
+            kind = "true or false" if key == "intervening" else "a finite acceleration [m/s^2]"
+            raise TraceError(f"{where}: {key!r} must be {kind}, got {v!r}"[:160])
+        out.append(v)
+    return out
 
 
 def read_trace(path: str | Path) -> MonitorTrace:
@@ -196,6 +234,8 @@ def _parse(path: Path, lines: list[tuple[int, str]], whole: str, at: Callable[[i
     poses: list[np.ndarray] = []
     brake: list[bool] = []
     post: dict[str, list[float]] = {k: [] for k in keys}
+    extra_keys = tuple(k for k in _INTERVENTION_KEYS if k in rows[1][1])
+    extra: dict[str, list[float | bool]] = {k: [] for k in extra_keys}
     for no, row in rows[1:]:
         try:
             t = float(row["t"])
@@ -223,6 +263,8 @@ def _parse(path: Path, lines: list[tuple[int, str]], whole: str, at: Callable[[i
         if bad:
             raise TraceError(f"{at(no)}: 'posterior' has {', '.join(bad)} out of range "
                              "(probabilities in [0, 1], ess a finite number >= 0)")
+        for k, v in zip(extra_keys, _intervention_values(row, extra_keys, at(no)), strict=True):
+            extra[k].append(v)
         times.append(t)
         poses.append(pose)
         brake.append(b)
@@ -232,4 +274,5 @@ def _parse(path: Path, lines: list[tuple[int, str]], whole: str, at: Callable[[i
     return MonitorTrace(path=path, header=header, names=names, ego=ego, obstacle=obstacle, tau=tau,
                         times=np.array(times), poses=np.array(poses), posterior=posterior,
                         brake=np.array(brake, dtype=bool), rule=rule, threshold=float(threshold),
-                        planner=planner)
+                        planner=planner, **{k: np.array(v, dtype=bool if k == "intervening" else float)
+                                            for k, v in extra.items()})

@@ -129,7 +129,10 @@ class World:
     lane where ``timing.until_clear``, or ``"duration"``), ``label_outcome`` and
     ``label_time`` (whether the ego touched the obstacle before it got
     ``timing.label_distance`` past the conflict point, and when that was decided; None
-    until then).
+    until then), ``pass_time`` [s] (the first time its rear axle was
+    ``timing.label_distance`` past the conflict point, whatever it touched before: the
+    fixed point at which time lost is measured; None until then) and ``pass_remaining``
+    [m] (how far its rear axle still is from that point; 0 once it got there).
 
     World options (off by default): ``config.obstacle.family`` drives the obstacle with a
     driver of :mod:`cdf_mj.scenario.drivers` (placed at its own start) instead of the
@@ -204,6 +207,7 @@ class World:
         # rear axle was timing.label_distance past the conflict point, False once it got there.
         self.label_outcome: bool | None = None
         self.label_time: float | None = None  # [s] when that outcome was decided
+        self.pass_time: float | None = None  # [s] when the rear axle got label_distance past the conflict point
         self._k = 0
         self._measured: Measurement | None = None
         self._ego_arc: float | None = None  # [m] kept by step()
@@ -254,6 +258,14 @@ class World:
             x, y = self.scene.pose_values()[0][:2]
             self._ego_arc = self.layout.route_ego.project_point(x, y)[0]
         return self._ego_arc
+
+    @property
+    def pass_remaining(self) -> float:
+        """[m] how far the ego's rear axle is, along its route, from the fixed point
+        ``timing.label_distance`` past the conflict point (0 once it got there: ``pass_time``)."""
+        if self.pass_time is not None:
+            return 0.0
+        return max(0.0, float(self.config.timing.label_distance - (self.ego_arc - self._s_conflict)))
 
     @property
     def end_time(self) -> float:
@@ -355,6 +367,8 @@ class World:
             self.end_reason = "duration"
         if self.label_outcome is None and (hit == "obstacle" or past > timing.label_distance):
             self.label_outcome, self.label_time = hit == "obstacle", self.end_time
+        if self.pass_time is None and past > timing.label_distance:
+            self.pass_time = self.end_time
         self.done = self.end_reason is not None
         return hit
 
