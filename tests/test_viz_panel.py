@@ -34,11 +34,15 @@ def _bar(panel: Panel, img: np.ndarray, row: int) -> int:
     return int(np.all(np.abs(line - line[0]) < 4, axis=1).sum())
 
 
-def test_the_panel_covers_only_the_top_left(cdf_replay) -> None:
+def test_the_panel_covers_only_the_top_left_and_its_command_chart_the_bottom_left(cdf_replay) -> None:
     panel = Panel(cdf_replay, W, H, "cdf")
     img = _draw(panel, 0.5)
     assert (panel.w, panel.h) == (round(0.38 * W), round(0.36 * H))
-    assert img[:panel.h, :panel.w].any() and not img[panel.h:].any() and not img[:, panel.w:].any()
+    assert panel.chart is not None and (panel.chart.w, panel.chart.h) == (round(0.55 * W), round(0.32 * H))
+    chart = np.zeros((H, W), dtype=bool)
+    chart[H - panel.chart.h:, :panel.chart.w] = True
+    assert img[:panel.h, :panel.w].any() and img[chart].any()
+    assert not img[panel.h:][~chart[panel.h:]].any() and not img[:panel.h, panel.w:].any()
 
 
 def test_bars_show_the_probabilities_of_the_tick(cdf_replay) -> None:

@@ -2,11 +2,14 @@
 matplotlib): :class:`Panel` over the top-left corner of the 3D view, :class:`SidePanel` a
 column of readable time series beside it (``cdf-mj render --layout side``).
 
-:class:`Panel` rows, top to bottom: seed, planner and label; the time and, once the ego
-brakes, BRAKE; the planner's probabilities as bars (P(left), P(seen), P(cutoff) for
-``cdf``; ``tau`` marked on the last) and as a running plot over the episode with the
-braking time; for a planner with particles, the particle colours in words. A planner
-without probabilities gets a line saying so.
+:class:`Panel` rows, top to bottom: seed, planner and label; the time and, while the ego
+brakes hard, BRAKE; the planner's probabilities as bars (P(left), P(seen), P(cutoff) and
+the risk for ``cdf``; ``tau`` marked on the last) and as a running plot over the episode
+with the braking time; for a planner with particles, the particle colours in words. A
+planner without probabilities gets a line saying so. Over the bottom-left corner, in both
+layouts, the planner's command beside the ego's own controller's acceleration [m/s^2]
+with the ticks in which it intervened shaded and its hard-brake ticks marked
+(:class:`~cdf_mj.viz.command_chart.CommandChart`; not for a trace without commands).
 
 :class:`SidePanel`, top to bottom: the head line and the time; a chart of the planner's
 probabilities over the episode [0, 1] with its threshold ``tau`` dashed (for a planner
@@ -17,6 +20,7 @@ words; the particle colours in words for a planner with particles. ::
 
     panel = Panel(replay, width=640, height=480, planner="cdf")
     frame = panel.draw(frame, t=1.5)     # frame (480, 640, 3) uint8, changed in place
+    frame = panel.draw_chart(frame, t=1.5)   # the command chart alone (the side layout)
     side = SidePanel(replay, width=360, height=480, planner="cdf")
     column = side.draw(t=1.5)            # (480, 360, 3) uint8, to put beside the frame
 """
@@ -24,10 +28,10 @@ words; the particle colours in words for a planner with particles. ::
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
 
+from cdf_mj.viz.command_chart import CommandChart, Item, _font, _nice_step, _polyline, _write
 from cdf_mj.viz.overlays import OVERLAY_COLORS, PARTICLE_COLORS
 from cdf_mj.viz.replay import POSTERIOR_KEYS, Replay
 
@@ -46,16 +50,6 @@ _WHITE, _TEXT, _DIM = (235, 235, 235), (220, 220, 220), (150, 150, 150)
 _AXIS, _GRID, _BACK = 150, 48, 20  # grey levels
 _SPEED_COLORS = {"ego": (90, 190, 255), "obstacle": (255, 170, 60)}  # the speed chart's curves
 _ENTRY = (240, 240, 240)  # the obstacle's lane entry marker
-
-
-def _font(px: int) -> Any:
-    """Pillow's default font at ``px`` pixels (the bitmap font where it cannot scale)."""
-    from PIL import ImageFont
-
-    try:
-        return ImageFont.load_default(size=px)
-    except TypeError:  # Pillow without FreeType: the fixed bitmap font
-        return ImageFont.load_default()
 
 
 def _rgb(name: str) -> np.ndarray:
@@ -79,42 +73,22 @@ def particle_legend() -> list[tuple[tuple[int, int, int], str]]:
     return out
 
 
-def _polyline(img: np.ndarray, xs: np.ndarray, ys: np.ndarray, color: np.ndarray,
-              thick: int = 1) -> None:
-    """Straight segments through the points ``(xs[i], ys[i])`` [px] drawn into ``img``
-    (``thick`` rows per point, downwards), clipped to the image."""
-    h, w = img.shape[:2]
-    for i in range(len(xs)):
-        xa, xb = xs[i], xs[i + 1] if i + 1 < len(xs) else xs[i]
-        ya, yb = ys[i], ys[i + 1] if i + 1 < len(ys) else ys[i]
-        n = int(max(abs(xb - xa), abs(yb - ya), 1)) + 1
-        px = np.rint(np.linspace(xa, xb, n)).astype(int)
-        py = np.rint(np.linspace(ya, yb, n)).astype(int)
-        for d in range(thick):
-            ok = (px >= 0) & (px < w) & (py + d >= 0) & (py + d < h)
-            img[py[ok] + d, px[ok]] = color
-
-
-def _nice_step(span: float, most: int) -> float:
-    """The smallest of 1, 2, 5 x 10^k giving at most ``most`` steps over ``span``."""
-    span = max(span, 1e-9)
-    for k in range(-3, 6):
-        for m in (1.0, 2.0, 5.0):
-            step = m * 10.0 ** k
-            if span / step <= most:
-                return step
-    return span
-
-
 class Panel:
-    """Probabilities, their history and a legend, drawn over the top-left of each frame.
+    """Probabilities, their history and a legend over the top-left of each frame, and the
+    planner's command beside the ego's own controller over its bottom-left.
 
     Args:
         replay: the episode; its ``posterior`` chooses the bars and curves, its
-            ``particles`` whether the particle colours are explained.
+            ``particles`` whether the particle colours are explained, its ``control`` the
+            command chart (:class:`~cdf_mj.viz.command_chart.CommandChart`; none for a
+            trace without it).
         width, height: size of the frames drawn on [px]; the panel takes about 38 % of the
-            width and 36 % of the height (at least 48 x 32 px, at most the frame).
+            width and 36 % of the height (at least 48 x 32 px, at most the frame), the
+            command chart 55 % of the width and 32 % of the height (where that is at least
+            80 x 60 px and below the panel).
         planner: the planner's name, in the head line.
+        bottom: rows [px] left free under the command chart (a caption along the frame's
+            bottom).
 
     Needs Pillow (the ``viz`` extra); the background, legend and the curves over the
     whole episode are drawn once, each frame reveals them up to its time.
@@ -122,37 +96,40 @@ class Panel:
 
     ALPHA = 0.82  # opacity of the panel over the scene
 
-    def __init__(self, replay: Replay, width: int, height: int, planner: str) -> None:
-        from PIL import Image, ImageDraw
-
-        self._Image, self._ImageDraw = Image, ImageDraw
+    def __init__(self, replay: Replay, width: int, height: int, planner: str, bottom: int = 0) -> None:
         self.replay = replay
         self.w = max(48, round(0.38 * width))
         self.h = max(32, round(0.36 * height))
         self.w, self.h = min(self.w, width), min(self.h, height)
-        self.font = _font(max(7, round(self.h / 13)))
-        # Rows: 0 head, 1 time and braking, 2-4 bars, 5-7 running plot (to 9 without
-        # particles), 8-9 the particle colours in words.
-        line = self.h / 10.0
-        self.rows = [round(line * (i + 0.5)) for i in range(10)]  # text centres
+        fs = max(7, round(self.h / 13))
+        self.font = _font(fs)
+        self.keys = tuple(k for k in POSTERIOR_KEYS if replay.posterior is not None and k in replay.posterior)
         self.legend = particle_legend() if replay.particles is not None else []
+        # Rows: 0 head, 1 time and braking, one per bar (at least three), three of the
+        # running plot (to the bottom without particles), the last two the particle colours.
+        n_bars = max(3, len(self.keys))
+        n_rows = 2 + n_bars + 3 + 2
+        line = self.h / n_rows
+        self.rows = [round(line * (i + 0.5)) for i in range(n_rows)]  # text centres
         self.label_w = round(0.34 * self.w)
         self.bar_x0, self.bar_x1 = self.label_w, round(0.82 * self.w)
         self.bar_h = max(2, round(line * 0.6))
-        self.plot = (round(0.04 * self.w), round(line * 5.1), round(0.96 * self.w),
-                     round(line * (7.9 if self.legend else 9.6)))  # x0, y0, x1, y1
-        self.keys = tuple(k for k in POSTERIOR_KEYS if replay.posterior is not None and k in replay.posterior)
+        self.plot = (round(0.04 * self.w), round(line * (2.1 + n_bars)), round(0.96 * self.w),
+                     round(line * (n_rows - 2.1 if self.legend else n_rows - 0.4)))  # x0, y0, x1, y1
         head = f"seed {replay.record.seed}  {planner}  label {replay.label or '-'}"
         self.base = self._background(head)
         self.curves = self._curves()
+        #: the command chart and its top row [px] in the frame (None: no command to chart,
+        #: or no room below the panel)
+        self.chart: CommandChart | None = None
+        self.chart_y = height - bottom - round(0.32 * height)
+        cw, ch = min(width, round(0.55 * width)), round(0.32 * height)
+        if replay.control is not None and cw >= 80 and ch >= 60 and self.chart_y >= self.h:
+            self.chart = CommandChart(replay, cw, ch, fs)
 
     def _text(self, img: np.ndarray, items: list[tuple[int, int, str, tuple[int, int, int]]]) -> np.ndarray:
         """``img`` with each ``(x, y, text, rgb)`` written, left end and vertical middle at x, y."""
-        pil = self._Image.fromarray(img)
-        draw = self._ImageDraw.Draw(pil)
-        for x, y, text, color in items:
-            draw.text((x, y), text, fill=color, font=self.font, anchor="lm")
-        return np.array(pil)
+        return _write(img, self.font, [(x, y, text, rgb, "lm") for x, y, text, rgb in items])
 
     def _background(self, head: str) -> np.ndarray:
         """What every frame shares: head line, bar labels, legend and the plot's axes."""
@@ -169,7 +146,7 @@ class Panel:
         sw = max(2, self.bar_h)
         for i, (rgb, words) in enumerate(self.legend):
             x = pad + (i % 2) * (self.w - 2 * pad) // 2
-            y = self.rows[8 + min(i // 2, 1)]
+            y = self.rows[-2 + min(i // 2, 1)]
             img[y - sw // 2:y - sw // 2 + sw, x:x + sw] = rgb
             items.append((x + sw + 2, y, words, _TEXT))
         img = self._text(img, items)
@@ -234,10 +211,21 @@ class Panel:
                     tx = self.bar_x0 + round(rep.tau * span)
                     img[ya - 1:yb + 1, min(tx, self.w - 1)] = 255
                 items.append((self.bar_x1 + pad, yc, f"{p:.2f}", _WHITE))
-        img = self._text(img, items)
-        region = frame[:self.h, :self.w]
-        region[...] = (self.ALPHA * img + (1.0 - self.ALPHA) * region).astype(np.uint8)
+        self._blend(frame, self._text(img, items), 0)
+        return self.draw_chart(frame, t)
+
+    def draw_chart(self, frame: np.ndarray, t: float) -> np.ndarray:
+        """The command chart alone at time ``t`` blended into ``frame``'s bottom-left (in
+        place; nothing without a chart); returns ``frame``. The ``side`` layout draws it so
+        over its view, which has no panel."""
+        if self.chart is not None:
+            self._blend(frame, self.chart.draw(t), self.chart_y)
         return frame
+
+    def _blend(self, frame: np.ndarray, img: np.ndarray, top: int) -> None:
+        """``img`` over ``frame`` at its left edge from row ``top``, at :attr:`ALPHA`."""
+        region = frame[top:top + img.shape[0], :img.shape[1]]
+        region[...] = (self.ALPHA * img + (1.0 - self.ALPHA) * region).astype(np.uint8)
 
 
 class SidePanel:
@@ -262,14 +250,11 @@ class SidePanel:
     """
 
     def __init__(self, replay: Replay, width: int, height: int, planner: str) -> None:
-        from PIL import Image, ImageDraw
-
         if height < SIDE_MIN_HEIGHT:
             raise ValueError(f"--height {height}: the side panel's charts need at least "
                              f"{SIDE_MIN_HEIGHT} px")
         if width < 80:
             raise ValueError(f"side panel width {width} px: needs at least 80 px")
-        self._Image, self._ImageDraw = Image, ImageDraw
         self.replay, self.planner = replay, planner
         self.w, self.h = int(width), int(height)
         fs = max(8, min(18, round(height / 30)))
@@ -345,14 +330,9 @@ class SidePanel:
         return self._y_in(self.speed_box, v, self.speed_max)
 
     # ------------------------------------------------------------- drawing
-    def _text(self, img: np.ndarray, items: list[tuple[int, int, str, tuple[int, int, int], str]]) -> np.ndarray:
-        """``img`` with each ``(x, y, text, rgb, anchor)`` written (Pillow anchors: ``lm``
-        left-middle, ``rm`` right-middle, ``mm`` centre)."""
-        pil = self._Image.fromarray(img)
-        draw = self._ImageDraw.Draw(pil)
-        for x, y, text, color, anchor in items:
-            draw.text((x, y), text, fill=color, font=self.font, anchor=anchor)
-        return np.array(pil)
+    def _text(self, img: np.ndarray, items: list[Item]) -> np.ndarray:
+        """``img`` with each ``(x, y, text, rgb, anchor)`` written."""
+        return _write(img, self.font, items)
 
     def _boxes(self) -> list[tuple[int, int, int, int]]:
         return [b for b in (self.prob_box, self.speed_box) if b is not None]
@@ -369,7 +349,7 @@ class SidePanel:
         return x + n + 4
 
     def _axes(self, img: np.ndarray, box: tuple[int, int, int, int], ticks: list[tuple[float, str]],
-              top: float, items: list[tuple[int, int, str, tuple[int, int, int], str]]) -> None:
+              top: float, items: list[Item]) -> None:
         """Axes just outside ``box``, value ticks with labels at its left, faint grid lines,
         and time ticks at its bottom."""
         x0, y0, x1, y1 = box
@@ -390,7 +370,7 @@ class SidePanel:
         """Head line, legends, axes with ticks and units: what every frame shares."""
         img = np.full((self.h, self.w, 3), _BACK, dtype=np.uint8)
         pad = self.pad
-        items: list[tuple[int, int, str, tuple[int, int, int], str]] = [
+        items: list[Item] = [
             (pad, self.row_head, head, _WHITE, "lm")]
         if self.prob_box is not None:
             for key, y in zip(self.keys, self.rows_prob, strict=False):
@@ -483,7 +463,7 @@ class SidePanel:
         for _x0, y0, _x1, y1 in self._boxes():
             img[y0:y1 + 1, cx] = np.maximum(img[y0:y1 + 1, cx], 110)  # cursor
         pad, line = self.pad, self.line
-        items: list[tuple[int, int, str, tuple[int, int, int], str]] = [
+        items: list[Item] = [
             (pad, self.row_time, f"t = {t:5.2f} s", _WHITE, "lm")]
         if rep.braking(t):
             bw = round(0.3 * self.w)

@@ -14,7 +14,10 @@ Layouts (``layout``): ``"overlay"`` (default) draws the posterior panel
 (:class:`cdf_mj.viz.panel.Panel`) over the top-left of the 3D view, the frame is
 ``width`` x ``height``; ``"side"`` puts :class:`cdf_mj.viz.panel.SidePanel` (time series
 with axes, units and legends in words) beside the view, the frame is ``width +
-side_width(height)`` x ``height`` (1000 x 480 at the defaults). :func:`render_compare`
+side_width(height)`` x ``height`` (1000 x 480 at the defaults). In both, the planner's
+command beside the ego's own controller's acceleration, the ticks in which the planner
+intervened shaded, is charted over the view's bottom-left
+(:class:`cdf_mj.viz.command_chart.CommandChart`). :func:`render_compare`
 draws the same seed under several planners as tiles side by side, one per planner, each
 labelled with its planner and brake time, at the same frame times; an episode that ends
 earlier holds its last frame.
@@ -243,13 +246,14 @@ class _Painter:
 
     def __init__(self, replay: Replay, scene: Scene, gl: Offscreen, planner: str,
                  max_particles: int, shadows: bool, overlays: bool = True,
-                 layout: str = "overlay", follow: bool = True) -> None:
+                 layout: str = "overlay", follow: bool = True, caption: bool = False) -> None:
         self.replay, self.scene, self.gl = replay, scene, gl
         self.layout = scene.layout()
         self.overlays = overlays
         self.max_particles = max_particles
         self.side = layout == "side"
-        self.panel = Panel(replay, gl.width, gl.height, planner)
+        self.panel = Panel(replay, gl.width, gl.height, planner,
+                           bottom=_caption_height(gl.height) if caption else 0)
         self.side_panel = (SidePanel(replay, side_width(gl.height), gl.height, planner)
                            if self.side else None)
         self.follow = (FollowCamera(self.layout, replay.times, replay.poses, gl.width, gl.height,
@@ -290,8 +294,8 @@ class _Painter:
         if self.brake_pose is not None and rep.braking(t):
             draw_braking(scn, lay.ego, lay.ego_lane, self.brake_pose, poses[0], self.z_particles + 0.6)
         img = gl.render().copy()
-        if self.side_panel is not None:
-            return np.concatenate([img, self.side_panel.draw(t)], axis=1)
+        if self.side_panel is not None:  # the command chart stays over the view
+            return np.concatenate([self.panel.draw_chart(img, t), self.side_panel.draw(t)], axis=1)
         return self.panel.draw(img, t)
 
 
@@ -397,13 +401,22 @@ def tile_caption(record: EpisodeRecord) -> str:
     return f"{record.planner}: {brake}{hit}"
 
 
+def _caption_px(height: int) -> int:
+    """Text height [px] of a compare tile's caption, for a tile ``height`` px high."""
+    return max(8, min(20, round(height / 24)))
+
+
+def _caption_height(height: int) -> int:
+    """Rows [px] of a compare tile's caption strip, for a tile ``height`` px high."""
+    return round(_caption_px(height) * 1.5)
+
+
 def _caption(img: np.ndarray, text: str) -> np.ndarray:
     """``img`` with ``text`` on a dark strip along its bottom-left (in place); returns it."""
     from PIL import Image, ImageDraw
 
     h, w = img.shape[:2]
-    px = max(8, min(20, round(h / 24)))
-    strip = round(px * 1.5)
+    px, strip = _caption_px(h), _caption_height(h)
     font = _font(px)
     tw = min(w, round(font.getlength(text)) + 2 * px)
     img[h - strip:, :tw] = (0.25 * img[h - strip:, :tw]).astype(np.uint8)
@@ -465,7 +478,8 @@ def render_compare(out: str | Path, seed: int = DEFAULT_SEED,
     times = _times(req, end)
     with FrameWriter(req.out, req.fps) as writer, _offscreen(scene, req, max_particles, antialias) as gl:
         painters = [_Painter(r, scene, gl, name, max_particles, shadows, True, req.layout,
-                             follow=req.camera_id < 0) for r, name in zip(replays, names, strict=True)]
+                             follow=req.camera_id < 0, caption=True)
+                    for r, name in zip(replays, names, strict=True)]
         captions = [tile_caption(r.record) for r in replays]
         for t in times:
             tiles = [_caption(p.frame(min(float(t), p.replay.end_time)), c)

@@ -7,12 +7,14 @@ every tick, read by an observer of the episode (:class:`ParticleRecorder`): the 
 is built by the registry with the run's arguments and runs as in any episode. The :class:`Replay` it
 returns gives the scene at any time ``t``: the cars' poses interpolated between the 0.1 s
 ticks (positions and speed linearly, headings along the shorter arc), the filter's state
-that of the last tick at or before ``t``. ::
+that of the last tick at or before ``t``; its :attr:`Replay.control` the planner's command
+beside the ego's own controller per tick, read from the record's trace (:class:`Control`). ::
 
     from cdf_mj.viz.replay import record_episode
 
     replay = record_episode(7, "cdf")
     replay.pose_at(1.25), replay.particles[replay.tick(1.25)]
+    replay.control.intervening[replay.tick(1.25)]
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -34,12 +37,52 @@ from cdf_mj.scenario.episode import EpisodeTick, run_episode, seed_label
 from cdf_mj.sim.gl import RenderError
 from cdf_mj.sim.scene import Scene
 
-__all__ = ["POSTERIOR_KEYS", "ParticleRecorder", "Particles", "Replay", "check_frame_time", "record_episode"]
+__all__ = ["CONTROL_KEYS", "POSTERIOR_KEYS", "Control", "ParticleRecorder", "Particles", "Replay", "check_frame_time",
+           "control_of", "record_episode"]
 
 #: The probabilities a planner's ``history`` may hold that a replay keeps, in panel order
 #: (``cdf``: p_left, p_seen, p_cutoff, risk; ``cdf-threshold``: p_left, p_seen, p_cutoff;
 #: ``imm``: p_left, p_conflict). The last one a planner keeps is what it brakes on.
 POSTERIOR_KEYS = ("p_left", "p_seen", "p_cutoff", "p_conflict", "risk")
+#: The per-tick lists of a record's trace that :func:`control_of` reads (a trace written
+#: before they were kept has none of them).
+CONTROL_KEYS = ("command", "own", "intervening")
+
+
+class Control(NamedTuple):
+    """Per tick of an episode (the tick from ``times[k]`` to ``times[k + 1]``), what the
+    planner commanded against what the ego's own controller wanted, from a record's trace."""
+
+    command: np.ndarray  # (K,) [m/s^2] the planner's command as it acts, within the car's limits
+    own: np.ndarray  # (K,) [m/s^2] the ego's own controller (speed hold, following), no planner
+    intervening: np.ndarray  # (K,) bool: the command below own by more than the tolerance
+    brake: np.ndarray  # (K,) bool: the ego braked hard (the trace's "brake"; all False without it)
+
+
+def control_of(trace: Mapping[str, Any] | None) -> Control | None:
+    """The :class:`Control` of a record's ``trace`` (its lists "command", "own",
+    "intervening" and "brake"); None for a trace without the first three (written before
+    they were kept, or none).
+
+    Raises:
+        ValueError: one of them of another length than the trace's "t", or not numbers, in
+            one line naming it.
+    """
+    if not trace or any(k not in trace for k in CONTROL_KEYS):
+        return None
+    n = len(trace.get("t", trace["own"]))
+    out: dict[str, np.ndarray] = {}
+    for key, dtype in (("command", float), ("own", float), ("intervening", bool), ("brake", bool)):
+        values = trace.get(key, [False] * n)
+        try:
+            out[key] = np.asarray(values if values is not None else [], dtype=dtype)
+        except (TypeError, ValueError):
+            raise ValueError(f"trace {key!r}: not a list of {dtype.__name__}s") from None
+        if out[key].shape != (n,):
+            raise ValueError(f"trace {key!r}: {out[key].shape[0] if out[key].ndim else 0} values for "
+                             f"{n} ticks")
+    return Control(**out)
+
 
 class Particles(NamedTuple):
     """One tick's distinct particles, heaviest first (world frame): merged by position (to
@@ -118,6 +161,12 @@ class Replay:
     # "t" [s] and the POSTERIOR_KEYS the planner keeps per tick; None for a planner without any
     posterior: dict[str, np.ndarray] | None
     tau: float | None  # the threshold of the last of them at which the planner brakes
+
+    @cached_property
+    def control(self) -> Control | None:
+        """The planner's command and the ego's own acceleration per tick (:func:`control_of`
+        the record's trace); None for a trace without them."""
+        return control_of(getattr(self.record, "trace", None))
 
     @property
     def end_time(self) -> float:

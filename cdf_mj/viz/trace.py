@@ -26,7 +26,7 @@ import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import cast
+from typing import Any, cast
 
 import mujoco
 import numpy as np
@@ -73,7 +73,7 @@ class _TraceRecord:
 
     seed: str
     brake_time: float | None
-    trace: dict[str, list[bool]]  # "brake": the monitor's decision per tick
+    trace: dict[str, list[Any]]  # "brake" per tick; "command", "own", "intervening" where kept
 
 
 class _TracePanel(Panel):
@@ -135,8 +135,10 @@ def _replay(trace: MonitorTrace) -> Replay:
     """The trace as a :class:`Replay` for the panel and the pose interpolation."""
     times = np.append(trace.times, trace.times[-1])  # the last tick is the end
     poses = np.concatenate([trace.poses, trace.poses[-1:]])
-    record = cast(EpisodeRecord, _TraceRecord(seed=trace.path.name, brake_time=trace.brake_time,
-                                                 trace={"brake": trace.brake.tolist()}))
+    rows: dict[str, list[Any]] = {"brake": trace.brake.tolist()}
+    if np.isfinite(trace.own).all():  # a trace that counts every intervention: its command chart
+        rows.update(command=trace.command.tolist(), own=trace.own.tolist(), intervening=trace.intervening.tolist())
+    record = cast(EpisodeRecord, _TraceRecord(seed=trace.path.name, brake_time=trace.brake_time, trace=rows))
     k = len(trace.times)
     # A planner without a posterior: its rule's risk alone where it has one, else no panel
     # of probabilities ("no filter").
