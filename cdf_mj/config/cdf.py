@@ -117,6 +117,10 @@ class RiskConfig:
         return dataclasses.asdict(self)
 
 
+#: What the layered rule's anticipation layer may read (:attr:`LayeredConfig.anticipation`).
+ANTICIPATIONS = ("option", "go")
+
+
 @dataclass(frozen=True)
 class LayeredConfig:
     """The layers of the graded rule (:class:`cdf_mj.planners.decision.LayeredRule`) on top
@@ -124,10 +128,16 @@ class LayeredConfig:
     and box margin). Every acceleration is in m/s^2 and scales with the testbed
     (:func:`cdf_mj.config.scaled`); docs/DECISION.md explains each layer.
 
-    - *anticipate*: slow down at ``comfort_brake`` once the probability of a collision if
-      the ego goes on at its nominal speed reaches ``anticipate``; stop slowing once it is
-      below ``anticipate_release``. Chosen on seeds 0-199 per predictor by one rule fixed
-      beforehand (scripts/tune_layers.py).
+    - *anticipate*: slow down at ``comfort_brake`` once the anticipation's risk reaches
+      ``anticipate``; stop slowing once it is below ``anticipate_release``. With
+      ``anticipation = "option"`` (the option rule) the risk is the probability of a
+      collision going on that going on ``option_time`` [s] more (plus a tick and what the
+      ego is told of its latency and noise) would leave beyond the comfortable brake: the
+      ego keeps the option of slowing comfortably and uses it only when the belief says a
+      cut-off is likely as that option runs out, never on a prior far from the junction.
+      With ``"go"`` (version 0.3's) it is the probability of a collision if the ego goes
+      on. Chosen on seeds 0-199 per predictor by an objective declared beforehand
+      (scripts/tune_option.py; version 0.3's by scripts/tune_layers.py).
     - *emergency*: brake at the car's maximum once the probability of a collision that
       deferring the full brake by one tick plus ``RiskConfig.latency`` plus
       ``emergency_margin`` (plus the latency and noise the ego is told,
@@ -167,9 +177,17 @@ class LayeredConfig:
     standoff: float = bounded(2.0, 0.0, MAX_DURATION, "s", open_low=True)
     stand_speed: float = bounded(0.5, 0.0, 10.0, "m/s", open_low=True)
     hard_brake: float = bounded(3.0, 0.0, MAX_ACCEL, "m/s^2", open_low=True)
+    # What the anticipation layer reads (docs/DECISION.md). "option": keep the option: slow
+    # only once going on for `option_time` more would leave a collision that the comfortable
+    # brake could no longer avoid, with probability `anticipate`. "go": version 0.3's rule,
+    # slow once a collision going on has probability `anticipate`.
+    anticipation: str = "go"
+    option_time: float = bounded(1.0, 0.0, MAX_DURATION, "s")
 
     def __post_init__(self) -> None:
         validate(self, "layered.")
+        _check(isinstance(self.anticipation, str) and self.anticipation in ANTICIPATIONS, "layered.anticipation",
+               self.anticipation, " or ".join(map(repr, ANTICIPATIONS)))
         _check(self.anticipate_release <= self.anticipate, "layered.anticipate_release", self.anticipate_release,
                f"at most layered.anticipate = {self.anticipate} (hysteresis)")
         _check(self.comfort_brake < self.hard_brake, "layered.comfort_brake", self.comfort_brake,

@@ -23,20 +23,27 @@ Planners are made by name: :mod:`cdf_mj.planners.registry` (``make_planner``,
 ``register``; re-exported by :mod:`cdf_mj.planners` and :mod:`cdf_mj`). This module
 imports no planner and not the registry (the registry imports it).
 
-=============  ==============================================  ==============================
-constant       never brakes (the counterfactual run)           :mod:`cdf_mj.planners.simple`
-reactive       brakes once the obstacle is inside the ego lane :mod:`cdf_mj.planners.simple`
-cdf            the CDF filter with the layered rule (graded)   :mod:`cdf_mj.planners.cdf`
-cdf-risk       the CDF filter with version 0.2's risk rule     :mod:`cdf_mj.planners.cdf`
-cdf-threshold  the CDF filter, brakes once P(cutoff) >= tau    :mod:`cdf_mj.planners.cdf`
-               (the paper's rule)
-cv             constant-velocity conflict prediction           :mod:`cdf_mj.planners.cv`
-cv-risk        constant velocity with the risk rule            :mod:`cdf_mj.planners.cv`
-cv-layered     constant velocity with the layered rule         :mod:`cdf_mj.planners.cv`
-imm            intent-only IMM conflict prediction             :mod:`cdf_mj.planners.imm`
-imm-risk       intent-only IMM with the risk rule              :mod:`cdf_mj.planners.imm`
-imm-layered    intent-only IMM with the layered rule           :mod:`cdf_mj.planners.imm`
-=============  ==============================================  ==============================
+===============  ===============================================  ==============================
+constant         never brakes (the counterfactual run)            :mod:`cdf_mj.planners.simple`
+reactive         brakes once the obstacle is inside the ego lane  :mod:`cdf_mj.planners.simple`
+cdf              the CDF filter with the layered rule (graded)    :mod:`cdf_mj.planners.cdf`
+cdf-option       the CDF filter with the layered rule's option    :mod:`cdf_mj.planners.cdf`
+                 anticipation (slows only as the option runs out)
+cdf-risk         the CDF filter with version 0.2's risk rule      :mod:`cdf_mj.planners.cdf`
+cdf-threshold    the CDF filter, brakes once P(cutoff) >= tau     :mod:`cdf_mj.planners.cdf`
+                 (the paper's rule)
+cv               constant-velocity conflict prediction            :mod:`cdf_mj.planners.cv`
+cv-risk          constant velocity with the risk rule             :mod:`cdf_mj.planners.cv`
+cv-layered       constant velocity with the layered rule          :mod:`cdf_mj.planners.cv`
+caution-waiting  slows at the comfortable brake while the other   :mod:`cdf_mj.planners.caution`
+                 car is on the side road (naive caution)
+caution-moving   the same, only while the other car moves         :mod:`cdf_mj.planners.caution`
+caution-phantom  holds a speed that stops before the conflict     :mod:`cdf_mj.planners.caution`
+                 zone while a car could come unseen (phantom)
+imm              intent-only IMM conflict prediction              :mod:`cdf_mj.planners.imm`
+imm-risk         intent-only IMM with the risk rule               :mod:`cdf_mj.planners.imm`
+imm-layered      intent-only IMM with the layered rule            :mod:`cdf_mj.planners.imm`
+===============  ===============================================  ==============================
 """
 
 from __future__ import annotations

@@ -8,11 +8,13 @@ braking or not:
 ThresholdRule     the paper's rule: brake once the predictor's own alarm probability
                   (the CDF's P(cutoff), the IMM's P(conflict), the CV's predicted conflict)
                   reaches a threshold, and hold the brake to the end
-LayeredRule       the graded rule (the default ``cdf``): *anticipate* (slow down gently when a
-                  cut-off becomes likely), *emergency* (the full brake when deferring it
-                  would leave a collision unavoidable, with a time margin), *follow* (a
-                  time gap behind a merged car, the full brake below the RSS distance),
-                  with a dwell, a jerk limit and no deadlock (docs/DECISION.md)
+LayeredRule       the graded rule (the default ``cdf``): *anticipate* (slow down gently, by
+                  default only once going on a little longer would lose the option of
+                  avoiding a likely cut-off with the comfortable brake: the option rule),
+                  *emergency* (the full brake when deferring it would leave a collision
+                  unavoidable, with a time margin), *follow* (a time gap behind a merged
+                  car, the full brake below the RSS distance), with a dwell, a jerk limit
+                  and no deadlock (docs/DECISION.md)
 RiskRule          brake at the last safe moment: when the probability of a collision that
                   deferring the brake by one more decision interval (plus a latency
                   margin) would make unavoidable reaches ``RiskConfig.brake`` and braking
@@ -233,13 +235,32 @@ class RiskRule:
 
 #: The layered rule's fourth plan (after GO, DEFER, BRAKE): the comfortable brake from now on.
 SLOW = 3
-#: Its reading of the masses of :func:`collision_masses` over the four plans: columns
-#: deferred (collides going on and deferring the full brake), braking fully now, going on,
-#: slowing; ``masses @ _READ`` gives the four probabilities in one product.
-_INDEX4 = np.arange(1 << 4)
-_READ = np.stack([(_INDEX4 & ((1 << GO) | (1 << DEFER))) == ((1 << GO) | (1 << DEFER)),
-                  (_INDEX4 & (1 << BRAKE)) != 0, (_INDEX4 & (1 << GO)) != 0, (_INDEX4 & (1 << SLOW)) != 0],
-                 axis=1).astype(float)
+#: Its fifth, with ``anticipation = "option"``: going on for ``option_time``, then the
+#: comfortable brake.
+OPTION = 4
+
+
+def _reading(n_plans: int) -> np.ndarray:
+    """How the layered rule reads the masses of :func:`collision_masses` over its plans:
+    columns deferred (collides going on and deferring the full brake), braking fully now,
+    going on, slowing, and (with five plans) the option lost (collides going on and going
+    on for ``option_time`` before the comfortable brake); ``masses @ reading`` gives the
+    probabilities in one product."""
+    index = np.arange(1 << n_plans)
+
+    def both(a: int, b: int) -> np.ndarray:
+        bits = (1 << a) | (1 << b)
+        return np.asarray((index & bits) == bits)
+
+    columns = [both(GO, DEFER), (index & (1 << BRAKE)) != 0, (index & (1 << GO)) != 0, (index & (1 << SLOW)) != 0]
+    if n_plans > OPTION:
+        columns.append(both(GO, OPTION))
+    return np.stack(columns, axis=1).astype(float)
+
+
+_READ = _reading(4)
+_READ_OPTION = _reading(5)
+
 #: [rad] The follow layer follows a car ahead in the ego's lane heading at most this far off
 #: the ego's way: one still turning in, or standing across the lane, already counts (its
 #: speed along the ego's way is its speed times the cosine); one coming the other way does not.
@@ -258,6 +279,9 @@ class Layers:
     gap: float  # [m] to a merged car ahead in the ego's lane (inf: none)
     rss: float  # [m] the RSS safe distance behind it (0: none)
     standoff: bool  # both cars stand: hypotheses of the other pulling away later are left out
+    # P(collision going on that going on option_time more would leave beyond the comfortable
+    # brake): the anticipation layer's risk with anticipation="option" (NaN with "go")
+    option: float = math.nan
 
 
 def _moving(futures: Futures | np.ndarray, stand_speed: float) -> Futures | np.ndarray:
@@ -274,10 +298,13 @@ class LayeredRule(RiskRule):
     docs/DECISION.md). Each tick it returns a command (:meth:`command`): the most the ego
     may accelerate [m/s^2], ``-inf`` for the car's full brake, ``inf`` for none.
 
-    One roll of the predictor's hypotheses against three plans of the ego (going on;
-    going on for the deferral, then the full brake; the full brake now) gives both
-    predictive layers their probabilities: the anticipation layer reads the probability of
-    a collision going on, the emergency layer :class:`RiskRule`'s deferred risk with a
+    One roll of the predictor's hypotheses against the ego's plans (going on; going on for
+    the deferral, then the full brake; the full brake now; the comfortable brake now; with
+    ``layers.anticipation = "option"``, going on for ``option_time``, then the comfortable
+    brake) gives both predictive layers their probabilities: the anticipation layer reads
+    the probability of losing the option (a collision going on that going on
+    ``option_time`` more would leave beyond the comfortable brake; with ``"go"``, of a
+    collision going on), the emergency layer :class:`RiskRule`'s deferred risk with a
     longer deferral (one tick, the latency margin ``risk.latency``,
     ``layers.emergency_margin``, the latency the ego is told and its told position noise
     as time at its nominal speed, twice the std). The follow layer reads the measured
@@ -334,6 +361,11 @@ class LayeredRule(RiskRule):
                                  f"brake {self._max_brake:g} m/s^2; for a testbed at another scale, scale the configs "
                                  "with the cars (cdf_mj.scaled)")
         self._speed_noise = 2.0 * context.measurement_std[3]  # [m/s] a told speed noise a standing car may show
+        # The option plan: going on for option_time (plus a tick and what the ego is told of
+        # its latency and noise), then the comfortable brake.
+        self._option = lay.anticipation == "option"
+        self._option_defer = 1 + math.ceil((lay.option_time + told) / dt - 1e-9)
+        self._option_risk = math.nan
         self._cap = math.inf  # [m/s^2] the command now (its ramp is limited by comfort_jerk)
         self._hard = False  # the full brake is on
         self._hard_since = -math.inf
@@ -349,13 +381,20 @@ class LayeredRule(RiskRule):
     def plans(self, ego_pose: np.ndarray, q: float | None = None) -> np.ndarray:
         """The ego's arc lengths [m] ``(4, K)`` at ticks ``1..K`` under GO, DEFER (the full
         brake after the emergency layer's deferral), BRAKE (the full brake now) and
-        :data:`SLOW` (the comfortable brake now, to a stop)."""
+        :data:`SLOW` (the comfortable brake now, to a stop); with ``anticipation =
+        "option"`` a fifth row, :data:`OPTION` (going on for the option time, then the
+        comfortable brake)."""
         v_nom, gain, a_max, b = self._nominal
         q0 = self.map.ego_arc(ego_pose) if q is None else q
         v0 = max(float(ego_pose[3]), 0.0)
+        comfort = self.layers.comfort_brake
         hard = ego_plans(q0, v0, v_nom, gain, a_max, b, self._defer, self._steps, self._dt)
-        soft = ego_plans(q0, v0, v_nom, gain, a_max, self.layers.comfort_brake, 1, self._steps, self._dt)
-        return np.concatenate([hard, soft[BRAKE:]])
+        soft = ego_plans(q0, v0, v_nom, gain, a_max, comfort, 1, self._steps, self._dt)
+        rows = [hard, soft[BRAKE:]]
+        if self._option:
+            rows.append(ego_plans(q0, v0, v_nom, gain, a_max, comfort, self._option_defer, self._steps,
+                                  self._dt)[DEFER:BRAKE])
+        return np.concatenate(rows)
 
     def layers_of(self, ego_pose: np.ndarray,
                   futures: Futures | np.ndarray) -> tuple[float, float, float, float, bool]:
@@ -363,6 +402,12 @@ class LayeredRule(RiskRule):
         that deferring the full brake would leave unavoidable, of one when braking fully
         now, of one going on and of one slowing at the comfortable brake, for the
         predictor's hypotheses; and whether the ego is in the conflict zone."""
+        read, inside = self._read(ego_pose, futures)
+        return read[0], read[1], read[2], read[3], inside
+
+    def _read(self, ego_pose: np.ndarray, futures: Futures | np.ndarray) -> tuple[list[float], bool]:
+        """The probabilities of :meth:`layers_of` (and, with the option plan, of losing the
+        option: colliding going on and under :data:`OPTION`) and whether the ego is inside."""
         q = self.map.ego_arc(ego_pose)
         plans = self.plans(ego_pose, q)
         if isinstance(futures, Futures):
@@ -371,8 +416,8 @@ class LayeredRule(RiskRule):
                                  self.map.q_lo_ahead, -1, -1)
         else:
             m = self._path_masses(plans, np.asarray(futures, dtype=float))
-        deferred, now, go, slow = (min(max(float(v), 0.0), 1.0) for v in m @ _READ)
-        return deferred, now, go, slow, self.map.inside(q)
+        reading = _READ_OPTION if len(plans) > OPTION else _READ
+        return [min(max(float(v), 0.0), 1.0) for v in m @ reading], self.map.inside(q)
 
     def _follow(self, t: float, poses: np.ndarray) -> tuple[float, float, float, float]:
         """``(accel, gap, rss, need)``: the follow layer's command [m/s^2] behind a car ahead
@@ -435,7 +480,9 @@ class LayeredRule(RiskRule):
         futures = predictor.futures(self._defer)
         if standoff:
             futures = _moving(futures, lay.stand_speed)
-        emergency, now, go, slow, inside = self.layers_of(ego, futures)
+        read, inside = self._read(ego, futures)
+        emergency, now, go, slow = read[:4]
+        self._option_risk = read[OPTION] if self._option else math.nan
         follow, gap, rss, need = self._follow(t, obs.poses)
         cfg = self.config
         a_now = (v - self._v_last) / dt if self._v_last is not None else 0.0  # [m/s^2] the ego's, last tick
@@ -454,12 +501,13 @@ class LayeredRule(RiskRule):
         # meant to let pass (a slow driver pulling out as it arrives later) goes on instead.
         # Behind a car ahead in its lane the follow layer answers for that car instead (the
         # GO plan does not follow it, so its risk there says nothing of slowing).
+        start, stop = self.anticipation(obs, go, slow)
         if gap < math.inf:
             self._slowing = False
         elif self._slowing:
-            if (go < lay.anticipate_release or slow > go) and t - self._slow_since >= lay.dwell - 1e-9:
+            if stop and t - self._slow_since >= lay.dwell - 1e-9:
                 self._slowing = False
-        elif go >= lay.anticipate and slow < go:
+        elif start:
             self._slowing, self._slow_since = True, t
         # The command: the full brake at once; any other ramps at comfort_jerk.
         if self._hard:
@@ -476,9 +524,24 @@ class LayeredRule(RiskRule):
             command = math.inf if cap >= self._max_accel else cap
         self.last = Assessment(deferred=emergency, brake=now, inside=inside, go=go)
         self.last_layers = Layers(emergency=emergency, emergency_now=now, go=go, slow=slow,
-                                  inside=inside, gap=gap, rss=rss, standoff=standoff)
+                                  inside=inside, gap=gap, rss=rss, standoff=standoff, option=self._option_risk)
         self.last_command = command
         return command
+
+    def anticipation(self, obs: PlannerInput, go: float, slow: float) -> tuple[bool, bool]:
+        """The anticipation layer's choice on this tick: ``(start, stop)``, whether it starts
+        slowing the ego (read while it does not slow) and whether it may stop (read while it
+        slows, after the dwell), from the probabilities of a collision going on (``go``) and
+        slowing at the comfortable brake (``slow``). This rule's: start once its risk reaches
+        ``layers.anticipate`` and slowing is the safer of the two; stop below
+        ``layers.anticipate_release`` or once slowing is riskier. Its risk is ``go`` with
+        ``layers.anticipation = "go"``, and with ``"option"`` the probability of losing the
+        option (a collision going on that going on ``option_time`` more would leave beyond
+        the comfortable brake: ``Layers.option``). A subclass decides on what it reads here
+        (the naive-caution baselines)."""
+        lay = self.layers
+        risk = self._option_risk if self._option else go
+        return risk >= lay.anticipate and slow < go, risk < lay.anticipate_release or slow > go
 
     def assess(self, ego_pose: np.ndarray, futures: Futures | np.ndarray, exact: bool = False) -> Assessment:
         """:meth:`RiskRule.assess` for this rule's plans: the emergency layer's deferred risk,
@@ -493,8 +556,10 @@ class LayeredRule(RiskRule):
 
     def values(self) -> dict[str, float]:
         """``risk`` (the emergency layer's), ``anticipate`` (the anticipation's: P(collision
-        going on)) and ``accel`` (the command, a cap on the ego's acceleration, within the
-        car's limits [m/s^2]) of this tick."""
+        going on), or with ``anticipation = "option"`` P(losing the option)) and ``accel``
+        (the command, a cap on the ego's acceleration, within the car's limits [m/s^2]) of
+        this tick."""
         ly = self.last_layers
         accel = min(max(self.last_command, -self._max_brake), self._max_accel) if ly is not None else 0.0
-        return {"risk": ly.emergency if ly else 0.0, "anticipate": ly.go if ly else 0.0, "accel": accel}
+        read = (ly.option if self._option else ly.go) if ly else 0.0
+        return {"risk": ly.emergency if ly else 0.0, "anticipate": read, "accel": accel}

@@ -48,7 +48,7 @@ from cdf_mj.model.layout import Layout
 from cdf_mj.planners import baseline_kernels as kern
 from cdf_mj.planners.base import DecidingPlanner, PlannerContext, PlannerInput, ThresholdRule, as_config
 from cdf_mj.planners.baseline_common import (
-    BASELINE_LAYERS,
+    IMM_LAYERS,
     baseline_rule,
     check_field,
     finite_number,
@@ -401,7 +401,7 @@ class IMMPlanner(DecidingPlanner):
 
 
 class IMMLayeredPlanner(IMMPlanner):
-    """:class:`IMMPlanner` with the layered rule (default :data:`BASELINE_LAYERS` and
+    """:class:`IMMPlanner` with the layered rule (default :data:`~cdf_mj.planners.baseline_common.IMM_LAYERS` and
     :class:`RiskConfig`), registered as ``imm-layered``."""
 
     name = "imm-layered"
@@ -409,7 +409,7 @@ class IMMLayeredPlanner(IMMPlanner):
     def __init__(self, params: IMMConfig | Mapping[str, Any] | None = None,
                  risk: RiskConfig | Mapping[str, Any] | None = None,
                  layered: LayeredConfig | Mapping[str, Any] | None = None) -> None:
-        super().__init__(params, risk, BASELINE_LAYERS if layered is None else layered)
+        super().__init__(params, risk, IMM_LAYERS if layered is None else layered)
 
 
 class IMMRiskPlanner(IMMPlanner):
