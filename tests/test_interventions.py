@@ -135,7 +135,10 @@ def test_pass_time_is_when_the_trace_passes_the_fixed_point_or_extrapolated(runs
         beyond = np.flatnonzero(past > label_distance)
         if info["passed"]:
             passed += 1
-            assert info["pass_time"] == pytest.approx(rec.trace["t"][beyond[0]], abs=1e-6)
+            j, t = beyond[0], rec.trace["t"]  # the crossing lies in the tick before t[j]: interpolated
+            share = (label_distance - past[j - 1]) / (past[j] - past[j - 1])
+            assert info["pass_time"] == pytest.approx(t[j - 1] + share * (t[j] - t[j - 1]), abs=1e-5)
+            assert t[j - 1] < info["pass_time"] <= t[j]
         else:
             extrapolated += 1
             assert beyond.size == 0

@@ -129,9 +129,10 @@ class World:
     lane where ``timing.until_clear``, or ``"duration"``), ``label_outcome`` and
     ``label_time`` (whether the ego touched the obstacle before it got
     ``timing.label_distance`` past the conflict point, and when that was decided; None
-    until then), ``pass_time`` [s] (the first time its rear axle was
-    ``timing.label_distance`` past the conflict point, whatever it touched before: the
-    fixed point at which time lost is measured; None until then) and ``pass_remaining``
+    until then), ``pass_time`` [s] (when its rear axle got
+    ``timing.label_distance`` past the conflict point, whatever it touched before,
+    interpolated within the tick it crossed: the fixed point at which time lost is
+    measured; None until then) and ``pass_remaining``
     [m] (how far its rear axle still is from that point; 0 once it got there).
 
     World options (off by default): ``config.obstacle.family`` drives the obstacle with a
@@ -342,6 +343,7 @@ class World:
         returns what the ego touched (``"obstacle"``, ``"building"``) or None."""
         scene, layout, config = self.scene, self.layout, self.config
         self._measured = None
+        t0, past0 = self.end_time, self.ego_arc - self._s_conflict  # before the tick, for pass_time
         try:
             hit = scene.step(self.n_sub)
         except SimulationDivergedError as exc:
@@ -367,8 +369,9 @@ class World:
             self.end_reason = "duration"
         if self.label_outcome is None and (hit == "obstacle" or past > timing.label_distance):
             self.label_outcome, self.label_time = hit == "obstacle", self.end_time
-        if self.pass_time is None and past > timing.label_distance:
-            self.pass_time = self.end_time
+        if self.pass_time is None and past > timing.label_distance:  # crossed within this tick: interpolated
+            share = (timing.label_distance - past0) / (past - past0) if past > past0 else 1.0
+            self.pass_time = round(t0 + min(max(share, 0.0), 1.0) * (self.end_time - t0), 6)
         self.done = self.end_reason is not None
         return hit
 
