@@ -64,7 +64,8 @@ def test_arguments_a_planner_does_not_take_are_refused_before_any_work(tmp_path)
 
 @pytest.mark.parametrize(("planners", "flag", "readers"), [
     ("reactive,imm", "--tau", "cdf-threshold"),
-    ("reactive,cdf-threshold", "--brake-risk", "caution-moving, caution-phantom, caution-waiting, cdf, cdf-go, cdf-risk, cv-layered, cv-risk, "
+    ("reactive,cdf-threshold", "--brake-risk",
+     "caution-moving, caution-phantom, caution-waiting, cdf, cdf-option, cdf-risk, cv-layered, cv-risk, "
      "imm-layered, imm-risk"),
 ])
 def test_a_cdf_flag_that_no_planner_reads_is_refused(tmp_path, capsys, planners, flag, readers):

@@ -82,7 +82,7 @@ import numpy as np
 from cdf_mj.config import CDFConfig
 from cdf_mj.model import road
 from cdf_mj.model.occlusion import sight_targets
-from cdf_mj.planners.base import PlannerContext, PlannerInput, Predictor
+from cdf_mj.planners.base import PlannerContext, PlannerInput, Predictor, as_config
 from cdf_mj.planners.cdf import CDFPlanner
 from cdf_mj.planners.decision import LayeredRule
 
@@ -280,7 +280,7 @@ class _CautionPlanner(CDFPlanner):
     rule_type: ClassVar[type[CautionRule]] = CautionRule
 
     def __init__(self, cdf: CDFConfig | Mapping[str, Any] | None = None) -> None:
-        super().__init__(cdf)
+        super().__init__(as_config(cdf, CDFConfig, "cdf").replace(decision="layered"))
         self.rule = self.rule_type(self.cdf.layered, self.cdf.risk, self.cdf.ego_brake)
 
 

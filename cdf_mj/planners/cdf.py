@@ -169,7 +169,10 @@ class OptionCDFPlanner(CDFPlanner):
     (:data:`OPTION_ANTICIPATION`), registered as ``cdf-option``: the ego holds its own
     controller while it can still afford to wait for the belief, and slows only once the
     belief says a cut-off is likely as the option of the comfortable brake runs out; it
-    never slows on the prior far from the junction."""
+    never slows on the prior far from the junction. The fields of
+    :data:`OPTION_ANTICIPATION` replace a given ``cdf.layered``'s (its other fields, and
+    every other field of ``cdf``, are kept): to try other values, give ``cdf`` with
+    ``layered.anticipation = "option"`` to ``cdf`` itself."""
 
     name = "cdf-option"
 

@@ -8,9 +8,10 @@ braking or not:
 ThresholdRule     the paper's rule: brake once the predictor's own alarm probability
                   (the CDF's P(cutoff), the IMM's P(conflict), the CV's predicted conflict)
                   reaches a threshold, and hold the brake to the end
-LayeredRule       the graded rule (the default ``cdf``): *anticipate* (slow down gently, by
-                  default only once going on a little longer would lose the option of
-                  avoiding a likely cut-off with the comfortable brake: the option rule),
+LayeredRule       the graded rule (the default ``cdf``): *anticipate* (slow down gently once
+                  a collision going on is likely, ``cdf``'s; or, with the option rule of
+                  ``cdf-option``, only once going on a little longer would lose the option
+                  of avoiding a likely cut-off with the comfortable brake),
                   *emergency* (the full brake when deferring it would leave a collision
                   unavoidable, with a time margin), *follow* (a time gap behind a merged
                   car, the full brake below the RSS distance), with a dwell, a jerk limit
