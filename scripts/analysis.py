@@ -76,7 +76,7 @@ from cdf_mj.experiments.sweep import SWEEPS, SweepResult, run_sweep
 from cdf_mj.extras import install_hint
 from cdf_mj.planners.cv import CVConfig
 from cdf_mj.planners.imm import IMMConfig
-from cdf_mj.planners.registry import bind_planner, planner_spec
+from cdf_mj.planners.registry import bind_planner, make_planner, planner_spec
 from cdf_mj.records import LABELS, braked, completed, is_imminent, record_field
 
 PROG = "analysis"
@@ -253,9 +253,21 @@ def in_short(by_part: dict[str, tuple[range, list[dict[str, Any]]]]) -> list[str
                           f"(p = {_p(c.false_alarm_only_first, c.false_alarm_only_second)}): "
                           f"{_verdict(hits, other_hits, alarms, other_alarms)}")
         if pieces:
-            same = " (the same layered rule, another predictor)" if other in SAME_RULE else ""
+            same = f" ({_rule_of(other)})" if other in SAME_RULE else ""
             lines.append(f"- `cdf` against `{other}`{same}: " + "; ".join(pieces) + ".")
     return lines
+
+
+def _rule_of(planner: str) -> str:
+    """How ``planner``'s layered rule stands to ``cdf``'s: the same rule with another
+    predictor, or the layered rule with another anticipation too (the objective of
+    scripts/tune_option.py chose each predictor's)."""
+    ours = CDFConfig().layered
+    theirs = getattr(make_planner(planner).rule, "layers", None)
+    if theirs is None or (theirs.anticipation, theirs.anticipate) == (ours.anticipation, ours.anticipate):
+        return "the same layered rule, another predictor"
+    return (f"the layered rule with another predictor and its own anticipation: {theirs.anticipation} "
+            f"{theirs.anticipate:g} against `cdf`'s {ours.anticipation} {ours.anticipate:g}")
 
 
 def make_comparison(part: Part, opts: Options) -> Made:
@@ -510,8 +522,10 @@ def introduction(small: bool) -> list[str]:
         "modelling the other driver's *belief* is what makes early braking possible. Here the CDF meets the",
         "alternatives its introduction names, each predictor with its own rule and with the CDF's layered rule,",
         "on the same seeds (common random numbers: the same obstacle, intent, observation draws, noise and ego",
-        "start for every planner on a seed). `cdf` against `imm-layered` and `cv-layered` is the same rule with",
-        "another predictor: it isolates the prediction.",
+        "start for every planner on a seed). `cdf` against `imm-layered` and `cv-layered` is the layered rule",
+        "with another predictor; where the declared objective of scripts/tune_option.py chose another",
+        f"anticipation for a predictor (`imm-layered`: {_rule_of('imm-layered')}), the comparison is of",
+        "prediction and anticipation together, and the line below says so.",
         "",
         "The layered rule ([DECISION.md](DECISION.md)) gives a graded command each tick, read from one roll of "
         "the predictor's hypotheses against the ego's plans: it slows the ego gently (at "

@@ -26,7 +26,12 @@ group         writes (under ``--docs``, default ``docs/img``)
 ``gif``       ``episode.gif``: the first 4 s of seed 1 with the CDF, 320 x 240 at 10
               frames/s (the README's top picture)
 ``decision``  ``decision/{anticipate,emergency,follow}.png``: one picture per layer of the
-              layered rule (docs/DECISION.md), ``python scripts/decision_figures.py``
+              layered rule (docs/DECISION.md), ``python scripts/decision_figures.py``; and
+              ``decision/option_{waits,right,brakes,rss}.png``, one per behaviour of the option
+              rule, ``python scripts/option_figures.py``
+``pareto``    ``decision/pareto.png``: every planner's trade-off on the held-out seeds,
+              ``python scripts/decision.py --tuning results/tune_option`` (which remakes
+              docs/DECISION_RESULTS.md with it: about half an hour on 2 cores)
 ``falsify``   ``falsify/progress.png``: the falsification page's searches,
               ``python scripts/falsify.py`` (which remakes docs/FALSIFY.md with it: about an
               hour on 2 cores the first time, seconds from its results after)
@@ -55,8 +60,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 PROG = "make_figures"
-GROUPS = ("report", "analysis", "sweeps", "decision", "falsify", "frame", "gif")  # the renderer's groups last
+GROUPS = ("report", "analysis", "sweeps", "decision", "pareto", "falsify", "frame", "gif")  # the renderer's last
 DECISION_PICTURES = ("anticipate", "emergency", "follow")  # scripts/decision_figures.py's
+OPTION_PICTURES = ("option_waits", "option_right", "option_brakes", "option_rss")  # scripts/option_figures.py's
 ANALYSIS_PLANNERS = "cdf,reactive,cv,imm"
 ANALYSIS_SEED0 = {"dev": 0, "heldout": 100000}  # docs/ANALYSIS.md: seeds 0-999 and 100000-100999
 SWEEPS = ("tau", "beta", "noise", "obs-noise")  # all four planners; particles: the CDF only
@@ -156,10 +162,22 @@ def python_script(argv: Sequence[str], writes: str, opts: Options) -> None:
 
 
 def make_decision(opts: Options) -> None:
-    """docs/img/decision: one picture per layer of the layered rule (scripts/decision_figures.py)."""
+    """docs/img/decision: one picture per layer of the layered rule (scripts/decision_figures.py)
+    and one per behaviour of the option rule (scripts/option_figures.py)."""
     out = opts.docs / "decision"
     python_script(["scripts/decision_figures.py", "--out", str(out)],
                   ", ".join(str(out / f"{n}.png") for n in DECISION_PICTURES), opts)
+    python_script(["scripts/option_figures.py", "--out", str(out)],
+                  ", ".join(str(out / f"{n}.png") for n in OPTION_PICTURES), opts)
+
+
+def make_pareto(opts: Options) -> None:
+    """docs/img/decision/pareto.png: written by the decision page's script, which remakes
+    docs/DECISION_RESULTS.md from the same runs (with the tuning points of
+    results/tune_option where scripts/tune_option.py has run)."""
+    figure = opts.docs / "decision" / "pareto.png"
+    python_script(["scripts/decision.py", "--figure", str(figure), "--tuning", "results/tune_option",
+                   *_workers(opts)], f"{figure} and docs/DECISION_RESULTS.md", opts)
 
 
 def make_falsify(opts: Options) -> None:
@@ -184,6 +202,7 @@ def make_gif(opts: Options) -> None:
 
 MAKERS: dict[str, Callable[[Options], None]] = {
     "report": make_report, "analysis": make_analysis, "sweeps": make_sweeps, "decision": make_decision,
+    "pareto": make_pareto,
     "falsify": make_falsify, "frame": make_frame, "gif": make_gif,
 }
 

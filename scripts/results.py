@@ -10,14 +10,16 @@ the package version, :mod:`cdf_mj.analysis.pages`):
   experiment; the scenario was calibrated on these seeds);
 - ``held-out``: the same on seeds 100000-100999, never used to choose anything.
 
-Both run ``cdf`` (the CDF with its layered rule, the default: a graded command that slows
-the ego gently when a cut-off becomes likely, brakes hard only in an emergency or behind a
-car too close, and releases), ``cdf-threshold`` (the CDF with the paper's rule) and
-``reactive`` (the paper's baseline) on the same seeds. A *brake* is a hard brake
-(``LayeredConfig.hard_brake`` or more of deceleration for ``cdf``; the full brake for the
-others): the false alarms and lead times count those only. The page has the paper's two
-tables beside ours (the CDF's predictions against the labels; collisions, avoidance by our
-count and by the paper's formula, false alarms, lead time, gap, time lost; 95 % Wilson
+Both run ``cdf`` (the CDF with the layered rule, the package's default: docs/DECISION.md),
+``cdf-threshold`` (the CDF with the paper's rule) and ``reactive`` (the paper's baseline) on
+the same seeds, and ``constant`` (the ego's own controller alone), the reference of the time
+lost at the fixed point and of the hard subset, which the paper's tables leave out. A
+*brake* is a hard brake (``LayeredConfig.hard_brake`` or more of deceleration for ``cdf``;
+the full brake for the others): the hard-brake false alarms and lead times count those only;
+every intervention, hard or not, is counted in a table of its own
+(:func:`cdf_mj.analysis.pareto.intervention_lines`). The page has the paper's two tables
+beside ours (the CDF's predictions against the labels; collisions, avoidance by our count
+and by the paper's formula, hard-brake false alarms, lead time, gap, time lost; 95 % Wilson
 intervals), every figure the paper reports set against our interval
 (matched: the paper's figure inside it), where the differences come from (counted from
 the records), and the figures of ``cdf-mj report`` for the development part (into
@@ -51,6 +53,7 @@ from typing import Any, NoReturn
 
 from cdf_mj.analysis.metrics import PlannerMetrics, Rate, confusion_matrix, cutoff_recall, of_planner, planner_metrics
 from cdf_mj.analysis.pages import ScriptParser, command_line, exit_status, fail, markdown_table, write_page
+from cdf_mj.analysis.pareto import intervention_lines, planner_line
 from cdf_mj.analysis.tables import PAPER_CONFUSION, PAPER_PLANNERS, format_number, format_percent, format_rate
 from cdf_mj.config import CDFConfig, ScenarioConfig
 from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
@@ -59,7 +62,9 @@ from cdf_mj.records import LABELS, completed, hit_obstacle, is_false_alarm, is_i
 
 PROG = "results"
 SCRIPT = "scripts/results.py"
-PLANNERS = ("cdf", "cdf-threshold", "reactive")
+REFERENCE = "constant"  # the reference of the time lost at the fixed point and of the hard subset
+PLANNERS = ("cdf", "cdf-threshold", "reactive", REFERENCE)
+COMPARED = PLANNERS[:3]  # the planners of the paper's tables
 CDF_PLANNERS = ("cdf", "cdf-threshold")
 PAPER_EPISODES = sum(sum(row) for row in PAPER_CONFUSION.values())  # 1000
 
@@ -98,13 +103,14 @@ def confusion_lines(records: Sequence[dict[str, Any]], planner: str) -> list[str
 
 
 def planner_lines(metrics: dict[str, PlannerMetrics]) -> list[str]:
-    """Every planner's collisions and braking, the paper's counts beside them."""
+    """The compared planners' collisions and braking, the paper's counts beside them."""
     header = ["planner", "collisions imminent", "collisions occurred", "avoided (95 % CI)",
-              "(imminent - occurred) / imminent", "paper: imminent / occurred / formula", "false alarms (95 % CI)",
-              "false alarms / Yield episodes", "collisions in Yield, Right", "median lead time [s]",
-              "median min gap [m]", "mean time lost, no collision [s]"]
+              "(imminent - occurred) / imminent", "paper: imminent / occurred / formula",
+              "hard-brake false alarms (95 % CI)", "hard-brake false alarms / Yield episodes",
+              "collisions in Yield, Right", "median lead time [s]", "median min gap [m]",
+              "mean time lost at the end, no collision [s]"]
     rows = []
-    for m in metrics.values():
+    for m in (m for name, m in metrics.items() if name in COMPARED):
         paper_name = "cdf" if m.planner in CDF_PLANNERS else m.planner
         paper = "-"
         if paper_name in PAPER_PLANNERS:
@@ -137,7 +143,10 @@ def part_section(part: Part, records: Sequence[dict[str, Any]], failed: int, out
         if mine:
             rule = "the layered rule" if planner == "cdf" else "the paper's rule"
             lines += [f"`{planner}` ({rule}): predictions, ours \\| paper", "", *confusion_lines(mine, planner)]
-    lines += ["Planners:", "", *planner_lines(planner_metrics(good)), ""]
+    metrics = planner_metrics(good, reference=REFERENCE)
+    lines += ["Planners:", "", *planner_lines(metrics), "",
+              f"Every intervention, `{REFERENCE}` the reference (per label; the time lost at the fixed point; the "
+              "hard subset):", "", *intervention_lines(metrics, REFERENCE), ""]
     return lines
 
 
@@ -198,7 +207,7 @@ def paper_figures(by_part: dict[str, list[dict[str, Any]]]) -> list[Figure]:
             {p: cell(yld, 0, c) for p, c in conf.items()})
         add(f"`{planner}`: Right episodes predicted Right", (paper[right][2], sum(paper[right])),
             {p: cell(right, 2, c) for p, c in conf.items()})
-        add(f"`{planner}`: false alarms, of all episodes", (paper[yld][0], PAPER_EPISODES),
+        add(f"`{planner}`: hard-brake false alarms, of all episodes", (paper[yld][0], PAPER_EPISODES),
             {p: m[planner].false_alarms if planner in m else None for p, m in metrics.items()})
     for planner in (*CDF_PLANNERS, "reactive"):
         pi, po = PAPER_PLANNERS["cdf" if planner in CDF_PLANNERS else planner]
@@ -310,7 +319,7 @@ def causes_section(by_part: dict[str, list[dict[str, Any]]], names: dict[str, st
              "slowing is not one); \"first saw\" is the obstacle driver's first observation of the ego "
              "(`first_seen_time`), after which it may yield; the paper's rule holds its brake, the layered rule "
              "releases it.", ""]
-    body = [line for planner in PLANNERS for p, recs in by_part.items()
+    body = [line for planner in COMPARED for p, recs in by_part.items()
             for line in cause_lines(recs, planner, names[p])]
     return [*lines, *(body or ["Nothing to explain: no false alarm and no collision."]), ""]
 
@@ -333,7 +342,8 @@ def figure_lines(run_dir: Path, records: Sequence[dict[str, Any]], figures_dir: 
              f"Drawn by `cdf_mj.viz.report.write_report` (what `cdf-mj report {run_dir}` draws) from the records "
              f"of seeds {span}; the trajectories and posterior traces are of `cdf` on seeds "
              + ", ".join(f"{s} ({record_field(next(r for r in cdf if record_field(r, 'seed') == s), 'label')})"
-                         for s in seeds) + ".", ""]
+                         for s in seeds) + f". `{REFERENCE}` is in the bar charts as the reference (the ego's ACC "
+             "alone).", ""]
     for name, caption in FIGURES.items():
         if name in result.figures:
             rel = Path(os.path.relpath(result.figures[name], doc.parent)).as_posix()
@@ -357,18 +367,14 @@ def markdown(sections: list[list[str]], beside: list[str], causes: list[str], fi
         "The planners run on the same seeds (common random numbers: the same obstacle intent, observation",
         "draws, noise and ego start for each seed):",
         "",
-        f"- `cdf`: the CDF's particle filter ({cdf.n_particles} particles) with the layered rule, the default "
-        "([DECISION.md](DECISION.md)), a graded command each tick: it slows the ego gently (at "
-        f"{lay.comfort_brake:g} m/s²) once the probability of a collision if the ego goes on reaches "
-        f"{lay.anticipate:g} and slowing is the less risky (until it falls below {lay.anticipate_release:g}); it "
-        "brakes fully only in an emergency (the probability of a collision that deferring the full brake by one "
-        f"tick and {cdf.risk.latency + lay.emergency_margin:g} s would leave unavoidable reaches "
-        f"{cdf.risk.brake:g}, released below {cdf.risk.release:g}) or behind a car in its lane closer than the "
-        f"RSS safe distance (further back it follows at a {lay.time_gap:g} s time gap); a hard brake is held at "
-        f"least {lay.dwell:g} s. Its *brake* is a command of {lay.hard_brake:g} m/s² or more of deceleration;",
+        f"- `cdf`: {planner_line('cdf')}, the package's default, with {cdf.n_particles} particles: a graded "
+        "command each tick, which slows the ego or brakes hard. Its *brake* is a command of "
+        f"{lay.hard_brake:g} m/s² or more of deceleration;",
         f"- `cdf-threshold`: the same filter with the paper's rule: brake once P(cutoff) >= τ = {cdf.tau:g}, "
         "held to the end;",
-        "- `reactive`: the paper's baseline, brakes once any part of the obstacle is inside the ego's lane.",
+        "- `reactive`: the paper's baseline, brakes once any part of the obstacle is inside the ego's lane;",
+        f"- `{REFERENCE}`: {planner_line(REFERENCE)} The reference of the time lost at the fixed point and of the "
+        "hard subset; the paper's tables leave it out.",
         "",
         "Labels come from a counterfactual run of each seed with the ego holding its speed (README, \"The",
         "scenario\"): Cutoff (it would hit the obstacle), Yield (a left-turner that does not cut it off),",
@@ -380,12 +386,11 @@ def markdown(sections: list[list[str]], beside: list[str], causes: list[str], fi
         f"Scenario: `ScenarioConfig()` (timing: {timing}); the CDF: `CDFConfig()`. The scenario was calibrated "
         "on seeds 0–999 for its label shares and the reactive baseline only ([PARAMETERS.md](PARAMETERS.md)); "
         "the CDF's parameters, the risk rule's threshold (the layered rule's emergency layer uses it) and the "
-        "layered rule's anticipation threshold were chosen on seeds 0–199 ([DECISION.md](DECISION.md); "
-        "`scripts/tune_risk.py`, `scripts/tune_layers.py`); seeds 100000–100999 were never used to choose "
-        "anything.",
+        "layered rule's thresholds were chosen on seeds 0–199 ([DECISION.md](DECISION.md) names the scripts); "
+        "seeds 100000–100999 were never used to choose anything.",
         "",
         f"Each part is one `run_experiment` call into `{out}/<part>` (the records of `cdf-mj experiment "
-        "--planner cdf,cdf-threshold,reactive` on the same seeds). `cdf-mj experiment` prints the same "
+        f"--planner {','.join(PLANNERS)}` on the same seeds). `cdf-mj experiment` prints the same "
         "tables (`cdf_mj.analysis.tables.experiment_tables`).",
         "",
     ]
@@ -400,14 +405,17 @@ def markdown(sections: list[list[str]], beside: list[str], causes: list[str], fi
         "- *(imminent − occurred) / imminent*: the paper's formula, beside ours for comparison with the paper:",
         "  since *occurred* counts every label, it also charges the collisions in episodes labelled Yield",
         "  (after a false alarm, for example), so it is at most our *avoided*.",
-        "- *false alarms*: episodes not labelled Cutoff in which the planner braked hard, of all episodes (and",
-        f"  of the Yield episodes): for `cdf` a command of {lay.hard_brake:g} m/s² or more of deceleration (its",
-        "  gentle slowing is not a brake), for the others their full brake.",
+        "- *hard-brake false alarms*: episodes not labelled Cutoff in which the planner braked hard, of all",
+        f"  episodes (and of the Yield episodes): for `cdf` a command of {lay.hard_brake:g} m/s² or more of",
+        "  deceleration (its gentle slowing is not a brake, but an intervention: the next table counts those),",
+        "  for the others their full brake.",
         "- *lead time*: from the first hard brake to the obstacle entering the ego lane, median over the Cutoff",
         "  episodes in which the planner braked hard (negative: braked after the entry).",
         "- *min gap*: the smallest distance between the two cars' hulls, median over all episodes.",
-        "- *time lost*: the ego's progress deficit at the end over its nominal speed, mean over episodes",
-        "  without a collision.",
+        "- *time lost at the end*: the ego's progress deficit at the end over its nominal speed, mean over",
+        "  episodes without a collision (it charges following a slower car; the time lost at the fixed point",
+        f"  against `{REFERENCE}` does not).",
+        "- '-': nothing to measure (no hard brake for a lead time, no episode of that kind).",
         "",
         "Each is counted by one rule of `cdf_mj.records` (`is_imminent`, `hit_obstacle`, `avoided`,",
         "`is_false_alarm`, `lead_time`, `paper_avoided`) through `cdf_mj.analysis.metrics.planner_metrics`,",

@@ -24,7 +24,7 @@ Each point is a :func:`cdf_mj.experiments.experiment.run_experiment` in
 ``OUT/SCENARIO/T-THRESHOLD`` (``go-THRESHOLD`` for version 0.3's rule; resumable). Prints
 a Markdown table per predictor and the choices; ``--doc`` writes them to a page::
 
-    python scripts/tune_option.py --out results/tune_option --doc docs/TUNING.md
+    python scripts/tune_option.py                 # results/tune_option, docs/TUNING.md
 """
 
 from __future__ import annotations
@@ -35,12 +35,11 @@ import math
 import sys
 from pathlib import Path
 
-from cdf_mj._version import __version__
 from cdf_mj.analysis.metrics import PlannerMetrics, planner_metrics
+from cdf_mj.analysis.pages import command_line, write_page
 from cdf_mj.config import CDFConfig, LayeredConfig
 from cdf_mj.experiments.experiment import ResultsExistError, run_experiment
 from cdf_mj.presets import load_preset
-from cdf_mj.records.files import write_atomic
 
 SCENARIOS = ("default", "stop-and-wait", "slow-pull-out", "fast-ego")
 THRESHOLDS = (0.3, 0.5, 0.7, 0.9)
@@ -102,7 +101,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=Path("results/tune_option"), help="result directory")
     parser.add_argument("--episodes", type=int, default=200, help="development seeds from 0 (default 200)")
     parser.add_argument("--workers", type=int, default=None, help="worker processes (default: one per CPU)")
-    parser.add_argument("--doc", type=Path, default=None, help="also write the tables to this Markdown page")
+    parser.add_argument("--doc", default="docs/TUNING.md",
+                        help="Markdown page written (default docs/TUNING.md; '' for none)")
     args = parser.parse_args(argv)
     cells: dict[str, dict[tuple[float | None, float], dict[str, PlannerMetrics]]] = {
         p: {pt: {} for pt in POINTS} for p in PLANNERS}
@@ -112,8 +112,7 @@ def main(argv: list[str] | None = None) -> int:
             for planner, m in _point(args.out, scenario, point, args.episodes, args.workers).items():
                 if planner in PLANNERS:
                     cells[planner][point][scenario] = m
-    lines = [f"<!-- made by: python scripts/tune_option.py | cdf_mj {__version__} -->",
-             "# The option rule's thresholds, chosen on the development seeds", "",
+    lines = ["# The layered rule's anticipation, chosen on the development seeds", "",
              f"Seeds 0-{args.episodes - 1} of {', '.join(SCENARIOS)}; the objective, declared before the run, "
              "is in `scripts/tune_option.py` and [DECISION.md](DECISION.md). Each cell: collisions with the "
              "obstacle, non-Cutoff episodes with an intervention, non-Cutoff hard brakes, mean non-Cutoff time "
@@ -131,8 +130,10 @@ def main(argv: list[str] | None = None) -> int:
                       f"{k[1]:.1%}, hard brakes {k[2]:.1%}, time lost {k[3]:.3f} s).", ""]
     text = "\n".join(lines)
     print(text)
-    if args.doc is not None:
-        write_atomic(args.doc, text)
+    if args.doc:
+        command = command_line("scripts/tune_option.py", [("--episodes", args.episodes if args.episodes != 200
+                                                           else None)])
+        write_page(args.doc, text, command)
     return 0
 
 

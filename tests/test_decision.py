@@ -428,34 +428,65 @@ DECISION_SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "decision.py
 
 
 def test_the_decision_report_runs_end_to_end_and_refuses_bad_parts(tmp_path: Path) -> None:
+    import importlib.util
     import json
     import subprocess
     import sys
 
     out, doc = tmp_path / "results", tmp_path / "D.md"
-    argv = [sys.executable, str(DECISION_SCRIPT), "--parts", "held-out,stop-and-wait", "--episodes", "2",
+    argv = [sys.executable, str(DECISION_SCRIPT), "--parts", "held-out,stop-and-wait", "--episodes", "3",
             "--workers", "1", "--quiet", "--out", str(out), "--doc", str(doc)]
     proc = subprocess.run(argv, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr[-3000:]
     text = doc.read_text()
     records = [json.loads(line) for line in (out / "held-out" / "episodes.jsonl").read_text().splitlines()]
-    planners = ("cdf", "cdf-risk", "cdf-threshold", "imm-layered", "imm-risk", "imm", "cv-layered", "reactive")
+    planners = ("cdf", "cdf-option", "cdf-risk", "cdf-threshold", "imm-layered", "cv-layered", "caution-waiting",
+                "caution-moving", "caution-phantom", "reactive", "constant")
+    challengers = ("caution-waiting", "caution-moving", "caution-phantom", "imm-layered", "cv-layered")
     assert sorted((r["seed"], r["planner"]) for r in records) == sorted(
-        (s, p) for s in (100000, 100001) for p in planners)
-    assert {r["planner_info"].get("rule") for r in records if r["planner"] != "reactive"} == {
+        (s, p) for s in range(400000, 400003) for p in planners)  # the held-out range first used by issue 35
+    assert {r["planner_info"].get("rule") for r in records if r["planner"] not in ("reactive", "constant")} == {
         "layered", "risk", "threshold"}
+    presets = [json.loads(line) for line in (out / "stop-and-wait" / "episodes.jsonl").read_text().splitlines()]
+    assert {r["planner"] for r in presets} == {"cdf", "cdf-option", *challengers, "reactive", "constant"}
     for planner in planners:
         assert f"\n| {planner} | " in text
-    assert "\n| cdf / imm-layered | 2 | " in text and "Targets (default scenario" in text
+        assert f"- `{planner}`: " in text  # each planner described on the page
+    assert "seeds 400000-400002 (a range first used here)" in text
+    held_out = text.split("## Default scenario, held-out seeds", 1)[1].split("\n## Preset", 1)[0]
+    for part in (held_out, text.split("## Preset `stop-and-wait`", 1)[1]):
+        for first in ("cdf", "cdf-option"):  # each against every challenger: table row and verdict
+            for other in challengers:
+                assert f"\n| {first} / {other} | 3 | " in part and f"\n- {first} / {other}: " in part
+        assert "\n| cdf-option / cdf | 3 | " in part and "\n| cdf / cdf-option |" not in part  # once, option first
+        for first in ("cdf", "cdf-option"):  # issue 35's targets for both, each line judged with its figure
+            targets = part.split(f"Issue 35's targets for `{first}` (point estimates):\n\n", 1)[1].split("\n\n")[0]
+            lines = targets.splitlines()
+            assert len(lines) == 8 and all(line.endswith(("met", "**missed**", "not measured", "met (it is "
+                                                           "today's rule)")) for line in lines), targets
+            assert "no worse than today's rule (`cdf`)" in targets
+            assert f"dominates `{first}` (of caution-waiting, caution-moving, caution-phantom, imm-layered (" in targets
+    for first in ("cdf", "cdf-option"):
+        assert f"The earlier issues' targets for `{first}`" in held_out
+    # The page says which rule slows on the prior and which waits for the belief.
+    assert "it slows on the prior, before the belief has any evidence" in text and "waits for the belief" in text
+    assert "- `cdf-option`: " in text and "Layered rule: option 0.5 s, 0.9." in text
+    assert "hard-brake false alarms" in text and "| false alarms" not in text
+    assert "interventions, Yield (95 % CI)" in text and "Hard subset: " in text
     assert "Safety margins over the Cutoff episodes" in text and "TTC at the first hard brake" in text
     assert "## Preset `stop-and-wait`, held-out seeds" in text and "Few seeds" in text
+    if importlib.util.find_spec("matplotlib") is not None:  # the figure beside the page (seed 400002: Right)
+        assert (tmp_path / "img" / "decision" / "pareto.png").stat().st_size > 10_000
+        assert "](img/decision/pareto.png)" in text
     again = subprocess.run(argv, capture_output=True, text=True, timeout=300)  # resumed: nothing runs
     assert again.returncode == 0 and doc.read_text() == text
-    bad = subprocess.run([*argv[:2], "--parts", "held-out,nope", "--out", str(tmp_path / "r2"),
-                          "--doc", str(tmp_path / "D2.md")], capture_output=True, text=True, timeout=120)
-    assert bad.returncode == 2 and bad.stderr.startswith("decision: error: unknown part(s) nope")
-    assert len(bad.stderr.strip().splitlines()) == 1
-    assert not (tmp_path / "r2").exists() and not (tmp_path / "D2.md").exists()
+    for bad_args, needle in ((["--parts", "held-out,nope"], "unknown part(s) nope"),
+                             (["--tuning", str(tmp_path / "no-tuning")], "--tuning: tuning directory")):
+        bad = subprocess.run([*argv[:2], *bad_args, "--out", str(tmp_path / "r2"), "--doc", str(tmp_path / "D2.md")],
+                             capture_output=True, text=True, timeout=120)
+        assert bad.returncode == 2 and bad.stderr.startswith(f"decision: error: {needle}"), bad.stderr
+        assert len(bad.stderr.strip().splitlines()) == 1
+        assert not (tmp_path / "r2").exists() and not (tmp_path / "D2.md").exists()
 
 
 def _one(s: float, v: float, accel: float = 0.0, v_max: float | None = None) -> Futures:

@@ -106,10 +106,10 @@ def test_results_script_writes_a_stamped_page(tmp_path: Path) -> None:
     stamp = read_stamp(text)
     assert stamp == Stamp("python scripts/results.py --parts development --episodes 2", cdf_mj.__version__)
     assert sorted((r["seed"], r["planner"]) for r in _records(out / "development" / "episodes.jsonl")) == sorted(
-        (s, p) for s in (0, 1) for p in ("cdf", "cdf-threshold", "reactive"))
+        (s, p) for s in (0, 1) for p in ("cdf", "cdf-threshold", "reactive", "constant"))
     for needle in ("## Seeds 0–1 (development seeds", "\n| cdf | ", "\n| cdf-threshold | ", "\n| reactive | ",
                    "## Beside the paper", "### What matched the paper", "### What did not match",
-                   "a check that the script runs, not a result"):
+                   "a check that the script runs, not a result", "interventions, Yield (95 % CI)", "Hard subset: "):
         assert needle in text, needle
     if HAS_MATPLOTLIB:
         assert (img / "confusion.png").is_file() and "](img/confusion.png)" in text
@@ -140,3 +140,15 @@ def test_analysis_script_writes_a_stamped_page_and_refuses_bad_parts(tmp_path: P
         assert bad.returncode == 2 and bad.stderr.startswith(f"{prog}: error: unknown or repeated part(s) nope")
         assert len(bad.stderr.strip().splitlines()) == 1
         assert not (tmp_path / "r2").exists() and not (tmp_path / "D2.md").exists()
+
+
+def test_tuning_script_writes_a_stamped_page_with_its_choices(tmp_path: Path) -> None:
+    out, doc = tmp_path / "out", tmp_path / "T.md"
+    proc = _run("scripts/tune_option.py", "--episodes", "1", "--workers", "1", "--out", str(out), "--doc", str(doc))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    text = doc.read_text(encoding="utf-8")
+    assert read_stamp(text) == Stamp("python scripts/tune_option.py --episodes 1", cdf_mj.__version__)
+    for needle in ("## cdf", "## imm-layered", "## cv-layered", "| 0.5-0.9 | ", "| go-0.1 | ", "Chosen for cdf: "):
+        assert needle in text, needle
+    planners = {r["planner"] for r in _records(out / "default" / "go-0.1" / "episodes.jsonl")}
+    assert planners == {"cdf", "imm-layered", "cv-layered", "constant"}

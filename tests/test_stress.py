@@ -60,6 +60,11 @@ def test_the_stress_presets_are_the_issues_list():
     assert stress.default_presets() == ["default", *STRESS]
 
 
+def test_the_default_planners_set_both_cdf_rules_against_every_naive_baseline_and_predictor():
+    assert {"cdf", "cdf-option", "caution-waiting", "caution-moving", "caution-phantom", "imm-layered",
+            "cv-layered", "constant"} <= set(stress.PLANNERS_DEFAULT)
+
+
 @pytest.mark.parametrize("name", sorted(KINDS))
 def test_a_stress_preset_sets_only_keys_of_its_kind(name):
     preset = read_preset(name)
@@ -81,7 +86,7 @@ def test_a_stress_preset_sets_only_keys_of_its_kind(name):
 
 def test_the_suite_writes_its_page_and_resumes(tmp_path, capsys):
     out, doc = tmp_path / "results", tmp_path / "STRESS.md"
-    presets, planners = ["stress-merge-brakes", "stress-noise"], ["cdf", "reactive"]
+    presets, planners = ["stress-merge-brakes", "stress-noise"], ["cdf", "cdf-option", "reactive"]
     argv = ["--episodes", "2", "--preset", ",".join(presets), "--planner", ",".join(planners), "--workers", "1",
             "--quiet", "--out", str(out), "--doc", str(doc)]
     assert stress.main(argv) == 0
@@ -96,10 +101,16 @@ def test_the_suite_writes_its_page_and_resumes(tmp_path, capsys):
     for planner in planners:
         assert f"- **{planner}** collides on " in overview
     assert "Where `cdf` differs from another planner at McNemar p < 0.05" in overview
+    assert "Where `cdf-option` differs from another planner at McNemar p < 0.05" in overview
+    assert "| preset | dominate `cdf-option` | `cdf-option` dominates | neither |" in overview
+    targets = text.split("## Targets for `cdf` and `cdf-option`\n", 1)[1].split("\n## ", 1)[0]
+    for first in ("cdf", "cdf-option"):  # stress-merge-brakes: no collision, for each rule
+        mine = targets.split(f"### `{first}`\n", 1)[1].split("\n### ", 1)[0]
+        assert "- `stress-merge-brakes`: no collision: " in mine
     for name in presets:
         records = [json.loads(line) for line in (out / name / "episodes.jsonl").read_text().splitlines()]
         assert sorted((r["seed"], r["planner"]) for r in records) == sorted(
-            (s, p) for s in (100000, 100001) for p in planners)
+            (s, p) for s in (100000, 100001) for p in (*planners, "constant"))  # the reference runs too
         settings = json.loads((out / name / "settings.json").read_text())
         assert settings["scenario"] == json.loads(json.dumps(load_preset(name).to_dict()))
         section = text.split(f"## `{name}`\n", 1)[1].split("\n## ", 1)[0]
@@ -108,8 +119,13 @@ def test_the_suite_writes_its_page_and_resumes(tmp_path, capsys):
         assert "TTC at the first hard brake [s], median [min] (n)" in section or "No Cutoff episode" in section
         for planner in planners:
             assert f"\n| {planner} | 2 | " in section
-        assert "| pair | seeds | collision only cdf | only the other | McNemar p |" in section
-        assert "\n| cdf / reactive | 2 | " in section
+        assert "| pair | seeds | collisions: first / second (discordant seeds; p) |" in section
+        assert "\n| cdf / reactive | 2 | " in section and "\n- cdf / reactive: " in section  # row and verdict
+        assert "\n| cdf-option / cdf | 2 | " in section and "\n| cdf-option / reactive | 2 | " in section
+        assert "\n| cdf / cdf-option |" not in section  # the pair once, the option rule first
+        assert "interventions, Yield (95 % CI)" in section and "Hard subset: " in section
+        assert "\n| constant | 2 | " in section  # the reference's outcomes
+    assert "\n| `stress-merge-brakes` | " in text.split("Pareto verdicts against `cdf`", 1)[1]
     assert stress.main(argv) == 0  # resumed: nothing runs again, the same page
     assert doc.read_text() == text
     capsys.readouterr()

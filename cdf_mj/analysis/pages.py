@@ -55,6 +55,7 @@ RESULTS_PAGES: dict[str, str] = {
     "DECISION_RESULTS.md": "scripts/decision.py",
     "STRESS.md": "scripts/stress.py",
     "FALSIFY.md": "scripts/falsify.py",
+    "TUNING.md": "scripts/tune_option.py",
 }
 
 #: Options of the page scripts that leave parts out of a page (parts or presets): a page in

@@ -343,7 +343,7 @@ class World:
         returns what the ego touched (``"obstacle"``, ``"building"``) or None."""
         scene, layout, config = self.scene, self.layout, self.config
         self._measured = None
-        t0, past0 = self.end_time, self.ego_arc - self._s_conflict  # before the tick, for pass_time
+        t0, past0 = self.end_time, float(self.ego_arc - self._s_conflict)  # before the tick, for pass_time
         try:
             hit = scene.step(self.n_sub)
         except SimulationDivergedError as exc:
@@ -371,7 +371,7 @@ class World:
             self.label_outcome, self.label_time = hit == "obstacle", self.end_time
         if self.pass_time is None and past > timing.label_distance:  # crossed within this tick: interpolated
             share = (timing.label_distance - past0) / (past - past0) if past > past0 else 1.0
-            self.pass_time = round(t0 + min(max(share, 0.0), 1.0) * (self.end_time - t0), 6)
+            self.pass_time = round(float(t0 + min(max(share, 0.0), 1.0) * (self.end_time - t0)), 6)
         self.done = self.end_reason is not None
         return hit
 

@@ -6,9 +6,11 @@ episodes not labelled Cutoff in which it intervened [%], with its 95 % Wilson in
 an error bar; y is its mean time lost in those episodes at the fixed point against the
 same seed's ``constant`` ego [s]; the marker's area grows with its share of hard brakes in
 those episodes; a planner that collided with the obstacle (any label) gets a red ring and
-its count. Tuning points (:func:`~cdf_mj.analysis.pareto.tuning_points`) are small grey dots
-labelled by their threshold and option time, so the trade-off a threshold makes is seen
-beside the planners. The lower left corner is best. ::
+its count. ``cdf`` and ``cdf-option`` (the default CDF and its option rule) have colours of
+their own. Tuning points (:func:`~cdf_mj.analysis.pareto.tuning_points`) are small grey dots
+labelled by their rule (``option 0.5 s, 0.9``: option time and threshold; ``go 0.1``:
+version 0.3's anticipation and its threshold), so the trade-off a rule and threshold make is
+seen beside the planners. The lower left corner is best. ::
 
     from cdf_mj.analysis.metrics import planner_metrics
     from cdf_mj.analysis.pareto import pareto_points
@@ -22,6 +24,7 @@ from __future__ import annotations
 
 import io
 import math
+import textwrap
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,9 +39,10 @@ __all__ = ["ParetoFigure", "pareto_figure"]
 _AREA = (30.0, 12.0)  # marker area [pt^2] at no hard brake, and added per per cent of hard brakes
 _SIZES = (0.0, 5.0, 20.0)  # [%] hard-brake shares shown in the size legend
 _LINEAR = 1.0  # [s] above this largest time lost the y axis is logarithmic beyond a tenth of it
+_NOTE_WIDTH = 150  # characters a line of the note under the axes holds (7 pt on the 9 in figure)
 #: Colour of a planner by the start of its name (the first match; grey otherwise).
-_FAMILIES = (("cdf", "tab:blue"), ("caution-", "tab:orange"), ("imm", "tab:green"), ("cv", "tab:olive"),
-             ("reactive", "tab:purple"))
+_FAMILIES = (("cdf-option", "tab:cyan"), ("cdf", "tab:blue"), ("caution-", "tab:orange"), ("imm", "tab:green"),
+             ("cv", "tab:olive"), ("reactive", "tab:purple"))
 
 
 @dataclass(frozen=True)
@@ -116,9 +120,10 @@ def pareto_figure(points: Sequence[ParetoPoint], path: str | Path, tuning: Seque
     ax.set_xlim(min(-2.0, lo), hi + 0.12 * (hi - lo))  # room for the names
     ax.grid(True, lw=0.3, alpha=0.5)
     ax.set_title(title, fontsize=10)
-    lines = [note] if note else []
+    said = [note] if note else []
     if skipped:
-        lines.append(f"not drawn (no time lost measured): {', '.join(skipped)}")
+        said.append(f"not drawn (no time lost measured): {', '.join(skipped)}")
+    lines = [part for text in said for part in textwrap.wrap(text, _NOTE_WIDTH)]
     if lines:
         fig.text(0.01, 0.0, "\n".join(lines), fontsize=7, va="bottom", ha="left", color="0.3")
         fig.get_layout_engine().set(rect=(0, 0.03 * len(lines), 1, 1 - 0.03 * len(lines)))
@@ -165,6 +170,7 @@ def _legend(ax: Any, tuning: bool) -> None:
     handles.append(ax.scatter([], [], s=_AREA[0] + 140, facecolors="none", edgecolors="red", linewidths=1.6,
                               label="collided with the\nother car (count)"))
     if tuning:
-        handles.append(ax.scatter([], [], s=10, color="0.6", label="cdf at a tuning point\n(threshold, option time)"))
+        handles.append(ax.scatter([], [], s=10, color="0.6",
+                                  label="the CDF at a tuning point\n(rule, option time,\nthreshold)"))
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7, labelspacing=1.3,
               borderpad=0.9)
