@@ -47,14 +47,18 @@ Cutoff recall: 100.0 % [34.2, 100.0] (2/2) (paper 100 %)
 
 Every intervention:
 
-| planner | hard-brake false alarms (95 % CI) | interventions, not Cutoff (95 % CI) | time lost at the fixed point vs constant, not Cutoff [s] (seeds) | median peak deceleration, intervening, not Cutoff [m/s²] | interventions in Cutoff (95 % CI) |
-|---|---|---|---|---|---|
-| cdf | 20.0 % [3.6, 62.4] (1/5) | - | - | - | - |
-| reactive | 20.0 % [3.6, 62.4] (1/5) | - | - | - | - |
+| planner | hard-brake false alarms, of all episodes (95 % CI) | interventions, not Cutoff (95 % CI) | time lost at the fixed point vs constant, not Cutoff [s] (seeds) | median peak deceleration, intervening, not Cutoff [m/s²] | interventions, Yield (95 % CI) | interventions, Right (95 % CI) | interventions in Cutoff: recall (95 % CI) | hard subset avoided (Cutoffs `constant` hits) |
+|---|---|---|---|---|---|---|---|---|
+| cdf | 20.0 % [3.6, 62.4] (1/5) | - | - | - | - | - | - | - |
+| reactive | 20.0 % [3.6, 62.4] (1/5) | - | - | - | - | - | - | - |
 
 Interventions: episodes in which the planner's command held the ego below its own controller (speed hold and car following) by more than 10 % of the car's full brake on some tick, hard brake or not. False alarms count hard brakes only (the hard-brake false alarms). Time lost at the fixed point: when the ego passes timing.label_distance beyond the conflict point, minus when the same seed's `constant` ego (which follows too) does, pairs without a collision (an ego that never got there is extrapolated at its nominal speed: a lower bound).
+
 No `constant` episodes in these records: no time lost at the fixed point and no hard subset ('-').
+
 Records without `intervention` (written before it was kept): cdf 5, reactive 5; the intervention columns count the others ('-' where none).
+
+'-' in a cell: nothing to measure there (no episode of that label or subset, no intervention for a peak deceleration, or no same-seed `constant` episode for the time lost). `constant` is the reference: it never intervenes, and its time lost is 0 by definition.
 
 1 failed episode(s) left out of these tables (their records hold the error and traceback)."""  # noqa: E501
 

@@ -45,19 +45,15 @@ from typing import Any
 from cdf_mj.analysis.metrics import PlannerMetrics, Rate, mcnemar_exact, planner_metrics
 from cdf_mj.analysis.pages import markdown_table, verdict
 from cdf_mj.analysis.tables import (
-    INTERVENTION_COLUMNS,
     format_number,
     format_percent,
     format_rate,
-    intervention_cells,
-    intervention_notes,
+    intervention_table,
 )
 from cdf_mj.config import LayeredConfig
 from cdf_mj.planners.decision import LayeredRule
 from cdf_mj.planners.registry import LazyPlanner, make_planner, planner_spec
 from cdf_mj.records import (
-    LABELS,
-    Label,
     RecordLike,
     completed,
     hit_obstacle,
@@ -348,22 +344,8 @@ def tuning_points(directory: str | Path, scenario: str = "default", planner: str
 
 # ----------------------------------------------------------------- tables and words
 def intervention_lines(metrics: Mapping[str, PlannerMetrics], reference: str = "constant") -> list[str]:
-    """Markdown: every planner's interventions, per label: hard-brake false alarms, the
-    :data:`~cdf_mj.analysis.tables.INTERVENTION_COLUMNS`, the share in Yield and in Right
-    episodes beside the recall in Cutoff episodes, and the hard subset avoided; then
-    :func:`~cdf_mj.analysis.tables.intervention_notes` and what a ``-`` means."""
-    ms = list(metrics.values())
-    header = ["planner", "hard-brake false alarms, of all episodes (95 % CI)", *INTERVENTION_COLUMNS,
-              *(f"interventions, {lab} (95 % CI)" for lab in LABELS if lab != Label.CUTOFF),
-              "interventions in Cutoff: recall (95 % CI)", f"hard subset avoided (Cutoffs `{reference}` hits)"]
-    rows = [[m.planner, format_rate(m.false_alarms), *intervention_cells(m),
-             *(format_rate(m.interventions.get(str(lab), Rate(0, 0))) for lab in LABELS if lab != Label.CUTOFF),
-             format_rate(m.intervention_recall), format_rate(m.hard_avoided)] for m in ms]
-    notes = [*intervention_notes(ms, reference),
-             f"'-' in a cell: nothing to measure there (no episode of that label or subset, no intervention for a "
-            f"peak deceleration, or no same-seed `{reference}` episode for the time lost). `{reference}` is the "
-            "reference: it never intervenes, and its time lost is 0 by definition."]
-    return [*markdown_table(header, rows), *(part for note in notes for part in ("", note))]
+    """:func:`~cdf_mj.analysis.tables.intervention_table` in Markdown, as the pages' lines."""
+    return intervention_table(metrics.values(), "markdown", reference).split("\n")
 
 
 _ROLE = re.compile(r":[a-z]+:`~?([^`<]+?)(?:\s*<[^>]+>)?`")

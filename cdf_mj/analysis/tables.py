@@ -38,6 +38,7 @@ from cdf_mj.analysis.metrics import (
 )
 from cdf_mj.analysis.pages import markdown_table
 from cdf_mj.analysis.safety import SafetyParams, safety_summary
+from cdf_mj.planners.base import INTERVENTION_SHARE
 from cdf_mj.records import LABELS, Label, RecordLike, completed, is_imminent, paper_avoided, record_field
 
 __all__ = ["INTERVENTION_COLUMNS", "PAPER_CONFUSION", "PAPER_PLANNERS", "TableFormat", "experiment_tables",
@@ -120,7 +121,8 @@ def intervention_notes(metrics: Iterable[PlannerMetrics], reference: str = "cons
     and what is missing (records without ``intervention``, no ``reference`` records)."""
     metrics = list(metrics)
     lines = ["Interventions: episodes in which the planner's command held the ego below its own controller "
-             "(speed hold and car following) by more than 10 % of the car's full brake on some tick, hard brake "
+             f"(speed hold and car following) by more than {100 * INTERVENTION_SHARE:g} % of the car's full brake "
+             "on some tick, hard brake "
              "or not. False alarms count hard brakes only (the hard-brake false alarms). Time lost at the fixed "
              f"point: when the ego passes timing.label_distance beyond the conflict point, minus when the same "
              f"seed's `{reference}` ego (which follows too) does, pairs without a collision (an ego that never "
@@ -140,9 +142,12 @@ def intervention_notes(metrics: Iterable[PlannerMetrics], reference: str = "cons
     return lines
 
 
-def intervention_table(metrics: Iterable[PlannerMetrics], fmt: TableFormat = "markdown") -> str:
-    """Every planner's interventions: hard-brake false alarms, :data:`INTERVENTION_COLUMNS`
-    and the interventions in Cutoff episodes, then :func:`intervention_notes`."""
+def intervention_table(metrics: Iterable[PlannerMetrics], fmt: TableFormat = "markdown",
+                       reference: str = "constant") -> str:
+    """Every planner's interventions: in Markdown, the hard-brake false alarms,
+    :data:`INTERVENTION_COLUMNS`, the share in Yield and in Right episodes beside the recall in
+    Cutoff episodes and the hard subset avoided, then :func:`intervention_notes` and what a
+    ``-`` means; as text, :data:`INTERVENTION_COLUMNS` within 100 columns and the notes."""
     _check_format(fmt)
     metrics = list(metrics)
     if fmt == "text":
@@ -150,12 +155,20 @@ def intervention_table(metrics: Iterable[PlannerMetrics], fmt: TableFormat = "ma
         rows = [[m.planner, *intervention_cells(m)] for m in metrics]
         return "\n".join([_table(header, rows, "text", right=(2, 3)),
                           "time lost: at the fixed point, vs constant; peak decel: median over intervening, "
-                          "not Cutoff.", *(textwrap.fill(line, 100) for line in intervention_notes(metrics))])
-    header = ["planner", "hard-brake false alarms (95 % CI)", *INTERVENTION_COLUMNS,
-              "interventions in Cutoff (95 % CI)"]
-    rows = [[m.planner, format_rate(m.false_alarms), *intervention_cells(m), format_rate(m.intervention_recall)]
-            for m in metrics]
-    return "\n".join([_table(header, rows, "markdown"), "", *intervention_notes(metrics)])
+                          "not Cutoff.",
+                          *(textwrap.fill(line, 100) for line in intervention_notes(metrics, reference))])
+    others = [lab for lab in LABELS if lab != Label.CUTOFF]
+    header = ["planner", "hard-brake false alarms, of all episodes (95 % CI)", *INTERVENTION_COLUMNS,
+              *(f"interventions, {lab} (95 % CI)" for lab in others),
+              "interventions in Cutoff: recall (95 % CI)", f"hard subset avoided (Cutoffs `{reference}` hits)"]
+    rows = [[m.planner, format_rate(m.false_alarms), *intervention_cells(m),
+             *(format_rate(m.interventions.get(str(lab), Rate(0, 0))) for lab in others),
+             format_rate(m.intervention_recall), format_rate(m.hard_avoided)] for m in metrics]
+    notes = [*intervention_notes(metrics, reference),
+             f"'-' in a cell: nothing to measure there (no episode of that label or subset, no intervention for a "
+             f"peak deceleration, or no same-seed `{reference}` episode for the time lost). `{reference}` is the "
+             "reference: it never intervenes, and its time lost is 0 by definition."]
+    return "\n".join([*markdown_table(header, rows), *(part for note in notes for part in ("", note))])
 
 
 # ----------------------------------------------------------------- the experiment

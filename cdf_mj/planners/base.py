@@ -62,8 +62,9 @@ from cdf_mj.model.layout import Layout
 if TYPE_CHECKING:  # annotations only: registering a planner imports no compiled kernel
     from cdf_mj.model.conflict import Futures
 
-__all__ = ["HARD_BRAKE_SHARE", "DecidingPlanner", "DecisionRule", "Planner", "PlannerContext", "PlannerInput",
-           "Predictor", "ThresholdRule", "as_config", "hard_brake_of", "predicted_label"]
+__all__ = ["HARD_BRAKE_SHARE", "INTERVENTION_SHARE", "DecidingPlanner", "DecisionRule", "Planner", "PlannerContext",
+           "PlannerInput", "Predictor", "ThresholdRule", "as_config", "hard_brake_of", "intervenes",
+           "intervention_tolerance_of", "predicted_label"]
 
 @dataclass(frozen=True)
 class PlannerContext:
@@ -134,6 +135,27 @@ def hard_brake_of(car_max_brake: float) -> float:
     """[m/s^2] The deceleration from which a command is a brake, for an ego car braking at
     most ``car_max_brake`` [m/s^2] (:data:`HARD_BRAKE_SHARE` of it)."""
     return HARD_BRAKE_SHARE * car_max_brake
+
+
+#: The share of the ego car's full brake (``max_brake``) by which a planner's command must be
+#: below the ego's own acceleration (its speed hold and car following) for a tick to count
+#: as an intervention (docs/DECISION.md, "Every intervention counted").
+INTERVENTION_SHARE = 0.1
+
+
+def intervention_tolerance_of(car_max_brake: float) -> float:
+    """[m/s^2] How far below the ego's own acceleration the planner's command must be for a
+    tick to be intervening, for an ego car braking at most ``car_max_brake`` [m/s^2]
+    (:data:`INTERVENTION_SHARE` of it: 0.4877 m/s^2 for the default car's 4.877 m/s^2)."""
+    return INTERVENTION_SHARE * car_max_brake
+
+
+def intervenes(command: float, own: float, car_max_brake: float) -> bool:
+    """Whether a planner's ``command`` [m/s^2] (``-inf``: the full brake), read within the
+    car's brake, holds the ego below its ``own`` acceleration [m/s^2] by more than
+    :func:`intervention_tolerance_of` the car's ``car_max_brake``: the one rule of the
+    episodes (:class:`~cdf_mj.scenario.ego_agent.EgoAgent`) and of the monitor."""
+    return max(command, -car_max_brake) < own - intervention_tolerance_of(car_max_brake)
 
 
 class Planner:

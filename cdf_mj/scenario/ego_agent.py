@@ -34,25 +34,22 @@ from cdf_mj.config import ScenarioConfig
 from cdf_mj.model.driver import DriverModel, ego_control
 from cdf_mj.model.layout import Layout
 from cdf_mj.model.road import follow_accel
-from cdf_mj.planners.base import Planner, PlannerContext, PlannerInput, hard_brake_of
+from cdf_mj.planners.base import (
+    INTERVENTION_SHARE,
+    Planner,
+    PlannerContext,
+    PlannerInput,
+    hard_brake_of,
+    intervenes,
+    intervention_tolerance_of,
+)
 from cdf_mj.scenario.sensing import CommandDelay, JerkLimiter, Sensor
 
 if TYPE_CHECKING:  # annotations only: the monitor imports PlannerCommand without MuJoCo
     from cdf_mj.scenario.world import Measurement
 
+#: Re-exported from :mod:`cdf_mj.planners.base`, where the rule lives beside ``hard_brake_of``.
 __all__ = ["INTERVENTION_SHARE", "EgoAgent", "PlannerCommand", "intervention_tolerance_of"]
-
-#: The share of the ego car's full brake (``max_brake``) by which the planner's command must
-#: be below the ego's own acceleration for a tick to count as an intervention.
-INTERVENTION_SHARE = 0.1
-
-
-def intervention_tolerance_of(car_max_brake: float) -> float:
-    """[m/s^2] How far below the ego's own acceleration the planner's command must be for a
-    tick to be intervening, for an ego car braking at most ``car_max_brake`` [m/s^2]
-    (:data:`INTERVENTION_SHARE` of it: 0.4877 m/s^2 for the default car's 4.877 m/s^2)."""
-    return INTERVENTION_SHARE * car_max_brake
-
 
 def _answer(planner: Planner, wants: object) -> bool:
     """A planner's answer to "brake now?": a ``bool`` or NumPy bool, else TypeError naming the
@@ -241,7 +238,7 @@ class EgoAgent:
         it intervened (the command, read within the car's brake, below ``own`` by more than
         the tolerance); count it in the episode's interventions."""
         self.own, self.command = own, command
-        self.intervening = max(command, -self._max_brake) < own - self.tolerance
+        self.intervening = intervenes(command, own, self._max_brake)
         if self.intervening:
             if self.first_intervention is None:
                 self.first_intervention = t

@@ -55,11 +55,11 @@ from cdf_mj.inference.particle_filter import ParticleFilter, Posterior
 from cdf_mj.model import road
 from cdf_mj.model.layout import Layout
 from cdf_mj.model.vehicle import CarGeometry
-from cdf_mj.planners.base import DecidingPlanner, Planner, PlannerContext, PlannerInput
+from cdf_mj.planners.base import DecidingPlanner, Planner, PlannerContext, PlannerInput, intervenes
 from cdf_mj.planners.cdf import CDFPlanner
 from cdf_mj.planners.registry import bind_planner
 from cdf_mj.records import jsonable
-from cdf_mj.scenario.ego_agent import PlannerCommand, intervention_tolerance_of
+from cdf_mj.scenario.ego_agent import PlannerCommand
 from cdf_mj.scenario.trace_file import TRACE_FORMAT, MonitorTrace, TraceError, read_trace, write_trace
 
 if TYPE_CHECKING:
@@ -314,7 +314,7 @@ class CDFMonitor:
         # Every intervention (EgoAgent's rule; the speed hold is the monitor's own controller).
         own = min(max(hold, -car.max_brake), car.max_accel)
         acts = min(max(command, -car.max_brake), car.max_accel)
-        intervening = acts < own - intervention_tolerance_of(car.max_brake)
+        intervening = intervenes(acts, own, car.max_brake)
         self.decision = Decision(t=t, poses=poses, posterior=post, brake=brake,
                                  brake_time=self.brake_time, accel=accel)
         if self.record_trace:
