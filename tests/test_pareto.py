@@ -134,6 +134,15 @@ def test_without_the_reference_the_time_lost_is_not_judged() -> None:
     assert pareto_lines(records, "nobody", ["a"]) == ["No pair to compare (`nobody` and another planner are needed)."]
 
 
+def test_records_without_interventions_are_not_judged_on_them() -> None:
+    """Records written before ``intervention`` was kept: the interventions are not measured
+    (not a 0/0 tie), and the verdict says what is missing."""
+    records = [{k: v for k, v in r.items() if k != "intervention"} for r in world({1: {"slowed": True}}, {}, LABELS)]
+    v = compare(records, "a", "b")
+    assert v.criteria[1].better is None and v.dominant is None
+    assert v.text().startswith("not judged: non-Cutoff interventions") and "records with `intervention`" in v.text()
+
+
 def test_compare_agrees_with_paired_counts_and_metrics_on_real_episodes(tmp_path) -> None:
     planners = ("cdf", "caution-moving", "reactive", "constant")
     records = list(run_experiment(tmp_path / "run", range(8), planners, workers=1, progress=False))

@@ -199,8 +199,8 @@ class PairVerdict:
 
         missing = [c.name for c in self.criteria if c.better is None]
         if missing:
-            return (f"not judged: {', '.join(missing)} not measured ({self.seeds} seeds; the time lost needs the "
-                    "same seeds' `constant` episodes)")
+            return (f"not judged: {', '.join(missing)} not measured ({self.seeds} seeds; interventions need "
+                    "records with `intervention`, the time lost also the same seeds' `constant` episodes)")
         wins = {side: [said(c) for c in self.criteria if c.better == side] for side in ("first", "second")}
         if self.dominant is not None:
             loser = self.second if self.dominant == self.first else self.first
@@ -220,8 +220,11 @@ def _by_seed(records: Iterable[RecordLike], planner: str) -> dict[int, RecordLik
 
 def _count(name: str, pairs: Sequence[tuple[RecordLike, RecordLike]],
            rule: Callable[[RecordLike], bool | None]) -> Criterion:
-    """A count criterion over ``pairs`` (first, second) on which ``rule`` is known for both."""
+    """A count criterion over ``pairs`` (first, second) on which ``rule`` is known for both;
+    not measured (NaN) where it is known for none (records written before ``intervention``)."""
     known = [(bool(x), bool(y)) for x, y in ((rule(a), rule(b)) for a, b in pairs) if x is not None and y is not None]
+    if pairs and not known:
+        return Criterion(name, math.nan, math.nan, 0, 0, 0)
     return Criterion(name, float(sum(x for x, _ in known)), float(sum(y for _, y in known)),
                      sum(1 for x, y in known if x and not y), sum(1 for x, y in known if y and not x), len(known))
 
