@@ -104,7 +104,8 @@ def in_ego_lane(layout, pose: np.ndarray) -> np.ndarray:
 
 # ---------------------------------------------------------------------------- interface
 def test_every_family_meets_the_protocol(layout):
-    assert set(FAMILIES) == {"gap-acceptance", "rolling-stop", "aggressive", "off-route"}
+    assert set(FAMILIES) == {"gap-acceptance", "rolling-stop", "aggressive", "off-route",
+                             "looked-but-failed", "misjudged-speed", "distracted", "creeper"}
     for name in FAMILIES:
         driver = make_driver(name)
         assert isinstance(driver, WorldDriver) and driver.family == name

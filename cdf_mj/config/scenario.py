@@ -200,7 +200,8 @@ class Ego(_Group):
 
 #: The obstacle's driver families (``obstacle.family``): the traits' state machine
 #: (``model``) and those of :mod:`cdf_mj.scenario.drivers`, which checks that it has these.
-DRIVER_FAMILIES = ("model", "gap-acceptance", "rolling-stop", "aggressive", "off-route")
+DRIVER_FAMILIES = ("model", "gap-acceptance", "rolling-stop", "aggressive", "off-route", "looked-but-failed",
+                   "misjudged-speed", "distracted", "creeper", "sumo")
 
 
 @dataclass(frozen=True)

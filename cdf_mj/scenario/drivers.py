@@ -20,6 +20,13 @@ off-route        gap acceptance on a turn path of its own: the scene's route shi
                  sideways by up to about a metre (cutting the corner or swinging wide)
 ================ ========================================================================
 
+Four more families, the junction-crash behaviours that cut off (``looked-but-failed``,
+``misjudged-speed``, ``distracted``, ``creeper``), live in :mod:`cdf_mj.scenario.crash_drivers`
+on the machinery here; :data:`FAMILIES` names them all and loads that module when one of
+them is first asked for. ``sumo`` (:data:`OPTIONAL_FAMILIES`) is a co-simulated driver of
+an optional extra, imported only by :func:`make_driver`. docs/DRIVERS.md lists every family,
+its ranges and their sources.
+
 Each family has a frozen dataclass of ``(low, high)`` ranges (:class:`GapAcceptanceParams`,
 :class:`RollingStopParams`, :class:`AggressiveParams`, :class:`OffRouteParams`), drawn
 uniformly per episode from the episode's generator in ``reset``; every family has a
@@ -34,6 +41,11 @@ tick::
     accel, steer = driver.control(t, pose, ego_if_in_sight_else_None, dt)
     driver.mode, driver.params                      # for records (Mode ints, drawn floats)
 
+What ``ego`` the world hands over each tick is the family's ``sight`` (see :class:`WorldDriver`):
+the ego's pose while it is in the driver's line of sight (``"line"``, the default), that and
+the visible share of the ego in :attr:`ego_share` (``"share"``), or the ego's pose always
+(``"all"``: a co-simulated driver that decides itself what it perceives).
+
 Their IDM is :func:`cdf_mj.model.road.idm`'s full form (free-road term, ``s_star="dynamic"``).
 
 World frame (x east, y north), metres, seconds, radians; poses are rear-axle
@@ -44,9 +56,10 @@ line); negative on the approach.
 
 from __future__ import annotations
 
+import importlib
 import math
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, fields
 from types import MappingProxyType
 from typing import Any, ClassVar, Protocol, runtime_checkable
@@ -58,9 +71,9 @@ from cdf_mj.model.layout import Layout
 from cdf_mj.model.modes import COMMITTED, GOING, LEFT, RIGHT, WAITING, YIELDING
 from cdf_mj.model.road import idm
 
-__all__ = ["FAMILIES", "AggressiveDriver", "AggressiveParams", "FamilyParams", "GapAcceptanceDriver",
-           "GapAcceptanceParams", "OffRouteDriver", "OffRouteParams", "RollingStopDriver", "RollingStopParams",
-           "WorldDriver", "make_driver", "offset_path"]
+__all__ = ["FAMILIES", "OPTIONAL_FAMILIES", "SIGHTS", "AggressiveDriver", "AggressiveParams", "FamilyParams",
+           "GapAcceptanceDriver", "GapAcceptanceParams", "OffRouteDriver", "OffRouteParams", "RollingStopDriver",
+           "RollingStopParams", "WorldDriver", "make_driver", "offset_path"]
 
 IDM_HEADWAY = 1.0  # [s] the IDM's time headway T to a virtual standing car (city traffic: 1.0-1.5 s)
 IDM_JAM = 1.0  # [m] jam distance s0; a stop target is a virtual standing car s0 beyond it
@@ -71,6 +84,11 @@ AT_TARGET = 0.1  # [m] within this of a stop target, a car at rest has arrived
 PULL_UP_SPEED = 3.0  # [m/s] least desired speed up to the line (for an approach drawn at rest)
 PATH_STEP = 0.25  # [m] sampling of an offset path
 MOVING_EGO = 0.1  # [m/s] a perceived ego slower than this never arrives (its time to arrive is infinite)
+
+#: What a family is shown of the ego each tick (its ``sight``): ``"line"`` the ego's true pose
+#: while in its line of sight, else None; ``"share"`` the same and, before ``control``, the share
+#: of the ego's sight points it sees in ``ego_share``; ``"all"`` the ego's true pose every tick.
+SIGHTS = ("line", "share", "all")
 
 
 def span(default: tuple[float, float], low: float, high: float, unit: str, why: str) -> Any:
@@ -241,7 +259,20 @@ def offset_path(route: Polyline, offset: float) -> Polyline:
 @runtime_checkable
 class WorldDriver(Protocol):
     """What the world calls (see the module docstring): ``reset`` once per episode,
-    ``control`` once per tick; ``mode``, ``params`` and ``start`` for the world and records."""
+    ``control`` once per tick; ``mode``, ``params`` and ``start`` for the world and records.
+
+    Optional, read by the world's obstacle agent
+    (:class:`~cdf_mj.scenario.obstacle_agent.ObstacleAgent`) where a family has it:
+
+    ``sight`` (one of :data:`SIGHTS`; ``"line"`` where absent) says what ``control`` is handed
+    as ``ego``. ``"line"``: on a tick where the driver is :attr:`looking`, the ego's true pose
+    if its eye has a line of sight to any of the ego's sight points (MuJoCo rays past the
+    buildings), else None; never on other ticks. ``"share"``: the same, and before
+    ``control`` the agent sets the driver's ``ego_share`` to the share in [0, 1] of the ego's
+    five sight points its eye sees (:func:`cdf_mj.sim.visibility.visible_share`; 0 on ticks it
+    does not look). ``"all"``: the ego's true pose on every tick, whatever the sight lines and
+    :attr:`looking`: a co-simulated driver that decides itself what it perceives.
+    """
 
     family: str
     mode: int  # a cdf_mj.model.modes.Mode int: 0 waiting, 1 going, 2 yielding, 3 committed
@@ -264,6 +295,7 @@ class _Driver:
     family: str  # set per class (an instance attribute to the protocol)
     Params: ClassVar[type[FamilyParams]]
     accepts: ClassVar[type[FamilyParams]]
+    sight: ClassVar[str] = "line"  # what the world shows it of the ego (SIGHTS; see WorldDriver)
 
     def __init__(self, params: FamilyParams | None = None) -> None:
         if params is None:
@@ -472,17 +504,72 @@ class RollingStopDriver(_Driver):
         return self._idm(v, p["turn_speed"])
 
 
-#: The driver families by name.
-FAMILIES: Mapping[str, type[_Driver]] = MappingProxyType({
-    cls.family: cls for cls in (GapAcceptanceDriver, RollingStopDriver, AggressiveDriver, OffRouteDriver)})
+def _load(target: str) -> Any:
+    """The object a ``"module:Name"`` string names, imported now."""
+    module, _, name = target.partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
+class _Families(Mapping[str, "type[_Driver]"]):
+    """The families by name, each a class or a ``"module:Class"`` string imported on first
+    use (Gymnasium's registry style): :mod:`cdf_mj.scenario.crash_drivers` builds on this
+    module, so this module names its classes without importing it."""
+
+    def __init__(self, entries: Mapping[str, type[_Driver] | str]) -> None:
+        self._entries: dict[str, type[_Driver] | str] = dict(entries)
+
+    def __getitem__(self, name: str) -> type[_Driver]:
+        entry = self._entries[name]
+        if isinstance(entry, str):
+            entry = self._entries[name] = _load(entry)
+        return entry
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._entries)
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def __repr__(self) -> str:
+        return f"FAMILIES({', '.join(self._entries)})"
+
+
+_CRASH = "cdf_mj.scenario.crash_drivers"
+
+#: The driver families by name (their classes; those of :mod:`cdf_mj.scenario.crash_drivers`
+#: are imported on first use).
+FAMILIES: Mapping[str, type[_Driver]] = _Families({
+    **{cls.family: cls for cls in (GapAcceptanceDriver, RollingStopDriver, AggressiveDriver, OffRouteDriver)},
+    "looked-but-failed": f"{_CRASH}:LookedButFailedDriver",
+    "misjudged-speed": f"{_CRASH}:MisjudgedSpeedDriver",
+    "distracted": f"{_CRASH}:DistractedDriver",
+    "creeper": f"{_CRASH}:CreeperDriver",
+})
+
+#: Families of optional extras, as ``"module:Class"``: imported by :func:`make_driver` only
+#: (not in :data:`FAMILIES`, which needs nothing beyond the package's own requirements).
+OPTIONAL_FAMILIES: Mapping[str, str] = MappingProxyType({
+    "sumo": "cdf_mj.scenario.sumo_driver:SumoDriver",  # Eclipse SUMO co-simulation (pip install 'cdf_mj[sumo]')
+})
 
 
 def make_driver(family: str, params: FamilyParams | None = None) -> WorldDriver:
     """A driver of ``family`` with ``params`` (default: the family's default ranges).
-    ValueError for an unknown family (naming the known ones) or parameters of another kind."""
+    ValueError for an unknown family (naming the known ones), parameters of another kind,
+    or an optional family whose module is not there (its own errors, such as a missing
+    extra, come through as it raises them)."""
     cls = FAMILIES.get(family)
+    if cls is None and family in OPTIONAL_FAMILIES:
+        target = OPTIONAL_FAMILIES[family]
+        try:
+            cls = _load(target)
+        except ModuleNotFoundError as exc:
+            if exc.name != target.partition(":")[0]:
+                raise
+            raise ValueError(f"driver family {family!r} is not available here: {exc.name} is missing") from None
     if cls is None:
-        raise ValueError(f"unknown driver family {family!r}: known families are {', '.join(FAMILIES)}")
+        known = ", ".join([*FAMILIES, *OPTIONAL_FAMILIES])
+        raise ValueError(f"unknown driver family {family!r}: known families are {known}")
     return cls(params)
 
 

@@ -12,7 +12,10 @@ controls once a tick, before the physics::
 
 Its driver is the traits' state machine (:mod:`cdf_mj.model.driver`, the filter's own
 model) or, with ``config.obstacle.family``, a family of :mod:`cdf_mj.scenario.drivers`
-written apart from it; ``config.after_merge`` overrides its acceleration once it is in the
+written apart from it, shown the ego as its ``sight`` says (``"line"``: its pose while in the
+driver's line of sight; ``"share"``: that and the visible share, set as the driver's
+``ego_share``; ``"all"``: its pose every tick, see :class:`~cdf_mj.scenario.drivers.WorldDriver`);
+``config.after_merge`` overrides its acceleration once it is in the
 ego's lane (:mod:`cdf_mj.scenario.after_merge`). World frame (x east, y north), metres,
 seconds, radians; poses are rear-axle ``[x, y, theta, v]``.
 """
@@ -28,9 +31,9 @@ from cdf_mj.config import ScenarioConfig
 from cdf_mj.model.driver import DriverModel, Intent, Mode, obstacle_control_one, road_clear, update_belief_one
 from cdf_mj.model.road import follow_accel, heading_within
 from cdf_mj.scenario.after_merge import AfterMergeOverride
-from cdf_mj.scenario.drivers import WorldDriver, make_driver
+from cdf_mj.scenario.drivers import SIGHTS, WorldDriver, make_driver
 from cdf_mj.sim.scene import Scene
-from cdf_mj.sim.visibility import ego_visible
+from cdf_mj.sim.visibility import visible_share
 
 __all__ = ["ObstacleAgent"]
 
@@ -56,7 +59,14 @@ class ObstacleAgent:
         driver: the obstacle's :class:`~cdf_mj.model.driver.DriverModel` (the world's).
 
     ValueError, naming the scene, for an ``after_merge.at`` beyond its left route or a
-    ``hesitation_creep`` that reaches its commit point.
+    ``hesitation_creep`` that reaches its commit point; ValueError for a family whose
+    ``sight`` is not one of :data:`~cdf_mj.scenario.drivers.SIGHTS`.
+
+    A family is shown the ego by its ``sight`` (``"line"`` where it has none): ``"line"``
+    its true pose on a tick it is ``looking`` and its eye sees any of the ego's sight points
+    (else None); ``"share"`` the same, with the driver's ``ego_share`` set before its
+    ``control`` to the share of those points its eye sees (0 on a tick it does not look);
+    ``"all"`` its true pose every tick. ``observed`` is whether it was shown the pose.
 
     Attributes after :meth:`reset` (updated by :meth:`act`): ``intent``, ``dwell`` [s],
     ``hesitates``, ``hesitation_pause`` [s], ``hesitated`` [s] (when it stopped again, else
@@ -78,6 +88,10 @@ class ObstacleAgent:
         self._follows = config.after_merge.follows
         # Its driver: the traits' state machine, or a family written apart from it.
         self.family: WorldDriver | None = None if behaviour.family == "model" else make_driver(behaviour.family)
+        sight = getattr(self.family, "sight", "line")
+        if sight not in SIGHTS:
+            raise ValueError(f"driver family {behaviour.family!r} has sight={sight!r}: it must be one of "
+                             f"{', '.join(SIGHTS)}")
         self.after_merge = AfterMergeOverride(config.after_merge)
         room = layout.route_left.length - float(layout.route_left.project(layout.conflict)[0])
         if config.after_merge.behaviour in ("slow", "brake") and config.after_merge.at[1] >= room:
@@ -133,11 +147,11 @@ class ObstacleAgent:
         noise on the ego's x, y, theta, v), ``u_depart`` uniform (the departure look)."""
         ego, obs = poses[0], poses[1]
         ego_v, obs_v = values
-        self._visible: bool | None = None  # the line of sight, cast at most once a tick
+        self._share: float | None = None  # the share of the ego in sight, cast at most once a tick
         if self.family is None:  # the traits' state machine, the filter's own model
             a, steer, mode, may_go, observed = self._decide(t, ego_v, obs_v, poses, u_look, z, u_depart)
         else:  # a driver written apart from it: it looks whenever it looks, and acts on what it sees
-            observed = self.family.looking and self._sees_ego(poses)
+            observed = self._shown(poses)
             if observed and self.first_seen is None:
                 self.first_seen = t
             a, steer = self.family.control(t, obs, ego if observed else None, self._dt)
@@ -164,12 +178,31 @@ class ObstacleAgent:
         self.mode, self.observed = mode, observed
         return a, steer
 
-    def _sees_ego(self, poses: np.ndarray) -> bool:
-        """The line of sight from its eye to the ego (MuJoCo rays), cast once a tick."""
-        if self._visible is None:
+    def _visible_share(self, poses: np.ndarray) -> float:
+        """The share of the ego's sight points its eye sees (MuJoCo rays), cast once a tick."""
+        if self._share is None:
             self.scene.sync()  # geoms where qpos puts them, for the rays
-            self._visible = ego_visible(self.scene, poses[1], poses[0])
-        return self._visible
+            self._share = visible_share(self.scene, "obstacle", "ego", poses[1], poses[0])
+        return self._share
+
+    def _sees_ego(self, poses: np.ndarray) -> bool:
+        """The line of sight from its eye to any part of the ego (MuJoCo rays), cast once a tick."""
+        return self._visible_share(poses) > 0.0
+
+    def _shown(self, poses: np.ndarray) -> bool:
+        """Whether its family is shown the ego's pose this tick, as its ``sight`` says (for
+        ``"share"``, the driver's ``ego_share`` is set here)."""
+        family = self.family
+        assert family is not None
+        sight = getattr(family, "sight", "line")  # the family's, read each tick (a class attribute)
+        if sight == "all":
+            return True
+        looking = family.looking
+        if sight == "share":
+            share = self._visible_share(poses) if looking else 0.0
+            family.ego_share = share  # type: ignore[attr-defined]
+            return share > 0.0
+        return looking and self._sees_ego(poses)
 
     def _decide(self, t: float, ego_v: list[float], obs_v: list[float], poses: np.ndarray, u_look: float,
                 z: list[float], u_depart: float) -> tuple[float, float, int, bool, bool]:

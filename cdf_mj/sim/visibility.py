@@ -7,7 +7,8 @@ that geom positions match ``qpos``. ::
 
     iso = isovist(scene, scene.obstacle.geometry.eye(scene.pose(scene.obstacle)))
     iso.polygon            # shapely Polygon, world frame [m]
-    ego_visible(scene)     # bool
+    ego_visible(scene)     # bool: the obstacle's driver sees some part of the ego
+    visible_share(scene, "ego", "obstacle")   # share of the obstacle's sight points the ego's eye sees
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import shapely
 from cdf_mj.model.occlusion import sight_targets
 from cdf_mj.sim.scene import Scene
 
-__all__ = ["Isovist", "ego_visible", "isovist", "sight_lines"]
+__all__ = ["Isovist", "ego_visible", "isovist", "sight_lines", "visible_share"]
 
 
 @dataclass(frozen=True)
@@ -97,15 +98,28 @@ def sight_lines(scene: Scene, eye: np.ndarray, targets: np.ndarray, target_body:
     return (dist < 0) | (dist >= length - 1e-6) | (hit_body == target_body)
 
 
+def visible_share(scene: Scene, viewer: str, target: str, viewer_pose: np.ndarray | None = None,
+                  target_pose: np.ndarray | None = None) -> float:
+    """The share in [0, 1] of the ``target`` car's sight points (its four hull corners and
+    centre, :func:`cdf_mj.model.occlusion.sight_targets`, at half its hull height) that the
+    ``viewer`` car's eye (``CarGeometry.eye``: the driver's eye, or the ego's sensor mount)
+    has a line of sight to, past the buildings and any other car; the viewer's own body
+    is ignored. ``viewer`` and ``target`` are ``"ego"`` or ``"obstacle"``; poses
+    ``[x, y, theta, v]`` (world frame) default to the current state. 0: hidden; 0.2: one
+    corner shows; 1: in full view."""
+    view_car, target_car = scene.car(viewer), scene.car(target)
+    viewer_pose = scene.pose(view_car) if viewer_pose is None else viewer_pose
+    target_pose = scene.pose(target_car) if target_pose is None else target_pose
+    geometry = target_car.geometry
+    pts = sight_targets(geometry, target_pose)  # (5, 2)
+    targets = np.column_stack([pts, np.full(len(pts), 0.5 * geometry.hull_height)])
+    seen = sight_lines(scene, view_car.geometry.eye(viewer_pose), targets, target_car.body, exclude=viewer)
+    return float(seen.mean())
+
+
 def ego_visible(scene: Scene, obstacle_pose: np.ndarray | None = None,
                 ego_pose: np.ndarray | None = None) -> bool:
     """Whether the obstacle driver has a line of sight to any part of the ego: its four
     hull corners and centre (:func:`cdf_mj.model.occlusion.sight_targets`), at half the
     hull height. Poses ``[x, y, theta, v]`` (world frame) default to the current state."""
-    obstacle_pose = scene.pose(scene.obstacle) if obstacle_pose is None else obstacle_pose
-    ego_pose = scene.pose(scene.ego) if ego_pose is None else ego_pose
-    ego = scene.ego.geometry
-    pts = sight_targets(ego, ego_pose)  # (5, 2)
-    targets = np.column_stack([pts, np.full(len(pts), 0.5 * ego.hull_height)])
-    return bool(sight_lines(scene, scene.obstacle.geometry.eye(obstacle_pose), targets,
-                            scene.ego.body).any())
+    return visible_share(scene, "obstacle", "ego", obstacle_pose, ego_pose) > 0.0
