@@ -1,6 +1,6 @@
 """The optional extras of cdf_mj and the one way every message names them.
 
-Each optional feature lives in an extra of ``pyproject.toml`` (``gym``, ``ray``, ``viz``).
+Each optional feature lives in an extra of ``pyproject.toml`` (``gym``, ``ray``, ``sumo``, ``viz``).
 Code that needs one imports it through :func:`require`, which fails with one line naming
 the extra and the command that installs it, the same in every module::
 
@@ -26,6 +26,7 @@ EXTRAS: dict[str, tuple[str, ...]] = {
     "gym": ("gymnasium",),
     "ray": ("ray",),
     "viz": ("matplotlib", "imageio", "imageio_ffmpeg", "PIL"),
+    "sumo": ("libsumo", "sumolib", "sumo"),
 }
 
 #: The file name of this version's wheel (``pip wheel .`` in a checkout writes it).
