@@ -300,7 +300,8 @@ class Sensing(_Group):
     ticks old, plus Gaussian noise of std ``pos`` (each axis), ``heading``, ``speed``; with
     probability ``dropout`` there is none (its row is NaN and it is not in the lane). The
     ego's own pose is exact. A brake the ego decides acts ``brake_latency`` ticks later (a
-    release too). Integers for the latencies [ticks of ``timing.dt``].
+    release too). Integers for the latencies [ticks of ``timing.dt``]. With ``occluded`` the
+    ego measures the obstacle only while its sensor sees it (docs/OCCLUSION.md).
     """
 
     _prefix: ClassVar[str] = "sensing."
@@ -314,10 +315,17 @@ class Sensing(_Group):
     # noise, and its brake's latency: PlannerContext), as a real ego knows its own hardware;
     # by default it is not (the stress suite's untold cases).
     told: bool = False
+    # Whether the ego's sensor sees the obstacle only in its own line of sight: rays from its
+    # sensor mount (the ego's CarGeometry.eye) to the obstacle's hull corners and centre, past
+    # the buildings (MuJoCo rays); while none reaches it, there is no measurement (its row is
+    # NaN and it is not in the lane, as a dropout). Its planner knows its sensor is so. False:
+    # the paper's full observation, through the buildings.
+    occluded: bool = False
 
     def __post_init__(self) -> None:
         super().__post_init__()
         _check(isinstance(self.told, bool), "sensing.told", self.told, "true or false")
+        _check(isinstance(self.occluded, bool), "sensing.occluded", self.occluded, "true or false")
         for name in ("latency", "brake_latency"):
             v = getattr(self, name)
             _check(isinstance(v, int) and not isinstance(v, bool), f"sensing.{name}", v,
@@ -326,7 +334,8 @@ class Sensing(_Group):
     @property
     def perfect(self) -> bool:
         """Whether the planner gets the truth, at once, and its brake acts at once."""
-        return not (self.pos or self.heading or self.speed or self.dropout or self.latency or self.brake_latency)
+        return not (self.pos or self.heading or self.speed or self.dropout or self.latency or self.brake_latency
+                    or self.occluded)
 
 
 #: The groups of :class:`ScenarioConfig` (all but ``names``) and their classes.

@@ -29,6 +29,11 @@ One tick (``dt``), as in the simulation (:mod:`cdf_mj.scenario.episode`):
     after which a fraction ``intent_floor`` of the particles still held back redraw their
     intent from the prior. If every likelihood vanishes, the particles are re-initialised at the
     measurement with their discrete state and parameters redrawn from the prior.
+    A tick without a measurement (a NaN row) is skipped; where the ego's sensor is
+    ``occluded`` (it sees the other car only in its own line of sight) it is information
+    instead: a particle whose obstacle the ego's eye would have seen past the buildings
+    is weighted by ``miss`` (the sensor's probability of missing a car in sight), a
+    hidden one keeps its weight (negative information; docs/OCCLUSION.md).
 
 Outputs (:class:`Posterior`): P(left), P(right), P(seen), P(cutoff) and the ESS, where
 P(cutoff) is the weighted probability that the obstacle cuts the ego off: a committed
@@ -66,7 +71,19 @@ from cdf_mj.model.occlusion import Occluders, sight_targets
 from cdf_mj.model.vehicle import CarGeometry
 from cdf_mj.traits import PER_CAR, THETA
 
-__all__ = ["THETA", "ParticleFilter", "Posterior", "draw_parameters"]
+__all__ = ["APPROACH", "APPROACH_STEP", "MISS_PROBABILITY", "THETA", "ParticleFilter", "Posterior", "draw_parameters"]
+
+#: The occluded ego sensor's probability of missing the other car while it is in the ego's
+#: line of sight, per tick: what a tick without a measurement weighs a particle in sight by.
+#: The world's own sensor misses none (only its dropouts, ``sensing.dropout``); 0.05 leaves
+#: room for the 2D sight model's error against MuJoCo's rays (grazing lines, heights), so
+#: that a hypothesis in sight survives a few missed ticks rather than being gone after one.
+MISS_PROBABILITY = 0.05
+#: [m] How far up the side road an occluded ego's filter looks for an obstacle unseen at the
+#: start (:meth:`ParticleFilter.unseen_start`): 3 s at 10 m/s, the prior's fastest turn speed.
+APPROACH = 30.0
+#: [m] The spacing of the places it looks at on that approach.
+APPROACH_STEP = 0.5
 
 
 # Plain ints for the per-tick code (IntEnum attribute access costs a Python call each time).
@@ -138,6 +155,12 @@ class ParticleFilter:
         rng: the Generator of all the filter's randomness (nothing is drawn before reset).
         ego_lane: the ego's lane area: where the obstacle's route first puts it into the
             lane (without it: where its nose reaches the conflict point).
+        occluded: the ego's sensor sees the obstacle only in its own line of sight (from the
+            ego's eye, ``ego.eye``, past ``occluders``): a tick without a measurement weighs
+            the particles by it (:meth:`weigh`), and the filter may start without one
+            (:meth:`reset`). False (default): a missing measurement says nothing.
+        miss: [0, 1] with ``occluded``, the sensor's probability of missing an obstacle in
+            its line of sight per tick (default :data:`MISS_PROBABILITY`).
 
     The particle arrays (``pose``, ``mode``, ``belief``, ``has_belief``, ``intent``,
     ``theta``, ``logw``) are public. Each tick gives the moving ones (``pose``, ``mode``,
@@ -149,8 +172,16 @@ class ParticleFilter:
 
     def __init__(self, model: DriverModel, obstacle: CarGeometry, ego: CarGeometry,
                  occluders: Occluders, cdf: CDFConfig, rng: np.random.Generator,
-                 ego_lane: OrientedBox | None = None) -> None:
+                 ego_lane: OrientedBox | None = None, *, occluded: bool = False,
+                 miss: float = MISS_PROBABILITY) -> None:
+        if not isinstance(occluded, bool):
+            raise TypeError(f"ParticleFilter: occluded must be a bool, got {type(occluded).__name__}")
+        if isinstance(miss, bool) or not isinstance(miss, (int, float)) or not 0.0 <= miss <= 1.0:
+            raise ValueError(f"ParticleFilter: miss={miss!r} is out of range: must be a probability in [0, 1]")
         self.model, self.obstacle, self.ego, self.occluders = model, obstacle, ego, occluders
+        self.occluded = occluded
+        # log(miss): the weight of a particle in sight on a tick without a measurement (-inf at 0).
+        self._log_miss = math.log(miss) if miss > 0.0 else -math.inf
         self.cdf, self.rng, self.dt = cdf, rng, model.dt
         self.n = cdf.n_particles
         self._cov_inv = np.ascontiguousarray(np.linalg.inv(cdf.covariance))
@@ -201,6 +232,7 @@ class ParticleFilter:
             a.flags.writeable = False
         self._routes = model.table
         self.skipped_updates = 0  # measurements that were NaN or infinite
+        self.unseen_updates = 0  # of those, ticks weighed by the ego's not seeing the obstacle (occluded)
         self.reinits = 0  # times every likelihood vanished
         self._ego: np.ndarray | None = None
         self._ego_values: list[float] = []  # the same as a list, to compare a new pose with
@@ -231,19 +263,31 @@ class ParticleFilter:
         self._checked: tuple[np.ndarray, ...] | None = None  # the particle arrays of the last check
 
     @classmethod
-    def from_layout(cls, layout: Layout, cdf: CDFConfig, rng: np.random.Generator, dt: float) -> ParticleFilter:
+    def from_layout(cls, layout: Layout, cdf: CDFConfig, rng: np.random.Generator, dt: float, *,
+                    occluded: bool = False, miss: float = MISS_PROBABILITY) -> ParticleFilter:
         """A filter for a junction (``Scene.layout()``: its routes, buildings and cars),
         ticked every ``dt`` [s] (the planner's tick), with its own driver model
-        (``cdf.prior``)."""
+        (``cdf.prior``); ``occluded`` and ``miss``: the ego's sensor (see the class)."""
         model = DriverModel.from_layout(layout, cdf.prior, cdf.prior.pursuit, dt)
-        return cls(model, layout.obstacle, layout.ego, layout.occluders, cdf, rng, layout.ego_lane)
+        return cls(model, layout.obstacle, layout.ego, layout.occluders, cdf, rng, layout.ego_lane,
+                   occluded=occluded, miss=miss)
 
     # ------------------------------------------------------------------ state
     def reset(self, system_pose: np.ndarray) -> Posterior:
         """Prior at the first measurement ``S_0`` (2, 4): the obstacle where it is
         measured, waiting, never having seen the ego; intent and driver parameters from
-        the prior (``CDFConfig.prior``)."""
+        the prior (``CDFConfig.prior``).
+
+        With an ``occluded`` sensor the obstacle's row may be NaN (not in the ego's sight
+        at the start): the obstacle is then somewhere the ego's eye does not see
+        (:meth:`unseen_start`), and what the ego goes on not seeing weighs the particles
+        from the next tick on. ValueError for a non-finite ego pose, or a non-finite
+        obstacle row without an occluded sensor."""
         system_pose = np.asarray(system_pose, dtype=float)
+        unseen = (system_pose.shape == (2, 4) and self.occluded and bool(np.all(np.isfinite(system_pose[0])))
+                  and bool(np.all(np.isnan(system_pose[1]))))
+        if unseen:
+            system_pose = np.stack([system_pose[0], self.waiting_pose()])
         if system_pose.shape != (2, 4) or not np.all(np.isfinite(system_pose)):
             raise ValueError(f"the first system pose must be finite, of shape (2, 4), got {system_pose.tolist()}")
         n = self.n
@@ -256,7 +300,59 @@ class ParticleFilter:
         self._uniform()
         self._ego, self._ego_values = None, []
         self.set_ego(system_pose)
+        if unseen:
+            self.unseen_start()
         return self.posterior()
+
+    def unseen_start(self) -> None:
+        """Place the particles where the obstacle may be unseen at the start: on the side
+        road's approach up to :data:`APPROACH` [m] upstream of where the drivers wait
+        (:meth:`waiting_pose`, every :data:`APPROACH_STEP`), at the places the ego's eye does
+        not see. Where the waiting place itself is hidden, half of them wait there, at rest
+        (the filter's drivers start so); the others come down the approach (mode going, at
+        a speed drawn from 0 to the prior's fastest turn speed), uniformly over its hidden
+        places. Where nothing is hidden they all wait at the waiting place (a missed
+        measurement of a car in sight). Intents, beliefs and parameters are kept."""
+        n, rng = self.n, self.rng
+        wait = self.waiting_pose()
+        back = np.arange(0.0, APPROACH + 1e-9, APPROACH_STEP)  # [m] upstream of the waiting place
+        places = np.repeat(wait[None], len(back), axis=0)
+        places[:, 0] -= back * math.cos(wait[2])
+        places[:, 1] -= back * math.sin(wait[2])
+        hidden = ~self.in_sight(places)
+        if not hidden.any():
+            return  # all waiting at the waiting place, as reset put them
+        approach = np.flatnonzero(hidden[1:]) + 1
+        waits = rng.random(n) < 0.5 if hidden[0] else np.zeros(n, dtype=bool)
+        if approach.size == 0:
+            waits[:] = True
+        going = ~waits
+        pick = np.zeros(n, dtype=np.int64)  # the waiting place
+        if going.any():
+            pick[going] = approach[rng.integers(0, approach.size, int(going.sum()))]
+        pose = places[pick]
+        pose[:, 3] = np.where(waits, 0.0, rng.uniform(0.0, self.prior.turn_speed[1], n))
+        self.pose = _published(pose)
+        self.mode = np.where(waits, _WAITING, _GOING).astype(np.int64)
+        self._mark_checked()
+
+    def waiting_pose(self) -> np.ndarray:
+        """Where the filter's drivers wait: the start of their routes (the stop line),
+        heading along the route, at rest ``[x m, y m, theta rad, 0]`` (world frame)."""
+        points = self.model.routes[_LEFT].points
+        (x0, y0), (x1, y1) = points[0], points[1]
+        return np.array([x0, y0, math.atan2(y1 - y0, x1 - x0), 0.0])
+
+    def in_sight(self, poses: np.ndarray | None = None) -> np.ndarray:
+        """Whether the ego's eye (``ego.eye`` of its last pose) sees the obstacle at each of
+        ``poses`` ``(M, 4)`` (default: the particles') ``(M,)``: any of its hull corners and
+        centre (:func:`~cdf_mj.model.occlusion.sight_targets`) past the buildings (the 2D model
+        of :class:`~cdf_mj.model.occlusion.Occluders`, which :mod:`cdf_mj.sim.visibility`
+        casts with MuJoCo rays)."""
+        eye = self.ego.eye(self._ego_pose())
+        targets = sight_targets(self.obstacle, self.pose if poses is None else np.asarray(poses, dtype=float))
+        seen: np.ndarray = self.occluders.visible(np.broadcast_to(eye, (len(targets), 3)), targets)
+        return seen
 
     def _draw_intent(self, n: int) -> np.ndarray:
         """``n`` intents from the prior P(left)."""
@@ -466,7 +562,9 @@ class ParticleFilter:
     def update(self, system_pose: np.ndarray) -> Posterior:
         """Weight by the measured obstacle pose, resample, and return the posterior.
 
-        A non-finite measurement is skipped (counted in ``skipped_updates``). If every
+        A non-finite measurement is skipped (counted in ``skipped_updates``); with an
+        ``occluded`` sensor a NaN obstacle row weighs the particles by what the ego did not
+        see (:meth:`weigh`) and they are resampled as after a measurement. If every
         particle is implausible (all Mahalanobis distances above ``reinit_mahalanobis``),
         the particles are re-initialised at the measurement (counted in ``reinits``; see
         :meth:`reinitialise`). Stages: ``weigh``, ``resample``.
@@ -478,13 +576,20 @@ class ParticleFilter:
 
     def weigh(self, system_pose: np.ndarray) -> Posterior:
         """The likelihood of the measured obstacle pose, normalised log-weights, and the
-        posterior of these weights (before any resampling)."""
+        posterior of these weights (before any resampling).
+
+        Without a measurement (a non-finite obstacle row) the weights stay, unless the
+        sensor is ``occluded``: then each particle whose obstacle is in the ego's line of
+        sight (:meth:`in_sight`) is weighted by ``miss`` and each hidden one by 1, the
+        likelihood of not seeing it (counted in ``unseen_updates``)."""
         system_pose = np.asarray(system_pose, dtype=float)
         self.set_ego(system_pose)  # the ego's pose now, for P(cutoff)
         meas = system_pose[1]
         self._check_particles()
         if not _finite(meas):
             self.skipped_updates += 1
+            if self.occluded and np.all(np.isnan(meas)):
+                self._weigh_unseen()
             return self.posterior()
         logw, w, ess, ok = kernels.weigh(self.pose, meas, self._cov_inv, np.ascontiguousarray(self.logw, dtype=float),
                                          float(self._cfg[kernels.F_REINIT]))
@@ -496,6 +601,20 @@ class ParticleFilter:
         self._ess = ess
         self._set_weights(w, logw)
         return self.posterior()
+
+    def _weigh_unseen(self) -> None:
+        """Negative information: the log-weights of the particles in the ego's sight plus
+        log(miss), normalised (a new array); the ESS of the result."""
+        self.unseen_updates += 1
+        seen = self.in_sight()
+        if not seen.any() or seen.all():
+            return  # the same likelihood for every particle: nothing to tell them apart
+        logw = np.where(seen, self.logw + self._log_miss, self.logw)
+        logw = logw - logw.max()  # finite: a hidden particle keeps its (finite) log-weight
+        w, self._ess = kernels.normalise(logw)
+        self.logw = _published(logw)
+        self._mark_checked()
+        self._set_weights(w, self.logw)
 
     def reinitialise(self, measured: np.ndarray) -> None:
         """Every likelihood vanished: all particles at the measured obstacle pose (4,),

@@ -85,10 +85,17 @@ class PlannerContext:
     # brake, and the std of its measured pose of the other car [x m, y m, theta rad, v m/s].
     latency: float = 0.0
     measurement_std: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)
+    # Whether its sensor sees the other car only in its own line of sight (from the ego's eye,
+    # CarGeometry.eye, past the layout's buildings), so that a tick without a measurement may
+    # mean a car out of sight (ScenarioConfig.sensing.occluded; docs/OCCLUSION.md). False: the
+    # paper's full observation, where a missing measurement is a dropout.
+    occluded: bool = False
 
     def __post_init__(self) -> None:
         if not isinstance(self.layout, Layout):
             raise TypeError(f"PlannerContext.layout must be a Layout, got {type(self.layout).__name__}")
+        if not isinstance(self.occluded, bool):
+            raise ValueError(f"PlannerContext.occluded={self.occluded!r} must be true or false")
         std = self.measurement_std
         if not (isinstance(std, tuple) and len(std) == 4 and all(
                 not isinstance(v, bool) and isinstance(v, (int, float, np.floating)) and 0 <= v <= MAX_TOLD_STD
@@ -107,10 +114,12 @@ class PlannerContext:
     @classmethod
     def of(cls, layout: Layout, config: ScenarioConfig) -> PlannerContext:
         """The ego's knowledge in a world of ``config``: its tick, its own nominal controller
-        (speed and gain) and, where ``config.sensing.told``, its sensing's latency and noise
-        and its brake's latency; nothing of the obstacle driver is read."""
+        (speed and gain), whether its sensor is occluded (``sensing.occluded``: an ego knows
+        that its sensors need a line of sight) and, where ``config.sensing.told``, its
+        sensing's latency and noise and its brake's latency; nothing of the obstacle driver is read."""
         sensing, dt = config.sensing, config.timing.dt
-        context = cls(layout=layout, dt=dt, nominal_speed=config.ego.speed, speed_gain=config.ego.speed_gain)
+        context = cls(layout=layout, dt=dt, nominal_speed=config.ego.speed, speed_gain=config.ego.speed_gain,
+                      occluded=sensing.occluded)
         if not sensing.told:
             return context
         return dataclasses.replace(context, latency=(sensing.latency + sensing.brake_latency) * dt,

@@ -70,21 +70,30 @@ class CDFPlanner(DecidingPlanner):
     def reset(self, context: PlannerContext, rng: np.random.Generator) -> None:
         """A new filter for this junction and tick, drawing from the episode's planner ``rng``;
         its likelihood's covariance widened by the measurement noise the ego is told
-        (``context.measurement_std``, variances added)."""
+        (``context.measurement_std``, variances added); with an occluded sensor
+        (``context.occluded``) it reads a missing measurement as the ego's not seeing the
+        other car (negative information, :class:`~cdf_mj.inference.particle_filter.ParticleFilter`)."""
         super().reset(context, rng)
         cdf = self.cdf
         if any(context.measurement_std):  # told noise of its own sensing: the likelihood is wider by it
             cov = cdf.covariance + np.diag(np.square(np.asarray(context.measurement_std, dtype=float)))
             cdf = cdf.replace(likelihood_cov=tuple(tuple(float(v) for v in row) for row in cov))
-        self.filter = ParticleFilter.from_layout(context.layout, cdf, rng, context.dt)
+        self.filter = ParticleFilter.from_layout(context.layout, cdf, rng, context.dt,
+                                                 occluded=context.occluded)
         self._started = False
         self._post: Posterior | None = None
 
     def observe(self, obs: PlannerInput) -> None:
         """One filter tick on the measured system pose: the posterior now (the prior at the
-        first tick), kept for the rule; then the particles propagated to the next tick."""
+        first tick), kept for the rule; then the particles propagated to the next tick.
+
+        Without a measurement of the obstacle at the first tick, a filter whose sensor is
+        occluded starts with the obstacle waiting where its drivers wait, unseen (see
+        :meth:`ParticleFilter.reset <cdf_mj.inference.particle_filter.ParticleFilter.reset>`);
+        any other starts at its first measurement (a dropout tells nothing of where it is),
+        its rule given no hypothesis until then."""
         pf = self.filter
-        if not self._started and not np.isfinite(obs.poses).all():
+        if not self._started and not np.isfinite(obs.poses).all() and not pf.occluded:
             # No measurement of the obstacle yet (a dropout): the filter starts at the first one.
             self._post = Posterior(p_left=self.cdf.prior.p_left, p_right=1.0 - self.cdf.prior.p_left, p_seen=0.0,
                                    p_cutoff=0.0, ess=float(pf.n))
@@ -136,11 +145,13 @@ class CDFPlanner(DecidingPlanner):
         return self._futures
 
     def summary(self) -> dict[str, Any]:
-        """Prediction, rule, decision and release times [s], ``skipped_updates``, ``reinits``
-        and history."""
+        """Prediction, rule, decision and release times [s], ``skipped_updates`` (and, with an
+        occluded sensor, ``unseen_updates``: those weighed by not seeing), ``reinits`` and
+        history."""
         info = super().summary()
         history = info.pop("history")
-        return {**info, "skipped_updates": self.filter.skipped_updates,
+        extra = {"unseen_updates": self.filter.unseen_updates} if self.filter.occluded else {}
+        return {**info, "skipped_updates": self.filter.skipped_updates, **extra,
                 "reinits": self.filter.reinits, "history": history}
 
 

@@ -42,7 +42,12 @@ from cdf_mj.planners.baseline_common import (
     look_ahead_times,
 )
 
-__all__ = ["CVConfig", "CVLayeredPlanner", "CVPlanner", "CVRiskPlanner"]
+__all__ = ["COAST_TIME", "CVConfig", "CVLayeredPlanner", "CVPlanner", "CVRiskPlanner"]
+
+#: [s] How long a ``cv`` planner whose sensor is occluded coasts its track of the other car
+#: out of sight (its last measured pose moved on in a straight line at its measured speed)
+#: before it drops it: a tracker's usual hold of a lost track, a second or two.
+COAST_TIME = 1.0
 
 
 @dataclass(frozen=True)
@@ -75,6 +80,12 @@ class CVPlanner(DecidingPlanner):
     obstacle's straight-line path (``risk``; registered as ``cv-risk``). ``summary()``
     holds the decision time and the predicted time to conflict at that moment.
 
+    A tick without a measurement of the obstacle (a dropout) keeps its last measured pose.
+    With an occluded sensor (``PlannerContext.occluded``) the track coasts instead: that
+    pose moved on in a straight line at its measured speed, for up to :data:`COAST_TIME`,
+    after which the track is dropped and nothing is predicted until the next measurement
+    (nor before the first).
+
     Args:
         params: horizon and margin (default :class:`CVConfig`).
         risk: run with :class:`~cdf_mj.planners.decision.RiskRule` of these parameters
@@ -100,7 +111,10 @@ class CVPlanner(DecidingPlanner):
         self._poses = np.zeros((2, 4))
         self._future_times: np.ndarray | None = None  # ticks 1..K of the rule's horizon [s]
         self.conflict_in: float | None = None
-        self._obstacle_pose = np.zeros(4)
+        self._obstacle_pose: np.ndarray | None = np.zeros(4)
+        self._coasts = context.occluded
+        # (time [s], pose) of the last measurement of the obstacle, kept with an occluded sensor only
+        self._last_seen: tuple[float, np.ndarray] | None = None
 
     def time_to_conflict(self, poses: np.ndarray) -> float | None:
         """Predicted time [s] to the first conflict under constant velocities from the
@@ -116,13 +130,33 @@ class CVPlanner(DecidingPlanner):
 
     def observe(self, obs: PlannerInput) -> None:
         """Predict the conflict (until the decision, for the threshold rule); keep the
-        obstacle's pose for its straight-line future."""
+        obstacle's pose for its straight-line future (coasted out of an occluded sensor's
+        sight, see the class)."""
         self.record(obs.t)
-        if not np.isfinite(obs.poses[1]).all():  # no measurement of the obstacle: its last one stands
+        measured = bool(np.isfinite(obs.poses[1]).all())
+        if self._coasts:
+            self._coast(obs, measured)
+            return
+        if not measured:  # no measurement of the obstacle: its last one stands
             return
         self._obstacle_pose = obs.poses[1]
         if self.decision_time is None and not self.rule.releases:
             self.conflict_in = self.time_to_conflict(obs.poses)
+
+    def _coast(self, obs: PlannerInput, measured: bool) -> None:
+        """:meth:`observe` with an occluded sensor: the measured pose, or the track coasted
+        to ``obs.t`` in a straight line, or no track (``_obstacle_pose`` None) once it has
+        been out of sight for longer than :data:`COAST_TIME`, or before the first measurement."""
+        if measured:
+            self._last_seen = (obs.t, np.array(obs.poses[1], dtype=float))
+        pose: np.ndarray | None = None
+        if self._last_seen is not None and obs.t - self._last_seen[0] <= COAST_TIME + 1e-9:
+            t0, (x, y, th, v) = self._last_seen[0], self._last_seen[1].tolist()
+            d = max(v, 0.0) * (obs.t - t0)
+            pose = np.array([x + d * math.cos(th), y + d * math.sin(th), th, v])
+        self._obstacle_pose = pose
+        if self.decision_time is None and not self.rule.releases:
+            self.conflict_in = None if pose is None else self.time_to_conflict(np.stack([obs.poses[0], pose]))
 
     def alarm(self) -> float:
         """1 if a conflict is predicted within the horizon, else 0."""
@@ -130,10 +164,12 @@ class CVPlanner(DecidingPlanner):
 
     def futures(self, react_ticks: int) -> np.ndarray:
         """The obstacle's straight-line path at its measured speed, ticks ``1..K`` of the
-        rule's horizon ``(K, 4)``."""
+        rule's horizon ``(K, 4)``; ``(0, 4)`` without a track (an occluded sensor's, see the class)."""
         if self._future_times is None:
             n = max(1, math.ceil(self.rule.config.horizon / self._dt - 1e-9))  # type: ignore[attr-defined]
             self._future_times = np.arange(1, n + 1) * self._dt
+        if self._obstacle_pose is None:
+            return np.zeros((0, 4))
         x, y, th, v = (float(p) for p in self._obstacle_pose)
         return kern.straight_path(x, y, th, v, self._future_times)
 

@@ -223,6 +223,12 @@ class IMMPlanner(DecidingPlanner):
     The IMM runs compiled (:func:`cdf_mj.planners.baseline_kernels.imm_step`); with
     :attr:`reference` set it runs filterpy's ``IMMEstimator`` over :class:`RouteKalmanFilter`.
 
+    Not seeing the other car: the IMM starts at its first measurement (before it, no track:
+    P(conflict) 0 and no hypothesis for the risk rules), and a tick without one (a dropout,
+    or the car out of an occluded sensor's sight, ``sensing.occluded``) only predicts: the
+    track coasts along each intent's route at its estimated speed and acceleration, its
+    covariance growing, as a tracker does; the next measurement corrects it.
+
     Args:
         params: filter models, horizon and threshold (default :class:`IMMConfig`).
         risk: run with the risk rule of these parameters instead of the threshold rule.

@@ -123,7 +123,7 @@ class EgoAgent:
     """The ego car's sensing, decision and control (see the module docstring).
 
     One :meth:`act`, in order: its sensor turns the true measurement into the planner's
-    (``config.sensing``: noise, dropouts, latency; the truth by default); the planner
+    (``config.sensing``: noise, dropouts, latency, occlusion; the truth by default); the planner
     answers: a graded command [m/s^2], or yes/no to the full brake (its first yes is held
     unless the planner ``releases_brake``); the command acts ``sensing.brake_latency`` ticks
     later; the nominal controller (speed hold and pure pursuit) is capped by it and, where
@@ -199,11 +199,12 @@ class EgoAgent:
     def sense(self, m: Measurement) -> PlannerInput:
         """What the ego measures of the tick's true measurement ``m`` (``config.sensing``; the
         truth itself with perfect sensing): time [s], the (2, 4) system pose whose obstacle
-        row is late, noisy or NaN (a dropout), and whether that obstacle is in its lane."""
+        row is late, noisy or NaN (a dropout, or with ``sensing.occluded`` an obstacle out of
+        the ego's sight: ``m.visible`` 0), and whether that obstacle is in its lane."""
         if self.sensor is None:
             raise RuntimeError("EgoAgent: call reset(world.rng) before sensing")
         self._m = m
-        poses, in_lane = self.sensor.sense(m.poses, m.obstacle_in_lane)
+        poses, in_lane = self.sensor.sense(m.poses, m.obstacle_in_lane, m.visible)
         return PlannerInput(t=m.t, poses=poses, obstacle_in_lane=in_lane)
 
     def act(self, m: Measurement) -> np.ndarray:

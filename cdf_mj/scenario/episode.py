@@ -151,6 +151,8 @@ def _simulate(scene: Scene, config: ScenarioConfig, seed: int, planner: Planner,
     if not config.sensing.perfect:
         assert ego.sensor is not None
         info["dropped"] = ego.sensor.dropped
+        if config.sensing.occluded:  # ticks the obstacle was out of the ego's sight (not in earlier records)
+            info["occluded"] = ego.sensor.occluded
     return _Run(intent=int(world.intent), offset=world.ego_start_offset,
                 first_seen=world.first_seen, yielded=world.yielded, entered=world.entered_lane,
                 collision=world.collision, collision_time=world.collision_time,

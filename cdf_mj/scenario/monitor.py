@@ -27,6 +27,15 @@ after which :meth:`CDFMonitor.step` reads the poses and observes them::
         decision = monitor.step()
         mujoco.mj_step(model, data, nstep=nstep)
 
+An ego whose sensor sees the other car only in its line of sight (the common case): give
+``scenario`` with ``sensing={"occluded": True}`` and pass 4 NaN as ``obstacle_pose`` on
+every tick your sensor does not see it (with ``record_trace=False``). The filter then reads
+not seeing as information: each hypothesis of the other car that the ego's eye (the ``ego``
+car's :meth:`~cdf_mj.model.vehicle.CarGeometry.eye`) would have seen past the layout's
+buildings loses weight (:data:`~cdf_mj.inference.particle_filter.MISS_PROBABILITY` per
+tick), a hidden one keeps it; before the first sight it starts with the other car waiting
+at the stop line (docs/OCCLUSION.md). Without it a NaN is a dropout, which tells nothing.
+
 ``planner=`` (of both) puts another registered planner in the CDF's place, to compare
 them on your testbed as the package's tables do: ``CDFMonitor(layout, planner="imm-layered")``,
 ``"reactive"``, or one of yours (``cdf_mj.register``); its decisions have ``posterior``
@@ -180,6 +189,9 @@ class CDFMonitor:
             ``{"brake_latency": 2, "told": True}`` for brakes that act 0.2 s late): its
             margins grow by them (measured: on a narrow rotated junction, a car stopping in
             the lane and brakes 0.2 s late, 1 touch in 12 cut-off seeds untold, none told).
+            ``{"occluded": True}``: your ego's sensor sees the other car only in its line of
+            sight, so that a missing measurement (NaN) is read as not seeing it (module
+            docstring).
         cdf: the filter and its decision rule (N, Sigma, its driver model, ``decision``:
             the risk rule or the paper's threshold tau); default :class:`CDFConfig`.
         rng: the Generator of the filter's randomness, or a seed (an integer from 0 to
@@ -287,8 +299,11 @@ class CDFMonitor:
         particles by the new measurement and resample; the decision rule reads them; then
         they are propagated one tick.
         An ``obstacle_pose`` of 4 NaN is no measurement (a sensor's dropout): the filter
-        skips its weighing and only predicts, as the ``cdf`` planner does; taken only
-        with ``record_trace=False`` (a trace file holds measured poses).
+        skips its weighing and only predicts, as the ``cdf`` planner does; with
+        ``scenario.sensing.occluded`` it is the ego's not seeing the other car, which
+        weighs the hypotheses the ego would have seen down (and may be the first call: the
+        filter then starts with the other car unseen at the stop line). Taken only with
+        ``record_trace=False`` (a trace file holds measured poses).
         ValueError, with nothing changed, for a pose that is not 4 finite numbers, a time
         that is not finite or goes back, or a time ``dt`` away from the last one.
         """

@@ -4,7 +4,10 @@ to the planner (:class:`cdf_mj.config.Sensing`); records keep the truth.
 :class:`Sensor` turns each tick's true :class:`~cdf_mj.scenario.world.Measurement` into the
 planner's: the obstacle's pose ``latency`` ticks old, plus Gaussian noise, or none at all
 (a dropout: the obstacle's row is NaN and it is not in the lane); the ego's own pose is
-exact. :class:`CommandDelay` delays the ego's commands (a yes/no planner's full brake and
+exact. With ``occluded`` sensing there is none either while the obstacle was out of the
+ego's line of sight (``Measurement.visible``, the share of its sight points that the ego's
+sensor mount sees past the buildings, 0 on that tick, ``latency`` ticks back; MuJoCo rays,
+docs/OCCLUSION.md). :class:`CommandDelay` delays the ego's commands (a yes/no planner's full brake and
 release too) by ``brake_latency`` ticks; :class:`JerkLimiter` is the actuator a graded
 planner's commands go through, whose acceleration changes by at most ``ego.jerk_limit`` per
 second. With perfect sensing (the default) the sensor and the delay pass everything
@@ -17,7 +20,7 @@ holds all three; by hand::
 
     sensor = Sensor(config.sensing, layout, world.rng["sensing"])
     m = world.measure()
-    poses, in_lane = sensor.sense(m.poses, m.obstacle_in_lane)
+    poses, in_lane = sensor.sense(m.poses, m.obstacle_in_lane, m.visible)
 """
 
 from __future__ import annotations
@@ -38,32 +41,45 @@ class Sensor:
     """The ego's measurement of the obstacle (see the module docstring).
 
     Args:
-        sensing: noise std [m, rad, m/s], dropout probability, latency [ticks].
+        sensing: noise std [m, rad, m/s], dropout probability, latency [ticks], whether
+            the ego's sensor is occluded.
         layout: the junction (the obstacle's box and the ego's lane, for the lane test of a
             measured pose).
         rng: the Generator of the sensing draws (one normal per pose component and one
-            uniform per tick, drawn only where the sensing is imperfect).
+            uniform per tick, drawn only where the sensing is imperfect, every such tick
+            whatever is seen: the same draws per seed with and without occlusion).
+
+    Counts per episode: ``occluded``, the ticks whose measurement the obstacle's being out of
+    sight took (0 without ``occluded`` sensing), and ``dropped``, those a dropout took while
+    it was in sight; together the ticks without a measurement of the obstacle.
     """
 
     def __init__(self, sensing: Sensing, layout: Layout, rng: np.random.Generator) -> None:
         self.sensing, self.layout, self.rng = sensing, layout, rng
         self._std = np.array([sensing.pos, sensing.pos, sensing.heading, sensing.speed])
         self._noisy = bool(self._std.any())
-        self._past: deque[tuple[np.ndarray, bool]] = deque(maxlen=sensing.latency + 1)
-        self.dropped = 0  # ticks without a measurement of the obstacle
+        self._past: deque[tuple[np.ndarray, bool, bool]] = deque(maxlen=sensing.latency + 1)
+        self.dropped = 0  # ticks without a measurement of the obstacle by a dropout (it was in sight)
+        self.occluded = 0  # ticks without a measurement of the obstacle because it was out of sight
 
-    def sense(self, poses: np.ndarray, in_lane: bool) -> tuple[np.ndarray, bool]:
+    def sense(self, poses: np.ndarray, in_lane: bool, visible: float = math.nan) -> tuple[np.ndarray, bool]:
         """The planner's system pose ``(2, 4)`` and whether the measured obstacle is in the
-        ego's lane, from the true ones of this tick. Returns the inputs themselves with
-        perfect sensing."""
+        ego's lane, from the true ones of this tick, and, read only with ``occluded``
+        sensing, the share [0, 1] of the obstacle's sight points the ego's sensor sees on it
+        (``Measurement.visible``; 0, or NaN: not known, is out of sight). Returns the inputs
+        themselves with perfect sensing."""
         s = self.sensing
         if s.perfect:
             return poses, in_lane
-        self._past.append((np.array(poses[1], dtype=float), in_lane))
-        obstacle, seen_in_lane = self._past[0]  # latency ticks old (the oldest kept)
+        self._past.append((np.array(poses[1], dtype=float), in_lane, bool(visible > 0.0)))
+        obstacle, seen_in_lane, in_sight = self._past[0]  # latency ticks old (the oldest kept)
         u = self.rng.random()
         noise = self.rng.standard_normal(4) * self._std
         out = np.array(poses, dtype=float)
+        if s.occluded and not in_sight:
+            self.occluded += 1
+            out[1] = np.nan
+            return out, False
         if u < s.dropout:
             self.dropped += 1
             out[1] = np.nan

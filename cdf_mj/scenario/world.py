@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,6 +50,10 @@ class Measurement:
     t: float  # [s] episode time
     poses: np.ndarray  # (2, 4) system pose S_t: ego, obstacle [x m, y m, theta rad, v m/s], world frame
     obstacle_in_lane: bool  # the obstacle's collision box meets the ego lane's (road.in_lane)
+    # The share [0, 1] of the obstacle's sight points (hull corners and centre) that the ego's
+    # sensor mount sees past the buildings (cdf_mj.sim.visibility.visible_share, MuJoCo rays):
+    # what occluded sensing reads. Computed only with config.sensing.occluded; NaN otherwise.
+    visible: float = math.nan
 
 
 @dataclass(slots=True)
@@ -138,7 +143,9 @@ class World:
     World options (off by default): ``config.obstacle.family`` drives the obstacle with a
     driver of :mod:`cdf_mj.scenario.drivers` (placed at its own start) instead of the
     traits' state machine; ``config.after_merge`` overrides its acceleration once it is in
-    the ego's lane (:mod:`cdf_mj.scenario.after_merge`).
+    the ego's lane (:mod:`cdf_mj.scenario.after_merge`); ``config.sensing.occluded`` has
+    :meth:`measure` cast the ego's line of sight to the obstacle (``Measurement.visible``,
+    five MuJoCo rays a tick, for the ego's sensor).
     """
 
     def __init__(self, scene: Scene, config: ScenarioConfig | None = None) -> None:
@@ -167,6 +174,12 @@ class World:
                           "route a wider turn or the obstacle a smaller box", SceneWarning, stacklevel=2)
         # The obstacle driver (ValueError for world options its routes cannot take).
         self.obstacle_agent = ObstacleAgent(scene, config, self.driver)
+        # The ego's line of sight to the obstacle, cast only where its sensing is occluded.
+        self._sight: Callable[[Scene, str, str, np.ndarray, np.ndarray], float] | None = None
+        if config.sensing.occluded:
+            from cdf_mj.sim.visibility import visible_share  # shapely: imported only when needed
+
+            self._sight = visible_share
         self.done = True  # until reset
 
     # ------------------------------------------------------------------ episode
@@ -283,7 +296,9 @@ class World:
 
     def measure(self) -> Measurement:
         """The system pose ``S_t`` (2, 4) read from MuJoCo at the start of the current tick,
-        and whether the obstacle is in the ego lane. NonFiniteStateError on a NaN pose."""
+        whether the obstacle is in the ego lane and, with ``sensing.occluded``, how much of it
+        the ego's sensor sees (``Measurement.visible``: rays from the ego's eye). NonFiniteStateError
+        on a NaN pose."""
         if self._measured is not None:
             return self._measured
         values = self.scene.pose_values()
@@ -295,8 +310,10 @@ class World:
         self._hull = self.layout.obstacle.footprint_one(ox, oy, oth)
         self._ego_hull = self.layout.ego.footprint_one(ex, ey, eth)
         self._values = values
-        self._measured = Measurement(t=self.t, poses=np.array(values),
-                                     obstacle_in_lane=in_lane(self.layout, self._hull))
+        poses = np.array(values)
+        visible = math.nan if self._sight is None else self._sight(self.scene, "ego", "obstacle", poses[0], poses[1])
+        self._measured = Measurement(t=self.t, poses=poses, obstacle_in_lane=in_lane(self.layout, self._hull),
+                                     visible=visible)
         return self._measured
 
     def step(self, ego_controls: np.ndarray) -> Tick:
