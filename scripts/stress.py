@@ -54,6 +54,7 @@ note on stderr once the page is written.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import sys
 from collections import Counter
 from collections.abc import Sequence
@@ -84,6 +85,7 @@ from cdf_mj.cli.args import seed_value as _non_negative_int
 from cdf_mj.cli.args import worker_count as _workers
 from cdf_mj.config import CDFConfig
 from cdf_mj.experiments.experiment import SettingsMismatchError, run_experiment
+from cdf_mj.extras import EXTRAS, install_hint
 from cdf_mj.presets import STRESS_PREFIX, Preset, preset_names, read_preset
 from cdf_mj.records import RecordLike, completed, hit_obstacle, is_imminent, record_field
 
@@ -100,14 +102,37 @@ PLANNERS_DEFAULT = ("cdf", "cdf-option", "imm-layered", "cv-layered", "caution-w
 NO_COLLISION = ("stress-merge-brakes", "stress-merge-stops")
 TOLD = ("stress-noise-told", "stress-latency-2-told", "stress-brake-latency-2-told")
 FAMILIES = ("stress-gap-acceptance", "stress-rolling-stop", "stress-aggressive", "stress-off-route")
+#: Issue 36's targets: the driver families that cut off without being the filter's model, and
+#: SUMO's drivers: no collision, every Cutoff avoided, hard brakes in <= 2 % and interventions
+#: in <= 15 % of the episodes not labelled Cutoff; the occluded ego: no collision, its cost
+#: stated beside the worst-case occlusion-aware baseline's (:data:`PHANTOM`).
+CUTOFF_FAMILIES = ("stress-looked-but-failed", "stress-misjudged-speed", "stress-distracted", "stress-creeper",
+                   "stress-sumo")
+OCCLUDED = ("stress-occluded", "stress-occluded-creeper", "stress-occluded-rolling-stop")
+PHANTOM = "caution-phantom"
+NEEDS_EXTRA = {"stress-sumo": "sumo"}  # presets left out of the default list when their extra is missing
 DEFAULT_WORLD = "default"  # the preset of the default world, run first for reference
 SEED0, EPISODES = 402000, 200  # held out, first used by issue 35's pages; see the module docstring
 SIGNIFICANT = 0.05  # McNemar p below which the overview names a difference
 
 
+def _missing_extra(name: str) -> str | None:
+    """The extra that preset ``name`` needs and that is not installed here, if any."""
+    extra = NEEDS_EXTRA.get(name)
+    if extra is None or all(importlib.util.find_spec(m) is not None for m in EXTRAS[extra]):
+        return None
+    return extra
+
+
 def default_presets() -> list[str]:
-    """The reference world, then every shipped stress preset (sorted)."""
-    return [DEFAULT_WORLD, *(n for n in preset_names() if n.startswith(STRESS_PREFIX))]
+    """The reference world, then every shipped stress preset (sorted) whose extra is installed
+    (a note on stderr names any left out)."""
+    names = [n for n in preset_names() if n.startswith(STRESS_PREFIX)]
+    for name in names:
+        extra = _missing_extra(name)
+        if extra:
+            print(f"{PROG}: note: {name} left out: {install_hint(extra)}", file=sys.stderr)
+    return [DEFAULT_WORLD, *(n for n in names if not _missing_extra(n))]
 
 
 @dataclass(frozen=True)
@@ -191,6 +216,39 @@ def _targets_of(run: PresetRun, planner: str) -> list[str]:
                      f"{format_rate(m.false_alarms)}: {verdict(ok)}")
     if name in FAMILIES or name == DEFAULT_WORLD:
         lines += [f"- `{name}`, issue 35's targets:", *(f"  {line}" for line in cost_targets(m, REFERENCE))]
+    if name in CUTOFF_FAMILIES:
+        lines += [f"- `{name}`, issue 36's targets:", *(f"  {line}" for line in _family_targets(m, hits))]
+    if name in OCCLUDED:
+        lines += [f"- `{name}`, issue 36's targets: no collision: {format_rate(hits)}: {verdict(hits.k == 0)}; "
+                  f"its cost beside `{PHANTOM}`'s:", *(f"  {line}" for line in _beside(run, planner, PHANTOM))]
+    return lines
+
+
+def _family_targets(m: Any, hits: Rate) -> list[str]:
+    """Markdown bullets: issue 36's targets on a family that cuts off (point estimates)."""
+    others = m.episodes - m.imminent
+    hard, iv = Rate(m.false_alarms.k, others), m.false_interventions
+    avoided = f"{format_rate(m.avoided)}" if m.avoided.n else "no Cutoff episode"
+    return [f"- no collision, any label: {format_rate(hits)}: {verdict(hits.k == 0)}",
+            f"- every Cutoff avoided: {avoided}: {verdict(m.avoided.k == m.avoided.n)}",
+            f"- hard brakes in <= 2 % of the episodes not labelled Cutoff: {format_rate(hard)}: "
+            f"{verdict(hard.n == 0 or hard.value <= 0.02)}",
+            f"- interventions in <= 15 % of them: {format_rate(iv)}: {verdict(iv.n == 0 or iv.value <= 0.15)}"]
+
+
+def _beside(run: PresetRun, planner: str, other: str) -> list[str]:
+    """Markdown bullets: ``planner``'s and ``other``'s non-Cutoff interventions and time lost at
+    the fixed point, side by side (no verdict: the issue asks for the cost stated)."""
+    metrics = planner_metrics(run.records, reference=REFERENCE)
+    lines = []
+    for name in (planner, other):
+        m = metrics.get(name)
+        if m is None:
+            lines.append(f"- `{name}`: did not run")
+            continue
+        lines.append(f"- `{name}`: collisions {m.collisions} of {m.episodes}; interventions (not Cutoff) "
+                     f"{format_rate(m.false_interventions)}; time lost at the fixed point (not Cutoff) "
+                     f"{format_number(m.time_lost_fixed, 3)} s")
     return lines
 
 

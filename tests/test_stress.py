@@ -35,6 +35,16 @@ KINDS: dict[str, tuple[set[str], dict[str, object]]] = {
     "stress-rolling-stop": ({"obstacle.family"}, {"obstacle.family": "rolling-stop"}),
     "stress-aggressive": ({"obstacle.family"}, {"obstacle.family": "aggressive"}),
     "stress-off-route": ({"obstacle.family"}, {"obstacle.family": "off-route"}),
+    "stress-looked-but-failed": ({"obstacle.family"}, {"obstacle.family": "looked-but-failed"}),
+    "stress-misjudged-speed": ({"obstacle.family"}, {"obstacle.family": "misjudged-speed"}),
+    "stress-distracted": ({"obstacle.family"}, {"obstacle.family": "distracted"}),
+    "stress-creeper": ({"obstacle.family"}, {"obstacle.family": "creeper"}),
+    "stress-sumo": ({"obstacle.family"}, {"obstacle.family": "sumo"}),
+    "stress-occluded": ({"sensing.occluded"}, {"sensing.occluded": True}),
+    "stress-occluded-creeper": ({"obstacle.family", "sensing.occluded"},
+                                {"obstacle.family": "creeper", "sensing.occluded": True}),
+    "stress-occluded-rolling-stop": ({"obstacle.family", "sensing.occluded"},
+                                     {"obstacle.family": "rolling-stop", "sensing.occluded": True}),
     "stress-noise": (SENSING_NOISE, {"sensing.pos": 0.3, "sensing.heading": 0.05, "sensing.speed": 0.3}),
     "stress-noise-2x": (SENSING_NOISE, {"sensing.pos": 0.6, "sensing.heading": 0.1, "sensing.speed": 0.6}),
     "stress-brake-latency-1": ({"sensing.brake_latency"}, {"sensing.brake_latency": 1}),
@@ -58,6 +68,18 @@ RESOLVED = {"timing.end_distance": 60.0, "timing.until_clear": True, "timing.dur
 def test_the_stress_presets_are_the_issues_list():
     assert sorted(STRESS) == sorted(KINDS)
     assert stress.default_presets() == ["default", *STRESS]
+
+
+def test_a_preset_whose_extra_is_missing_is_left_out_with_a_note(monkeypatch, capsys):
+    monkeypatch.setitem(stress.NEEDS_EXTRA, "stress-noise", "no-such-extra")
+    monkeypatch.setitem(stress.EXTRAS, "no-such-extra", ("cdf_mj_no_such_module",))
+    assert "stress-noise" not in stress.default_presets()
+    assert "stress: note: stress-noise left out: install the no-such-extra extra" in capsys.readouterr().err
+
+
+def test_the_issue_36_targets_name_each_family_and_the_occluded_ego():
+    assert set(stress.CUTOFF_FAMILIES) | set(stress.OCCLUDED) <= set(STRESS)
+    assert stress.PHANTOM in stress.PLANNERS_DEFAULT
 
 
 def test_the_default_planners_set_both_cdf_rules_against_every_naive_baseline_and_predictor():
