@@ -108,7 +108,10 @@ FAMILIES = ("stress-gap-acceptance", "stress-rolling-stop", "stress-aggressive",
 #: stated beside the worst-case occlusion-aware baseline's (:data:`PHANTOM`).
 CUTOFF_FAMILIES = ("stress-looked-but-failed", "stress-misjudged-speed", "stress-distracted", "stress-creeper",
                    "stress-sumo")
-OCCLUDED = ("stress-occluded", "stress-occluded-creeper", "stress-occluded-rolling-stop")
+#: In the shipped scenes the ego sees the car at the stop line (the corner buildings are set
+#: back): only a car coming down the side road is hidden (docs/OCCLUSION.md), so the occluded
+#: ego meets the default world and the one family that starts upstream.
+OCCLUDED = ("stress-occluded", "stress-occluded-rolling-stop")
 PHANTOM = "caution-phantom"
 NEEDS_EXTRA = {"stress-sumo": "sumo"}  # presets left out of the default list when their extra is missing
 DEFAULT_WORLD = "default"  # the preset of the default world, run first for reference

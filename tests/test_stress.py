@@ -41,8 +41,6 @@ KINDS: dict[str, tuple[set[str], dict[str, object]]] = {
     "stress-creeper": ({"obstacle.family"}, {"obstacle.family": "creeper"}),
     "stress-sumo": ({"obstacle.family"}, {"obstacle.family": "sumo"}),
     "stress-occluded": ({"sensing.occluded"}, {"sensing.occluded": True}),
-    "stress-occluded-creeper": ({"obstacle.family", "sensing.occluded"},
-                                {"obstacle.family": "creeper", "sensing.occluded": True}),
     "stress-occluded-rolling-stop": ({"obstacle.family", "sensing.occluded"},
                                      {"obstacle.family": "rolling-stop", "sensing.occluded": True}),
     "stress-noise": (SENSING_NOISE, {"sensing.pos": 0.3, "sensing.heading": 0.05, "sensing.speed": 0.3}),

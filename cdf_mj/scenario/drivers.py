@@ -549,7 +549,7 @@ FAMILIES: Mapping[str, type[_Driver]] = _Families({
 #: Families of optional extras, as ``"module:Class"``: imported by :func:`make_driver` only
 #: (not in :data:`FAMILIES`, which needs nothing beyond the package's own requirements).
 OPTIONAL_FAMILIES: Mapping[str, str] = MappingProxyType({
-    "sumo": "cdf_mj.scenario.sumo_driver:SumoDriver",  # Eclipse SUMO co-simulation (pip install 'cdf_mj[sumo]')
+    "sumo": "cdf_mj.scenario.sumo_driver:SumoDriver",  # Eclipse SUMO co-simulation (the sumo extra)
 })
 
 
