@@ -17,7 +17,7 @@ import pytest
 from cli_helpers import assert_one_line_error, run_cli
 from junctions import junction_scene
 
-from cdf_mj.config import CDFConfig, RiskConfig, ScenarioConfig
+from cdf_mj.config import CDFConfig, LayeredConfig, RiskConfig, ScenarioConfig
 from cdf_mj.model.conflict import (
     BRAKE,
     DEFER,
@@ -25,6 +25,7 @@ from cdf_mj.model.conflict import (
     Futures,
     collision_masses,
     conflict_map,
+    lane_entry,
     right_turn_overlap,
     route_poses,
     widened,
@@ -33,7 +34,7 @@ from cdf_mj.model.geometry import boxes_overlap
 from cdf_mj.model.layout import Layout
 from cdf_mj.planners import CDFPlanner
 from cdf_mj.planners.base import DecidingPlanner, PlannerContext, PlannerInput, ThresholdRule
-from cdf_mj.planners.decision import GivenFutures, LayeredRule, RiskRule
+from cdf_mj.planners.decision import FOLLOW_WITHIN, OPTION, SLOW_RSS, GivenFutures, LayeredRule, RiskRule
 from cdf_mj.planners.registry import PLANNERS, make_planner
 from cdf_mj.planners.rollout_reference import rollout_assessment
 from cdf_mj.scenario.episode import run_episode
@@ -146,10 +147,19 @@ def test_compiled_rollouts_agree_with_the_boxes(layouts: dict[str, Layout]) -> N
         assert same >= 0.95 * total, (name, same, total)
 
 
-def _plain_masses(hyps: np.ndarray, plans: np.ndarray, dt: float, cmap: Any, lazy: int, gate: int) -> np.ndarray:
+def _plain_masses(hyps: np.ndarray, plans: np.ndarray, dt: float, cmap: Any, lazy: int, gate: int,
+                  rss: tuple[int, float, int, float] = (0, 1.0, 0, 1.0)) -> np.ndarray:
     """:func:`collision_masses` as first written (every tick of every hypothesis tested
-    against every open plan, in Python): the reference its faster rolls must equal exactly."""
+    against every open plan, in Python): the reference its faster rolls must equal exactly.
+    ``rss`` = (bit mask of rows, their final brake [m/s^2], the table index from which the
+    obstacle is in the lane, the obstacle's full brake [m/s^2]): those rows also collide on
+    a tick on which they are behind the obstacle in the lane and stop (last arc length plus
+    the braking distance from the last tick's speed) past where the ego would touch the
+    obstacle had that braked to a stop from then."""
+    rss_rows, rss_brake, lane_from, lead_brake = rss
     n_plans, n_steps = plans.shape
+    stops = [plans[p, -1] + max((plans[p, -1] - plans[p, -2]) / dt - 0.5 * rss_brake * dt, 0.0) ** 2 / (2 * rss_brake)
+             for p in range(n_plans)]
     full, out = (1 << n_plans) - 1, np.zeros(1 << n_plans)
     lazy_bit, gate_bit = (1 << lazy) if lazy >= 0 else 0, (1 << gate) if gate >= 0 else 0
     q_lo, q_hi, ahead_of = cmap.q_lo, cmap.q_hi, cmap.q_lo_ahead
@@ -171,10 +181,15 @@ def _plain_masses(hyps: np.ndarray, plans: np.ndarray, dt: float, cmap: Any, laz
                 continue
             for p in range(n_plans):
                 if not done & (1 << p):
+                    held = rss_rows >> p & 1
                     if q_lo[j] <= plans[p, k] <= q_hi[j]:
                         mask, done = mask | (1 << p), done | (1 << p)
-                    elif ahead_of[j] > plans[p, -1]:
+                    elif ahead_of[j] > (max(plans[p, -1], stops[p]) if held else plans[p, -1]):
                         done |= 1 << p
+                    elif held and j >= lane_from and plans[p, k] < q_lo[j]:
+                        j_stop = min(int((s + v_now * v_now / (2.0 * lead_brake)) / cmap.ds + 0.5), len(q_lo) - 1)
+                        if stops[p] >= q_lo[j_stop]:
+                            mask, done = mask | (1 << p), done | (1 << p)
             if (done | lazy_bit if (done & gate_bit) and not (mask & gate_bit) else done) == full:
                 break
         out[mask] += w
@@ -206,6 +221,84 @@ def test_the_compiled_rolls_equal_the_plain_rolls_exactly(layouts: dict[str, Lay
                                        cmap.q_lo, cmap.q_hi, cmap.q_lo_ahead, lazy, gate)
                 assert np.array_equal(got, _plain_masses(hyps, plans, config.timing.dt, cmap, lazy, gate)), (
                     name, trial, lazy)
+
+
+def test_the_option_rows_rss_rolls_equal_the_plain_rolls_exactly(layouts: dict[str, Layout]) -> None:
+    """With the RSS test on the option rule's plans that end in the comfortable brake (its
+    call), every mass is the plain tick-by-tick roll's, bit for bit, on every junction; and
+    the test changes some masks (hypotheses of a car in the lane ahead that those plans
+    would end too close to), only ever adding collisions to those rows."""
+    rng = np.random.default_rng(12)
+    config = ScenarioConfig()
+    changed = 0
+    for name, layout in layouts.items():
+        rule = LayeredRule(LayeredConfig(anticipation="option", option_time=0.5, anticipate=0.9,
+                                         anticipate_release=0.45))
+        rule.reset(PlannerContext.of(layout, config))
+        cmap, lane_from = rule.map, lane_entry(layout, FOLLOW_WITHIN)
+        assert 0 < lane_from < len(cmap.q_lo)
+        assert lane_entry(layout, math.radians(30.0)) >= lane_from  # a stricter heading: later in the turn
+        with pytest.raises(ValueError, match=r"^lane_entry: within=-1\.0 must be in \[0, pi\]"):
+            lane_entry(layout, -1.0)
+        q_conflict = float(layout.route_ego.project(layout.conflict)[0])
+        s_conflict = float(layout.route_left.project(layout.conflict)[0])
+        for trial in range(6):
+            ego = route_poses(layout.route_ego, np.array([q_conflict - rng.uniform(-2.0, 45.0)]))[0]
+            ego[3] = rng.uniform(0.0, 15.0)
+            plans = rule.plans(ego)
+            assert len(plans) == SLOW_RSS + 1
+            n = 40
+            hyps = np.column_stack([rng.uniform(0.1, 1.0, n), s_conflict + rng.uniform(-20.0, 30.0, n),
+                                    rng.uniform(0.0, 9.0, n), rng.uniform(-2.0, 3.0, n), rng.uniform(3.0, 16.0, n),
+                                    rng.choice([0.0, 0.0, 0.4, 1.5, 9.0], n)])
+            rss = ((1 << OPTION) | (1 << SLOW_RSS), 2.5, lane_from, layout.obstacle.max_brake)
+            got = collision_masses(*(np.ascontiguousarray(c) for c in hyps.T), plans, config.timing.dt, cmap.ds,
+                                   cmap.q_lo, cmap.q_hi, cmap.q_lo_ahead, -1, -1, *rss)
+            assert np.array_equal(got, _plain_masses(hyps, plans, config.timing.dt, cmap, -1, -1, rss)), (name, trial)
+            plain = _plain_masses(hyps, plans, config.timing.dt, cmap, -1, -1)
+            for row in range(len(plans)):
+                more = got[_has(row, len(plans))].sum() - plain[_has(row, len(plans))].sum()
+                assert (more >= -1e-12) if row in (OPTION, SLOW_RSS) else abs(more) < 1e-12, (name, trial, row)
+            changed += not np.array_equal(got, plain)
+    assert changed > 0
+
+
+def _has(row: int, n_plans: int) -> np.ndarray:
+    """The masks (indices of :func:`collision_masses`' output) with plan ``row``'s bit set."""
+    return (np.arange(1 << n_plans) & (1 << row)) != 0
+
+
+def test_the_option_is_lost_short_of_the_rss_distance_behind_a_merged_car(scene: Scene) -> None:
+    """A car already in the ego's lane 25 m ahead at 4 m/s, which the ego at 13.4 m/s would
+    hit going on: the option plan (going on 0.5 s, then 2.5 m/s^2 to a stop) and slowing
+    now never touch it as it drives on, but stop past where it would stop from its full
+    brake, so the option is lost and slowing is short; 60 m ahead at 12 m/s both are kept.
+    Version 0.3's plans and readings are unchanged."""
+    layout = scene.layout()
+    config = ScenarioConfig()
+    option = LayeredRule(LayeredConfig(anticipation="option", option_time=0.5, anticipate=0.9,
+                                       anticipate_release=0.45))
+    option.reset(PlannerContext.of(layout, config))
+    lane_from = lane_entry(layout, FOLLOW_WITHIN)
+    s_lane = (lane_from + 40) * option.map.ds  # [m] on its left route, well in the lane
+    q_ego = float(option.map.q_lo[lane_from + 40]) - 25.0  # [m] the ego 25 m short of touching it
+    ego = route_poses(layout.route_ego, np.array([q_ego]))[0]
+    ego[3] = 13.4
+    near = Futures(np.ones(1), np.array([s_lane]), np.array([4.0]), np.zeros(1), np.array([4.0]), np.zeros(1))
+    read, _ = option._read(ego, near)
+    assert read[2] == 1.0 and read[OPTION] == 1.0 and read[SLOW_RSS] == 1.0  # collides going on; both short
+    assert read[3] == 0.0  # slowing's boxes never meet
+    plans = option.plans(ego)
+    plain = collision_masses(near.weight, near.s, near.v, near.accel, near.v_max, near.delay, plans,
+                             config.timing.dt, option.map.ds, option.map.q_lo, option.map.q_hi,
+                             option.map.q_lo_ahead)
+    assert plain[_has(OPTION, len(plans))].sum() == 0.0  # the boxes alone keep it
+    far = Futures(np.ones(1), np.array([s_lane + 35.0]), np.array([12.0]), np.zeros(1), np.array([12.0]),
+                  np.zeros(1))
+    assert option._read(ego, far)[0][OPTION] == 0.0 == option._read(ego, far)[0][SLOW_RSS]
+    go = LayeredRule()
+    go.reset(PlannerContext.of(layout, config))
+    assert len(go.plans(ego)) == OPTION and len(go._read(ego, near)[0]) == OPTION
 
 
 def test_plans_brake_and_go_as_the_ego_would(scene: Scene) -> None:

@@ -91,7 +91,7 @@ def test_the_monitor_brakes_as_run_episode_with_that_planner(scene: Scene, plann
 
 
 @pytest.mark.parametrize(("planner", "seed"), [
-    ("imm-layered", 24),  # two hard brakes, released between
+    ("imm-layered", 34),  # two hard brakes, released between
     ("cv-risk", 24),  # the risk rule switching its brake on and off for 13 s behind the merged car
 ])
 def test_the_monitor_brakes_as_run_episode_on_a_junction_and_driver_it_was_not_written_for(planner: str,

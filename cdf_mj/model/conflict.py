@@ -39,6 +39,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
+from cdf_mj.model import road
 from cdf_mj.model.geometry import Polyline, _box_gap
 from cdf_mj.model.layout import Layout
 from cdf_mj.model.vehicle import CarGeometry
@@ -53,6 +54,7 @@ __all__ = [
     "collision_masses",
     "conflict_map",
     "ego_plans",
+    "lane_entry",
     "resolution",
     "right_turn_overlap",
     "route_poses",
@@ -193,6 +195,30 @@ def _overlaps(car_a: CarGeometry, poses_a: np.ndarray, car_b: CarGeometry, poses
 
 
 @functools.lru_cache(maxsize=16)
+def lane_entry(layout: Layout, within: float = math.pi / 2) -> int:
+    """The first index of :class:`ConflictMap`'s tables (``s = j ds`` [m] on the obstacle's
+    left route) at which the obstacle's collision box is in the ego's lane
+    (:func:`cdf_mj.model.road.in_lane`) heading the ego's way within ``within`` [rad] of the
+    ego's route there: from it on the obstacle counts as a car ahead in the ego's lane, to
+    keep the RSS distance behind (:func:`collision_masses`' ``lane_from``); past the table's
+    end if it never is. Cached per layout."""
+    if not 0.0 <= within <= math.pi:
+        raise ValueError(f"lane_entry: within={within!r} must be in [0, pi] [rad]")
+    left, ego_route = layout.route_left, layout.route_ego
+    k = resolution(layout)
+    ds = _DS * k
+    s = np.arange(0.0, left.length + _EXTEND * k, ds)
+    poses = route_poses(left, s, _WINDOW * k)
+    for j, pose in enumerate(poses):
+        q = ego_route.project_point(float(pose[0]), float(pose[1]))[0]
+        heading = float(route_poses(ego_route, np.array([q]), _WINDOW * k)[0, 2])
+        if road.heading_within(float(pose[2]), heading, within) and road.in_lane(
+                layout, layout.obstacle.footprint_one(float(pose[0]), float(pose[1]), float(pose[2]))):
+            return j
+    return len(s)
+
+
+@functools.lru_cache(maxsize=16)
 def right_turn_overlap(layout: Layout) -> float | None:
     """[m] the first arc length on the obstacle's right route (0.1 m apart for full-size
     cars, :func:`resolution`) at which its
@@ -289,7 +315,8 @@ def ego_plans(q0: float, v0: float, v_nominal: float, gain: float, max_accel: fl
 def collision_masses(weight: np.ndarray, s0: np.ndarray, v0: np.ndarray, accel: np.ndarray,
                      v_max: np.ndarray, delay: np.ndarray, plans: np.ndarray, dt: float, ds: float,
                      q_lo: np.ndarray, q_hi: np.ndarray, q_lo_ahead: np.ndarray,
-                     lazy: int = -1, gate: int = -1) -> np.ndarray:  # pragma: no cover - compiled
+                     lazy: int = -1, gate: int = -1, rss_rows: int = 0, rss_brake: float = 1.0,
+                     lane_from: int = 0, lead_brake: float = 1.0) -> np.ndarray:  # pragma: no cover - compiled
     """Total weight of the hypotheses (:class:`Futures` arrays) by the plans they collide
     with: ``out[m]`` for the bit mask ``m`` (bit ``p`` set: it collides with plan row ``p``
     of ``plans``, the ego's arc lengths ``(P, K)`` at ticks ``1..K`` of ``dt`` [s]).
@@ -309,7 +336,17 @@ def collision_masses(weight: np.ndarray, s0: np.ndarray, v0: np.ndarray, accel: 
     Once a single plan is left open (most often going on, behind a car that has merged
     ahead), its roll skips the table while the plan's arc length is short of ``q_lo_ahead``
     where the hypothesis last was (no overlap can come before it: the hypothesis only moves
-    on): the same masks, about a fifth less time in CDF episodes at N = 1000 (docs/PERFORMANCE.md)."""
+    on): the same masks, about a fifth less time in CDF episodes at N = 1000 (docs/PERFORMANCE.md).
+
+    The plan rows in the bit mask ``rss_rows`` (plans that end braking at ``rss_brake``
+    [m/s^2]) also collide with a hypothesis that leaves them short of the RSS distance behind
+    the obstacle once it is in the ego's lane heading its way (table index ``lane_from`` on,
+    :func:`lane_entry`): on a tick on which the ego is behind the obstacle's box, the plan's
+    stopping point (its last arc length plus the braking distance from its last tick's
+    speed) reaches past where the ego's box would touch the obstacle's had the obstacle
+    braked to a stop from then at ``lead_brake`` [m/s^2]. This is the RSS longitudinal rule
+    (docs/DECISION.md) with the plan itself as the ego's response and its braking; with no
+    such row (0) the masks are as without these arguments."""
     n_plans, n_steps = plans.shape
     full = (1 << n_plans) - 1
     lazy_bit = (1 << lazy) if lazy >= 0 else 0
@@ -321,9 +358,18 @@ def collision_masses(weight: np.ndarray, s0: np.ndarray, v0: np.ndarray, accel: 
     while first < n_table and not q_lo[first] <= q_hi[first]:
         first += 1
     s_first = (first - 0.5) * ds  # [m] below it, the table index is below first
-    furthest = np.empty(n_plans)  # [m] each plan's last arc length
+    furthest = np.empty(n_plans)  # [m] each plan's last arc length (the RSS row's: its stop, if further)
     for p in range(n_plans):
         furthest[p] = plans[p, n_steps - 1]
+    stops = np.empty(n_plans)  # [m] where the RSS rows stop
+    for p in range(n_plans):
+        if (rss_rows >> p) & 1:
+            v_end = 0.0  # [m/s] its last speed, from its last tick's advance at the constant brake
+            if n_steps > 1:
+                v_end = (plans[p, n_steps - 1] - plans[p, n_steps - 2]) / dt - 0.5 * rss_brake * dt
+            stops[p] = plans[p, n_steps - 1] + max(v_end, 0.0) ** 2 / (2.0 * rss_brake)
+            furthest[p] = max(furthest[p], stops[p])
+    inv_2b = 0.5 / lead_brake
     single = np.full(1 << n_plans, -1, dtype=np.int64)
     for p in range(n_plans):
         single[full ^ (1 << p)] = p
@@ -362,11 +408,16 @@ def collision_masses(weight: np.ndarray, s0: np.ndarray, v0: np.ndarray, accel: 
                     done |= bit
                 elif ahead > furthest[p]:
                     done |= bit
+                elif (rss_rows >> p) & 1 and j >= lane_from and q < lo:  # behind it in the lane: short of RSS?
+                    j_stop = min(int((s + v_now * v_now * inv_2b) * inv_ds + 0.5), n_table - 1)
+                    if stops[p] >= q_lo[j_stop]:
+                        mask |= bit
+                        done |= bit
             settled = done | lazy_bit if (done & gate_bit) and not (mask & gate_bit) else done
             if settled == full:
                 break
             p = single[done]
-            if p >= 0:  # one plan left (a lazy one only if its gate collided): its ticks and tests alone
+            if p >= 0 and not (rss_rows >> p) & 1:  # one plan left (a lazy one only if its gate collided): alone
                 far = furthest[p]
                 kk = k + 1
                 while kk < n_steps:

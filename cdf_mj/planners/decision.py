@@ -11,7 +11,8 @@ ThresholdRule     the paper's rule: brake once the predictor's own alarm probabi
 LayeredRule       the graded rule (the default ``cdf``): *anticipate* (slow down gently once
                   a collision going on is likely, ``cdf``'s; or, with the option rule of
                   ``cdf-option``, only once going on a little longer would lose the option
-                  of avoiding a likely cut-off with the comfortable brake),
+                  of avoiding a likely cut-off with the comfortable brake, at the RSS
+                  distance behind a car that merges ahead),
                   *emergency* (the full brake when deferring it would leave a collision
                   unavoidable, with a time margin), *follow* (a time gap behind a merged
                   car, the full brake below the RSS distance), with a dwell, a jerk limit
@@ -58,6 +59,7 @@ from cdf_mj.model.conflict import (
     collision_masses,
     conflict_map,
     ego_plans,
+    lane_entry,
     widened,
 )
 from cdf_mj.model.vehicle import CarGeometry
@@ -75,8 +77,8 @@ def _unit(total: float) -> float:
     return min(max(float(total), 0.0), 1.0)
 
 
-__all__ = ["SLOW", "Assessment", "DecisionRule", "GivenFutures", "LayeredRule", "Layers", "Predictor", "RiskRule",
-           "ThresholdRule"]
+__all__ = ["OPTION", "SLOW", "SLOW_RSS", "Assessment", "DecisionRule", "GivenFutures", "LayeredRule", "Layers",
+           "Predictor", "RiskRule", "ThresholdRule"]
 
 
 @dataclass(frozen=True)
@@ -239,14 +241,21 @@ SLOW = 3
 #: Its fifth, with ``anticipation = "option"``: going on for ``option_time``, then the
 #: comfortable brake.
 OPTION = 4
+#: Its sixth, with ``anticipation = "option"``: the comfortable brake from now on, as
+#: :data:`SLOW`, read for whether it still keeps the RSS distance behind a merged car.
+SLOW_RSS = 5
+#: The plans whose stop is held to the RSS distance behind a car merged ahead
+#: (:func:`collision_masses`' ``rss_rows``): both end in the comfortable brake.
+_RSS_ROWS = (1 << OPTION) | (1 << SLOW_RSS)
 
 
 def _reading(n_plans: int) -> np.ndarray:
     """How the layered rule reads the masses of :func:`collision_masses` over its plans:
     columns deferred (collides going on and deferring the full brake), braking fully now,
-    going on, slowing, and (with five plans) the option lost (collides going on and going
-    on for ``option_time`` before the comfortable brake); ``masses @ reading`` gives the
-    probabilities in one product."""
+    going on, slowing, and (with six plans) the option lost (collides going on and going
+    on for ``option_time`` before the comfortable brake, or ends short of the RSS distance
+    behind the merged car) and slowing short (collides going on and the comfortable brake
+    from now ends short of it); ``masses @ reading`` gives the probabilities in one product."""
     index = np.arange(1 << n_plans)
 
     def both(a: int, b: int) -> np.ndarray:
@@ -254,13 +263,13 @@ def _reading(n_plans: int) -> np.ndarray:
         return np.asarray((index & bits) == bits)
 
     columns = [both(GO, DEFER), (index & (1 << BRAKE)) != 0, (index & (1 << GO)) != 0, (index & (1 << SLOW)) != 0]
-    if n_plans > OPTION:
-        columns.append(both(GO, OPTION))
+    if n_plans > SLOW_RSS:
+        columns += [both(GO, OPTION), both(GO, SLOW_RSS)]
     return np.stack(columns, axis=1).astype(float)
 
 
 _READ = _reading(4)
-_READ_OPTION = _reading(5)
+_READ_OPTION = _reading(6)
 
 #: [rad] The follow layer follows a car ahead in the ego's lane heading at most this far off
 #: the ego's way: one still turning in, or standing across the lane, already counts (its
@@ -281,8 +290,13 @@ class Layers:
     rss: float  # [m] the RSS safe distance behind it (0: none)
     standoff: bool  # both cars stand: hypotheses of the other pulling away later are left out
     # P(collision going on that going on option_time more would leave beyond the comfortable
-    # brake): the anticipation layer's risk with anticipation="option" (NaN with "go")
+    # brake, or short of the RSS distance behind the car merged ahead): the anticipation
+    # layer's risk with anticipation="option" (NaN with "go")
     option: float = math.nan
+    # P(collision going on that even the comfortable brake from now would leave short of the
+    # RSS distance behind the merged car): with anticipation="option", the anticipation
+    # escalates to the full brake at `anticipate` once it slows (NaN with "go")
+    slow_rss: float = math.nan
 
 
 def _moving(futures: Futures | np.ndarray, stand_speed: float) -> Futures | np.ndarray:
@@ -304,12 +318,20 @@ class LayeredRule(RiskRule):
     ``layers.anticipation = "option"``, going on for ``option_time``, then the comfortable
     brake) gives both predictive layers their probabilities: the anticipation layer reads
     the probability of losing the option (a collision going on that going on
-    ``option_time`` more would leave beyond the comfortable brake; with ``"go"``, of a
+    ``option_time`` more would leave beyond the comfortable brake, or that would leave the
+    ego, braking comfortably after it, short of the RSS distance behind the car merged
+    ahead: stopping past where that car would stop from its full brake; with ``"go"``, of a
     collision going on), the emergency layer :class:`RiskRule`'s deferred risk with a
     longer deferral (one tick, the latency margin ``risk.latency``,
     ``layers.emergency_margin``, the latency the ego is told and its told position noise
     as time at its nominal speed, twice the std). The follow layer reads the measured
-    pose of a car ahead in the ego's lane.
+    pose of a car ahead in the ego's lane. With the option rule the anticipation escalates
+    to the full brake when, slowing since an earlier tick, the comfortable brake from now
+    is still likely (``anticipate``) to leave the ego short of that RSS distance behind the
+    car merging ahead (:data:`SLOW_RSS`; ``Layers.slow_rss``), before that car is in the
+    lane, where the follow layer would take over: RSS's proper response, brought forward
+    by the belief; it holds until that is no longer likely (and the emergency layer's
+    release rules allow).
 
     Args:
         layers: the layers' parameters (default :class:`LayeredConfig`).
@@ -366,6 +388,10 @@ class LayeredRule(RiskRule):
         # its latency and noise), then the comfortable brake.
         self._option = lay.anticipation == "option"
         self._option_defer = 1 + math.ceil((lay.option_time + told) / dt - 1e-9)
+        # The option is lost short of the RSS distance behind a car in the ego's lane, as the
+        # follow layer counts one (FOLLOW_WITHIN), that may brake at its full brake.
+        self._lane_from = lane_entry(context.layout, FOLLOW_WITHIN) if self._option else 0
+        self._lead_brake = context.layout.obstacle.max_brake
         self._option_risk = math.nan
         self._cap = math.inf  # [m/s^2] the command now (its ramp is limited by comfort_jerk)
         self._hard = False  # the full brake is on
@@ -384,7 +410,8 @@ class LayeredRule(RiskRule):
         brake after the emergency layer's deferral), BRAKE (the full brake now) and
         :data:`SLOW` (the comfortable brake now, to a stop); with ``anticipation =
         "option"`` a fifth row, :data:`OPTION` (going on for the option time, then the
-        comfortable brake)."""
+        comfortable brake), and a sixth, :data:`SLOW_RSS` (SLOW again, read against the RSS
+        distance)."""
         v_nom, gain, a_max, b = self._nominal
         q0 = self.map.ego_arc(ego_pose) if q is None else q
         v0 = max(float(ego_pose[3]), 0.0)
@@ -393,8 +420,8 @@ class LayeredRule(RiskRule):
         soft = ego_plans(q0, v0, v_nom, gain, a_max, comfort, 1, self._steps, self._dt)
         rows = [hard, soft[BRAKE:]]
         if self._option:
-            rows.append(ego_plans(q0, v0, v_nom, gain, a_max, comfort, self._option_defer, self._steps,
-                                  self._dt)[DEFER:BRAKE])
+            rows += [ego_plans(q0, v0, v_nom, gain, a_max, comfort, self._option_defer, self._steps,
+                               self._dt)[DEFER:BRAKE], soft[BRAKE:]]
         return np.concatenate(rows)
 
     def layers_of(self, ego_pose: np.ndarray,
@@ -408,13 +435,19 @@ class LayeredRule(RiskRule):
 
     def _read(self, ego_pose: np.ndarray, futures: Futures | np.ndarray) -> tuple[list[float], bool]:
         """The probabilities of :meth:`layers_of` (and, with the option plan, of losing the
-        option: colliding going on and under :data:`OPTION`) and whether the ego is inside."""
+        option: colliding going on and under :data:`OPTION`, which for :class:`Futures` also
+        collides where it would stop past where the car merged ahead would stop from its full
+        brake, :func:`collision_masses`' RSS rows; and of slowing short of that distance, under
+        :data:`SLOW_RSS`; one predicted path is tested by its boxes only) and whether the ego
+        is inside."""
         q = self.map.ego_arc(ego_pose)
         plans = self.plans(ego_pose, q)
         if isinstance(futures, Futures):
+            rss = ((_RSS_ROWS, self.layers.comfort_brake, self._lane_from, self._lead_brake) if len(plans) > OPTION
+                   else (0, 1.0, 0, 1.0))  # the option rule's plans also end short of RSS behind a merged car
             m = collision_masses(futures.weight, futures.s, futures.v, futures.accel, futures.v_max,
                                  futures.delay, plans, self._dt, self.map.ds, self.map.q_lo, self.map.q_hi,
-                                 self.map.q_lo_ahead, -1, -1)
+                                 self.map.q_lo_ahead, -1, -1, *rss)
         else:
             m = self._path_masses(plans, np.asarray(futures, dtype=float))
         reading = _READ_OPTION if len(plans) > OPTION else _READ
@@ -484,18 +517,24 @@ class LayeredRule(RiskRule):
         read, inside = self._read(ego, futures)
         emergency, now, go, slow = read[:4]
         self._option_risk = read[OPTION] if self._option else math.nan
+        slow_rss = read[SLOW_RSS] if self._option else math.nan
         follow, gap, rss, need = self._follow(t, obs.poses)
         cfg = self.config
         a_now = (v - self._v_last) / dt if self._v_last is not None else 0.0  # [m/s^2] the ego's, last tick
         self._v_last = v
-        # Emergency (the full brake), held at least layers.dwell.
+        # Emergency (the full brake), held at least layers.dwell. With the option rule, also
+        # once the comfortable slowing, begun on an earlier tick, is likely (`anticipate`) to
+        # leave the ego short of the RSS distance behind the car merging ahead: the full brake
+        # until it no longer does (RSS's proper response, before that car is in the lane).
+        escalate = (self._option and self._slowing and gap == math.inf and not inside
+                    and slow_rss >= lay.anticipate and now <= slow_rss)
         if self._hard:
-            release = emergency < cfg.release or (inside and emergency < now)
+            release = (emergency < cfg.release or (inside and emergency < now)) and not escalate
             # Behind a car: only once the comfortable brake would stop it behind that car's stop.
             if release and gap >= rss and need <= lay.comfort_brake and t - self._hard_since >= lay.dwell - 1e-9:
                 self._hard = False
                 self._cap = max(a_now, -lay.comfort_brake)  # the ramp back starts below a hard brake
-        elif (emergency >= cfg.brake and now <= emergency) or gap < rss:
+        elif (emergency >= cfg.brake and now <= emergency) or gap < rss or escalate:
             self._hard, self._hard_since = True, t
         # Anticipation (the comfortable brake), with hysteresis and the same dwell, and only
         # while slowing is the safer of the two: an ego that slows into the conflict it
@@ -525,7 +564,8 @@ class LayeredRule(RiskRule):
             command = math.inf if cap >= self._max_accel else cap
         self.last = Assessment(deferred=emergency, brake=now, inside=inside, go=go)
         self.last_layers = Layers(emergency=emergency, emergency_now=now, go=go, slow=slow,
-                                  inside=inside, gap=gap, rss=rss, standoff=standoff, option=self._option_risk)
+                                  inside=inside, gap=gap, rss=rss, standoff=standoff, option=self._option_risk,
+                                  slow_rss=slow_rss)
         self.last_command = command
         return command
 
@@ -538,7 +578,8 @@ class LayeredRule(RiskRule):
         ``layers.anticipate_release`` or once slowing is riskier. Its risk is ``go`` with
         ``layers.anticipation = "go"``, and with ``"option"`` the probability of losing the
         option (a collision going on that going on ``option_time`` more would leave beyond
-        the comfortable brake: ``Layers.option``). A subclass decides on what it reads here
+        the comfortable brake, or short of the RSS distance behind the merged car:
+        ``Layers.option``). A subclass decides on what it reads here
         (the naive-caution baselines)."""
         lay = self.layers
         risk = self._option_risk if self._option else go
