@@ -80,7 +80,9 @@ def test_the_sensor_drops_a_car_out_of_sight_latency_ticks_back(scene):
     assert out2[1].tolist() == poses[1][1].tolist() and out2[0].tolist() == poses[2][0].tolist()
     assert (sensor.occluded, sensor.dropped) == (2, 0)
     fresh = Sensor(Sensing(occluded=True), scene.layout(), np.random.default_rng(0))
-    assert np.isnan(fresh.sense(poses[0], False, math.nan)[0][1]).all()  # not cast: out of sight
+    for bad in (math.nan, -0.1, 1.5):  # not cast, or not a share: refused, never a silently blind ego
+        with pytest.raises(ValueError, match="visible="):
+            fresh.sense(poses[0], False, bad)
 
 
 def test_occlusion_draws_what_the_sensor_always_draws(scene):

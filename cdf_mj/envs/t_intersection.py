@@ -340,8 +340,9 @@ class TIntersectionEnv(gym.Env[np.ndarray, np.ndarray]):
             a0, a1 = min(max(a0, lo0), hi0), min(max(a1, lo1), hi1)
         world = self.world
         tick = world.step(self.ego.drive(a0, a1))  # the acceleration brake_latency steps late
+        # After a collision the cars touch: the obstacle is in the ego's sight (visible 1).
         m = world.measure() if tick.collision is None else \
-            Measurement(t=world.t, poses=self.scene.poses(), obstacle_in_lane=tick.obstacle_in_lane)
+            Measurement(t=world.t, poses=self.scene.poses(), obstacle_in_lane=tick.obstacle_in_lane, visible=1.0)
         sensed = self._sense(m)
         if self._monitor is not None and tick.collision is None:
             self._observe(sensed)

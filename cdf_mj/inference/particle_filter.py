@@ -610,7 +610,10 @@ class ParticleFilter:
         if not seen.any() or seen.all():
             return  # the same likelihood for every particle: nothing to tell them apart
         logw = np.where(seen, self.logw + self._log_miss, self.logw)
-        logw = logw - logw.max()  # finite: a hidden particle keeps its (finite) log-weight
+        top = logw.max()
+        if not math.isfinite(top):  # every particle weighed out (miss = 0 and none hidden alive): no news
+            return
+        logw = logw - top  # finite: a hidden particle keeps its (finite) log-weight
         w, self._ess = kernels.normalise(logw)
         self.logw = _published(logw)
         self._mark_checked()

@@ -88,7 +88,8 @@ class CDFPlanner(DecidingPlanner):
         first tick), kept for the rule; then the particles propagated to the next tick.
 
         Without a measurement of the obstacle at the first tick, a filter whose sensor is
-        occluded starts with the obstacle waiting where its drivers wait, unseen (see
+        occluded starts with the obstacle where the ego cannot see it: coming down the side
+        road's hidden approach, or waiting at a hidden stop line (see
         :meth:`ParticleFilter.reset <cdf_mj.inference.particle_filter.ParticleFilter.reset>`);
         any other starts at its first measurement (a dropout tells nothing of where it is),
         its rule given no hypothesis until then."""

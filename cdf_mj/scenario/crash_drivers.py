@@ -47,6 +47,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+from types import MappingProxyType
 from typing import ClassVar
 
 import numpy as np
@@ -174,7 +175,8 @@ class CreeperParams(_CrashParams):
     restop_chance: tuple[float, float] = span(
         (0.2, 0.5), 0.0, 1.0, "1", "the chance this episode that it stops again at the end of its creep")
     restop_pause: tuple[float, float] = span(
-        (0.5, 1.5), 0.0, 60.0, "s", "a second stop as the world's hesitating driver's (obstacle.hesitation_pause)")
+        (1.0, 3.0), 0.0, 60.0, "s", "a second full stop, as long as a stop at a stop sign (1-3 s, as "
+                                    "gap-acceptance's dwell): an assumption, no study times a second stop")
 
     def _conflicts(self) -> list[str]:
         if self.creep_distance[1] > self.commit_distance[0]:
@@ -437,6 +439,7 @@ class CreeperDriver(_CrashDriver):
     def reset(self, layout: Layout, intent: int, rng: np.random.Generator) -> None:
         super().reset(layout, intent, rng)
         self.restops = bool(rng.random() < self._p["restop_chance"])  # this episode it stops again
+        self.params = MappingProxyType({**self.params, "restops": float(self.restops)})  # in the records
         self._restop_since: float | None = None  # [s] when it came to rest at the end of its creep
 
     def _act(self, t: float, x: float, v: float) -> float:

@@ -33,8 +33,9 @@ every tick your sensor does not see it (with ``record_trace=False``). The filter
 not seeing as information: each hypothesis of the other car that the ego's eye (the ``ego``
 car's :meth:`~cdf_mj.model.vehicle.CarGeometry.eye`) would have seen past the layout's
 buildings loses weight (:data:`~cdf_mj.inference.particle_filter.MISS_PROBABILITY` per
-tick), a hidden one keeps it; before the first sight it starts with the other car waiting
-at the stop line (docs/OCCLUSION.md). Without it a NaN is a dropout, which tells nothing.
+tick), a hidden one keeps it; before the first sight it starts with the other car where
+the ego cannot see it: coming down the side road's hidden approach, or waiting at a hidden
+stop line (docs/OCCLUSION.md). Without it a NaN is a dropout, which tells nothing.
 
 ``planner=`` (of both) puts another registered planner in the CDF's place, to compare
 them on your testbed as the package's tables do: ``CDFMonitor(layout, planner="imm-layered")``,
@@ -302,7 +303,8 @@ class CDFMonitor:
         skips its weighing and only predicts, as the ``cdf`` planner does; with
         ``scenario.sensing.occluded`` it is the ego's not seeing the other car, which
         weighs the hypotheses the ego would have seen down (and may be the first call: the
-        filter then starts with the other car unseen at the stop line). Taken only with
+        filter then starts with the other car unseen: on the side road's hidden approach, or at
+        a hidden stop line). Taken only with
         ``record_trace=False`` (a trace file holds measured poses).
         ValueError, with nothing changed, for a pose that is not 4 finite numbers, a time
         that is not finite or goes back, or a time ``dt`` away from the last one.

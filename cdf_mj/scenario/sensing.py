@@ -66,11 +66,15 @@ class Sensor:
         """The planner's system pose ``(2, 4)`` and whether the measured obstacle is in the
         ego's lane, from the true ones of this tick, and, read only with ``occluded``
         sensing, the share [0, 1] of the obstacle's sight points the ego's sensor sees on it
-        (``Measurement.visible``; 0, or NaN: not known, is out of sight). Returns the inputs
-        themselves with perfect sensing."""
+        (``Measurement.visible``; 0: out of sight). Returns the inputs themselves with perfect
+        sensing. ValueError with ``occluded`` sensing and a ``visible`` that is not in [0, 1]
+        (NaN included: a caller that does not know must not blind the ego silently)."""
         s = self.sensing
         if s.perfect:
             return poses, in_lane
+        if s.occluded and not 0.0 <= visible <= 1.0:
+            raise ValueError(f"Sensor.sense: visible={visible!r} must be the share in [0, 1] of the obstacle's "
+                             "sight points the ego sees (sensing.occluded: World.measure() gives it)")
         self._past.append((np.array(poses[1], dtype=float), in_lane, bool(visible > 0.0)))
         obstacle, seen_in_lane, in_sight = self._past[0]  # latency ticks old (the oldest kept)
         u = self.rng.random()
