@@ -11,8 +11,12 @@ from __future__ import annotations
 import dataclasses
 import importlib.util
 import math
+import multiprocessing
+import os
 import shutil
 import sys
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,6 +27,7 @@ from cdf_mj.model.modes import COMMITTED, GOING, LEFT, RIGHT, WAITING, YIELDING
 from cdf_mj.model.road import in_lane
 from cdf_mj.scenario import sumo_driver
 from cdf_mj.scenario.drivers import GapAcceptanceParams
+from cdf_mj.scenario.episode import run_episode
 from cdf_mj.scenario.sumo_driver import FEATURE, SumoDriver, SumoError, SumoParams, build_network
 from tests.junctions import junction_scene
 
@@ -261,9 +266,121 @@ def test_make_driver_gives_the_sumo_family():
 
 
 def test_an_episode_in_the_world_is_deterministic(scene):
-    from cdf_mj.scenario.episode import run_episode
-
     config = ScenarioConfig().with_values({"obstacle.family": "sumo"})
     a = run_episode(config, seed=5, planner="constant", scene=scene, trace=True)
     b = run_episode(config, seed=5, planner="constant", scene=scene, trace=True)
     assert a.to_dict() == b.to_dict()
+
+
+# ------------------------------------------------------------------- processes
+SUMO_WORLD = ScenarioConfig().with_values({"obstacle.family": "sumo"})
+_SCENE = None  # a worker's scene: inherited from the test process when forked, loaded when spawned
+
+
+def _record(seed: int) -> tuple[dict, int, str]:
+    """A worker's SUMO episode of ``seed`` with its trace; its process id and SUMO folder."""
+    global _SCENE
+    if _SCENE is None:
+        from cdf_mj.sim.scene import Scene
+
+        _SCENE = Scene.load()
+    rec = run_episode(SUMO_WORLD, seed=seed, planner="constant", scene=_SCENE, trace=True).to_dict()
+    return rec, os.getpid(), str(sumo_driver._Simulation.folder)
+
+
+def test_forked_workers_give_a_fresh_process_s_records(scene):
+    """A process that ran a SUMO episode (its simulation open, its folder made) forks two
+    workers: each starts its own SUMO and folder (no worker loads another's route file),
+    gives each seed the record of a fresh process, and removes its folder as it leaves."""
+    global _SCENE
+    seeds = [3, 4, 5, 6, 7, 8]
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as fresh:
+        reference = [r for r, _, _ in fresh.map(_record, seeds)]
+    _SCENE = scene
+    run_episode(SUMO_WORLD, seed=0, planner="constant", scene=scene)  # SUMO open in this process
+    parent = sumo_driver._Simulation.folder
+    assert parent is not None and parent.is_dir()
+    with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("fork")) as pool:
+        results = list(pool.map(_record, seeds))
+    assert [r for r, _, _ in results] == reference
+    folders = {(pid, folder) for _, pid, folder in results}
+    assert len({pid for pid, _ in folders}) == len({folder for _, folder in folders}) > 1  # one folder a worker
+    assert str(parent) not in {folder for _, folder in folders}
+    assert not any(Path(folder).exists() for _, folder in folders)  # removed as each worker left
+    assert parent.is_dir() and len(list(parent.glob("*.rou.xml"))) == 1  # this process's: its last episode's
+    assert run_episode(SUMO_WORLD, seed=3, planner="constant", scene=scene, trace=True).to_dict() == reference[0]
+
+
+_LOADED: SumoDriver | None = None  # an episode loaded in the test process, seen by a forked worker
+
+
+def _step_inherited(_: int) -> str:
+    assert _LOADED is not None
+    try:
+        _LOADED.control(DT, np.array(_LOADED.start), np.array([EGO_X, -1.85, 0.0, EGO_SPEED]), DT)
+    except RuntimeError as exc:
+        return str(exc)
+    return "stepped"
+
+
+def test_a_forked_process_refuses_an_episode_loaded_before_the_fork(layout):
+    global _LOADED
+    _LOADED = driver = SumoDriver()
+    driver.reset(layout, LEFT, np.random.default_rng(0))
+    driver.control(0.0, np.array(driver.start), np.array([EGO_X, -1.85, 0.0, EGO_SPEED]), DT)
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("fork")) as pool:
+        message = pool.submit(_step_inherited, 0).result()
+    assert message.startswith(f"this SUMO episode was loaded in process {os.getpid()}, not this one"), message
+    driver.control(DT, np.array(driver.start), np.array([EGO_X, -1.85, 0.0, EGO_SPEED]), DT)  # here it goes on
+
+
+# -------------------------------------------------------------- SUMO's errors
+@pytest.mark.parametrize("first", [True, False])
+def test_an_ego_faster_than_the_road_joins_sumo(layout, first):
+    """An ego above SUMO's 13.89 m/s road limit (the falsification space's egos reach 18 m/s)
+    enters SUMO at the limit, on the first tick or later, and has its own speed after."""
+    import libsumo
+
+    driver = SumoDriver()
+    driver.reset(layout, LEFT, np.random.default_rng(0))
+    fast = np.array([EGO_X, -1.85, 0.0, 18.0])
+    pose = np.array(driver.start)
+    for k in range(3):
+        driver.control(k * DT, pose, fast if first or k else None, DT)
+    assert libsumo.vehicle.getSpeed(sumo_driver.EGO) == pytest.approx(18.0)
+
+
+@pytest.mark.parametrize("first", [True, False])
+def test_a_car_sumo_refuses_is_a_sumo_error(layout, scene, monkeypatch, first):
+    """SUMO refusing the ego (here: no limit on its entry speed, so that SUMO's own check
+    refuses it), at the load's first step or when it joins later, is one SumoError line."""
+    driver = SumoDriver()
+    driver.reset(layout, LEFT, np.random.default_rng(0))
+    monkeypatch.setattr(sumo_driver, "ROAD_SPEED", 100.0)  # after reset: the network is as before
+    fast, pose = np.array([EGO_X, -1.85, 0.0, 18.0]), np.array(driver.start)
+    if not first:
+        driver.control(0.0, pose, None, DT)  # SUMO's ego joins on the next tick
+    with pytest.raises(SumoError) as info:
+        driver.control(0.0 if first else DT, pose, fast, DT)
+    message = str(info.value)
+    what = "SUMO failed to insert the cars at t=0.0 s" if first else "SUMO cannot add the ego at x=-40.8 m"
+    assert message.startswith(what) and "too high for the departure edge 'ego_in'" in message, message
+    assert "\n" not in message
+    monkeypatch.undo()  # the process's SUMO loads the next episode as before
+    assert run(scene, RIGHT, seed=0, ticks=5).driver.sumo_state is not None
+
+
+# ------------------------------------------------------------ the network cache
+def test_networks_are_cached_in_the_users_cache_folder(layout, tmp_path, monkeypatch):
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    own = layout.with_cars(obstacle=layout.obstacle.padded(0.3))  # a Layout object not yet seen
+    net = build_network(own)
+    assert net.net_file.is_file() and net.directory.parent == tmp_path / "cdf_mj" / "sumo"
+    monkeypatch.setenv("XDG_CACHE_HOME", "relative/path")  # not absolute: ignored, as the XDG spec says
+    assert sumo_driver._cache_root() == Path.home() / ".cache" / "cdf_mj" / "sumo"
+    (tmp_path / "file").write_text("")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "file"))
+    with pytest.raises(SumoError) as info:
+        build_network(layout.with_cars(obstacle=layout.obstacle.padded(0.3)))
+    assert str(info.value).startswith(f"cannot make SUMO's network cache {tmp_path / 'file'}/cdf_mj/sumo/")
+    assert str(info.value).endswith("set XDG_CACHE_HOME to a folder of yours")

@@ -42,9 +42,12 @@ axle past the layout's commit point).
 and SUMO's ``--seed``, from the episode's generator: the same seed gives the same poses.
 
 libsumo runs one simulation per process: it starts once, each episode loads the network
-anew (on the first tick, when the tick length is known), and it closes at exit. Two SUMO
-worlds in one process cannot run at once (a RuntimeError says so); parallel experiments run
-one per worker process.
+anew (on the first tick, when the tick length is known) with a route file of its own, and it
+closes at exit, pool workers' exits included. Two SUMO worlds in one process cannot run at
+once (a RuntimeError says so); parallel experiments run one per worker process. A forked
+process (a pool worker of a parent that ran SUMO episodes) starts its own simulation and
+temporary folder at its first episode; an episode loaded before the fork is refused there.
+Networks are cached in the user's cache folder (``$XDG_CACHE_HOME/cdf_mj/sumo``).
 
 World frame (x east, y north), metres, seconds, radians; poses are rear-axle
 ``[x, y, theta, v]``. SUMO's angles are navigational (degrees clockwise from north).
@@ -57,6 +60,7 @@ import contextlib
 import hashlib
 import json
 import math
+import multiprocessing.util
 import os
 import shutil
 import subprocess
@@ -267,9 +271,13 @@ class SumoNetwork:
 
 
 def _cache_root() -> Path:
-    """Where networks are kept: a folder of the system's temporary directory, per user."""
-    uid = os.getuid() if hasattr(os, "getuid") else 0
-    return Path(tempfile.gettempdir()) / f"cdf_mj-sumo-{uid}"
+    """Where networks are kept: this user's cache folder, ``$XDG_CACHE_HOME/cdf_mj/sumo``
+    (``~/.cache/cdf_mj/sumo`` where ``XDG_CACHE_HOME`` is unset or not absolute, as the XDG
+    base directory specification has it). Not the shared temporary directory: there another
+    user could make the folder first and hand this process networks of theirs."""
+    base = os.environ.get("XDG_CACHE_HOME", "")
+    root = Path(base) if os.path.isabs(base) else Path.home() / ".cache"
+    return root / "cdf_mj" / "sumo"
 
 
 def _plain_xml(layout: Layout) -> tuple[dict[str, str], dict[str, Any]]:
@@ -412,7 +420,11 @@ def build_network(layout: Layout) -> SumoNetwork:
     folder = _cache_root() / key
     net = folder / "net.net.xml"
     if not net.is_file():
-        folder.mkdir(parents=True, exist_ok=True)
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise SumoError(f"cannot make SUMO's network cache {folder} ({exc.strerror}): set XDG_CACHE_HOME to a "
+                            "folder of yours") from None
         _netconvert(files, folder)
     network = SumoNetwork(net_file=net, directory=folder,
                           routes=(("ego_in", "ego_out"), ("side_in", "ego_out"), ("side_in", "right_out")),
@@ -458,15 +470,51 @@ def _netconvert(files: Mapping[str, str], folder: Path) -> None:
 
 # ---------------------------------------------------------------------------- simulation
 class _Simulation:
-    """The process's one libsumo simulation: started once, loaded per episode, closed at exit."""
+    """The process's one libsumo simulation: started once per process, loaded per episode,
+    closed at exit (``atexit``, and :class:`multiprocessing.util.Finalize` for pool workers,
+    which leave with ``os._exit``).
 
-    started = False
-    owner: object | None = None  # the episode that loaded it last
-    folder: Path | None = None  # per process: the episodes' route files
+    The state is per process (:attr:`pid`): a forked child (a pool worker of a parent that
+    ran SUMO episodes) inherits the parent's, and on its first load starts afresh, with a
+    folder of its own and ``libsumo.start``. libsumo runs no threads of its own, so the
+    child's memory holds an intact copy of the parent's simulation; ``libsumo.start`` closes
+    that copy and loads anew (the same seed gives the same poses as in a fresh process,
+    tests/test_sumo.py). The child never steps the copy (:meth:`owns`) and never removes the
+    parent's folder (:meth:`close`).
+    """
+
+    pid: ClassVar[int] = -1  # the process the state below belongs to
+    started: ClassVar[bool] = False
+    owner: ClassVar[object | None] = None  # the episode that loaded it last
+    folder: ClassVar[Path | None] = None  # this process's: the episodes' route files, SUMO's messages
+    route: ClassVar[Path | None] = None  # the route file of the loaded episode (SUMO reads it as it runs)
 
     @classmethod
-    def load(cls, libsumo: ModuleType, args: list[str], owner: object) -> None:
-        log = cls.route_file().with_name("sumo.stderr")  # SUMO's own messages of a load, read if it fails
+    def _here(cls) -> None:
+        """This process's state: after a fork, the child's starts empty."""
+        if cls.pid != os.getpid():
+            cls.pid, cls.started, cls.owner, cls.folder, cls.route = os.getpid(), False, None, None, None
+
+    @classmethod
+    def owns(cls, owner: object) -> bool:
+        """Whether ``owner``'s episode is the one loaded in this process's simulation."""
+        cls._here()
+        return owner is not None and cls.owner is owner
+
+    @classmethod
+    def load(cls, libsumo: ModuleType, routes: str, args: list[str], owner: object) -> None:
+        """Load an episode: ``routes`` (a route file's text) into a route file of its own,
+        then SUMO with ``args`` and that file; the previous episode's file is removed.
+        SumoError (one line, SUMO's first error) when SUMO refuses."""
+        cls._here()
+        if cls.folder is None:
+            cls.folder = Path(tempfile.mkdtemp(prefix="cdf_mj-sumo-episode-"))
+        fd, name = tempfile.mkstemp(prefix="episode-", suffix=".rou.xml", dir=cls.folder)
+        with os.fdopen(fd, "w", encoding="utf-8") as out:
+            out.write(routes)
+        previous, cls.route, cls.owner = cls.route, Path(name), None
+        log = cls.folder / "sumo.stderr"  # SUMO's own messages of a load, read if it fails
+        args = [*args, "--route-files", name]
         try:
             with _stderr_to(log):
                 if cls.started:
@@ -474,29 +522,46 @@ class _Simulation:
                 else:
                     libsumo.start(["sumo", *args])
                     cls.started = True
-                    atexit.register(cls.close, libsumo)
+                    cls._close_at_exit(libsumo)
         except (libsumo.TraCIException, libsumo.FatalTraCIError) as exc:
-            cls.owner = None
             text = log.read_text(encoding="utf-8", errors="replace") if log.is_file() else ""
             why = _first_error(text) or " ".join(str(exc).split())
             raise SumoError(f"SUMO could not load the episode: {why}") from None
+        finally:
+            if previous is not None:  # SUMO closed the previous episode (even when this load failed)
+                previous.unlink(missing_ok=True)
         cls.owner = owner
 
     @classmethod
+    def _close_at_exit(cls, libsumo: ModuleType) -> None:
+        """:meth:`close` at this process's exit, once: at the interpreter's exit, and at a
+        multiprocessing worker's (whose finalizers run before its ``os._exit``)."""
+        atexit.unregister(cls.close)  # one inherited from the parent, if any
+        atexit.register(cls.close, libsumo)
+        multiprocessing.util.Finalize(None, cls.close, args=(libsumo,), exitpriority=10)
+
+    @classmethod
     def close(cls, libsumo: ModuleType) -> None:
+        """Close this process's simulation and remove its folder; nothing in a process that
+        only inherited them."""
+        if cls.pid != os.getpid():
+            return
         if cls.started:
             cls.started, cls.owner = False, None
             with contextlib.suppress(Exception):  # already closed: nothing to do at exit
                 libsumo.close()
         if cls.folder is not None:
             shutil.rmtree(cls.folder, ignore_errors=True)
-            cls.folder = None
+            cls.folder = cls.route = None
 
-    @classmethod
-    def route_file(cls) -> Path:
-        if cls.folder is None:
-            cls.folder = Path(tempfile.mkdtemp(prefix="cdf_mj-sumo-episode-"))
-        return cls.folder / "episode.rou.xml"
+
+@contextlib.contextmanager
+def _sumo_errors(libsumo: ModuleType, what: str) -> Iterator[None]:
+    """libsumo's exceptions inside as :class:`SumoError`: ``what`` and SUMO's message, on one line."""
+    try:
+        yield
+    except (libsumo.TraCIException, libsumo.FatalTraCIError) as exc:
+        raise SumoError(f"{what}: {' '.join(str(exc).split())}") from None
 
 
 @contextlib.contextmanager
@@ -554,6 +619,7 @@ class SumoDriver:
         self.sumo_state: tuple[str, float, float, float, float, float] | None = None
         self._p: dict[str, float] = {}
         self._token: object | None = None
+        self._pid = -1  # the process that loaded this episode
 
     @property
     def looking(self) -> bool:
@@ -600,25 +666,27 @@ class SumoDriver:
         """Its controls ``(acceleration m/s^2, steering rad)`` for the tick from ``t`` [s],
         from its own pose ``[x, y, theta, v]`` and the ego's true pose (None: SUMO carries
         its ego on at the speed it was last given), within the car's limits; one SUMO step
-        of ``dt`` [s]; updates :attr:`mode`. RuntimeError before :meth:`reset` or when
-        another SUMO episode has loaded this process's simulation since; ValueError for a
-        ``dt`` other than the episode's first; :class:`SumoError` when SUMO fails."""
+        of ``dt`` [s]; updates :attr:`mode`. RuntimeError before :meth:`reset`, when
+        another SUMO episode has loaded this process's simulation since, or in a process
+        forked after the episode loaded; ValueError for a ``dt`` other than the episode's
+        first; :class:`SumoError` when SUMO fails (every libsumo error, on one line)."""
         if not self._p:
             raise RuntimeError("call reset(layout, intent, rng) before control()")
         libsumo = _libsumo()
         if self._token is None:
             self._load(libsumo, ego, dt)
-        elif _Simulation.owner is not self._token:
+        elif self._pid != os.getpid():
+            raise RuntimeError(f"this SUMO episode was loaded in process {self._pid}, not this one ({os.getpid()}): "
+                               "reset() the driver in the process that runs it")
+        elif not _Simulation.owns(self._token):
             raise RuntimeError("another SUMO episode has loaded this process's one SUMO simulation since this one "
                                "started: run one SUMO world at a time per process")
         elif abs(dt - self._dt) > 1e-9:
             raise ValueError(f"dt={dt} s: this episode's SUMO steps {self._dt} s")
         if ego is not None:
             self._place_ego(libsumo, ego, dt)
-        try:
+        with _sumo_errors(libsumo, f"SUMO failed to step at t={t:.1f} s"):
             libsumo.simulationStep()
-        except libsumo.TraCIException as exc:
-            raise SumoError(f"SUMO failed to step at t={t:.1f} s: {' '.join(str(exc).split())}") from None
         return self._follow(libsumo, pose, dt)
 
     def _load(self, libsumo: ModuleType, ego: np.ndarray | None, dt: float) -> None:
@@ -631,14 +699,13 @@ class SumoDriver:
         if not self._net.net_file.is_file():  # the cache was cleared under a running process: build it again
             _NETWORKS.pop(id(self._layout), None)
             self._net = build_network(self._layout)
-        route = _Simulation.route_file()
-        route.write_text(self._routes(ego), encoding="utf-8")
         token = object()
-        args = ["--net-file", str(self._net.net_file), "--route-files", str(route), "--step-length", repr(dt),
-                "--seed", str(int(self._p["seed"])), *_SUMO_OPTIONS]
-        _Simulation.load(libsumo, args, token)
-        self._token = token
-        libsumo.simulationStep()  # inserts both cars where they start: SUMO's state of t = 0
+        args = ["--net-file", str(self._net.net_file), "--step-length", repr(dt), "--seed", str(int(self._p["seed"])),
+                *_SUMO_OPTIONS]
+        _Simulation.load(libsumo, self._routes(ego), args, token)
+        self._token, self._pid = token, os.getpid()
+        with _sumo_errors(libsumo, "SUMO failed to insert the cars at t=0.0 s"):
+            libsumo.simulationStep()  # inserts both cars where they start: SUMO's state of t = 0
         if OBSTACLE not in libsumo.vehicle.getIDList():
             raise SumoError("SUMO did not insert the obstacle at its start")
         if ego is not None:
@@ -673,16 +740,18 @@ class SumoDriver:
 
     def _ego_depart(self, ego: np.ndarray) -> tuple[float, float]:
         """Where the ego's front bumper is along SUMO's first ego edge [m] (within it), and its
-        speed [m/s]."""
+        speed [m/s], at most the road's limit (SUMO refuses a car that enters faster; the next
+        tick's ``setSpeed`` gives it its own)."""
         x, y, th, v = (float(c) for c in ego)
         fx, fy = x + self._ego_front * math.cos(th), y + self._ego_front * math.sin(th)
         s = self._net.ego_lane.project_point(fx, fy)[0]
-        return min(max(s, 0.1), self._net.ego_entry - 0.1), max(v, 0.0)
+        return min(max(s, 0.1), self._net.ego_entry - 0.1), min(max(v, 0.0), ROAD_SPEED)
 
     def _ego_added(self, libsumo: ModuleType) -> None:
         """Hand the ego's SUMO car to the world: no checks of SUMO's own on its speed, no lane changes."""
-        libsumo.vehicle.setSpeedMode(EGO, 0)
-        libsumo.vehicle.setLaneChangeMode(EGO, 0)
+        with _sumo_errors(libsumo, "SUMO cannot hand the ego to the world"):
+            libsumo.vehicle.setSpeedMode(EGO, 0)
+            libsumo.vehicle.setLaneChangeMode(EGO, 0)
         self._ego_in = True
 
     def _place_ego(self, libsumo: ModuleType, ego: np.ndarray, dt: float) -> None:
@@ -694,15 +763,13 @@ class SumoDriver:
         run = max(v, 0.0) * dt + self._ego_front
         if not self._ego_in:  # first seen on this tick: it joins SUMO on its road
             pos, speed = self._ego_depart(ego)
-            libsumo.vehicle.add(EGO, "ego", typeID="ego", depart="now", departPos=f"{pos:.3f}",
-                                departSpeed=f"{speed:.3f}")
+            with _sumo_errors(libsumo, f"SUMO cannot add the ego at x={x:.1f} m, y={y:.1f} m, v={v:.1f} m/s"):
+                libsumo.vehicle.add(EGO, "ego", typeID="ego", depart="now", departPos=f"{pos:.3f}",
+                                    departSpeed=f"{speed:.3f}")
             self._ego_added(libsumo)
-        try:
+        with _sumo_errors(libsumo, f"SUMO cannot place the ego at x={x:.1f} m, y={y:.1f} m"):  # off SUMO's roads
             libsumo.vehicle.moveToXY(EGO, "", 0, x + run * c, y + run * s, 90.0 - math.degrees(th), 1)
             libsumo.vehicle.setSpeed(EGO, max(v, 0.0))
-        except libsumo.TraCIException as exc:  # the ego is off SUMO's roads
-            raise SumoError(f"SUMO cannot place the ego at x={x:.1f} m, y={y:.1f} m: {' '.join(str(exc).split())}"
-                            ) from None
 
     def _follow(self, libsumo: ModuleType, pose: np.ndarray, dt: float) -> tuple[float, float]:
         """The MuJoCo car's controls towards SUMO's car after this step, and the mode."""
