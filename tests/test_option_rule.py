@@ -37,7 +37,7 @@ def test_cdf_option_is_registered_with_the_option_rule_and_keeps_the_rest_of_a_g
     planner = make_planner("cdf-option")
     assert isinstance(planner, OptionCDFPlanner) and planner.name == "cdf-option"
     lay = planner.cdf.layered
-    assert (lay.anticipation, lay.option_time, lay.anticipate) == ("option", 0.5, 0.9)
+    assert (lay.anticipation, lay.option_time, lay.anticipate) == ("option", 1.0, 0.9)
     given = CDFConfig(n_particles=300, layered=LayeredConfig(comfort_brake=2.0, anticipate=0.2,
                                                              anticipate_release=0.1))
     built = OptionCDFPlanner(given)
