@@ -12,14 +12,15 @@ right      a Right episode: the same, for a car that turns away
 slows      a Cutoff episode the option rule slowed for before any hard brake
 brakes     a Cutoff episode whose first hard brake the emergency layer called (its risk at
            or above ``RiskConfig.brake`` then): the comfortable brake's option was gone
-rss        a Cutoff episode whose first hard brake the follow layer called: the car merged
-           ahead closer than the RSS distance while the option was, by box overlap alone,
-           still open
+rss        a Cutoff episode whose first hard brake the emergency layer did not call: the RSS
+           distance behind a car merging ahead did (the option rule's escalation before the
+           car is in the lane, or the follow layer once it is)
 =========  ================================================================================
 
 Each picture has three panels against time [s]: the filter's P(left), P(seen) and P(cutoff)
 with the option risk (P(a collision going on that ``option_time`` more would leave beyond
-the comfortable brake)) and the rule's threshold; the planner's command beside the ego's own
+the comfortable brake, or short of the RSS distance behind a car merging ahead)) and the
+rule's threshold; the planner's command beside the ego's own
 controller's acceleration [m/s^2], with the ticks it intervened shaded; both cars' speeds
 [m/s] beside the same seed's ``constant`` ego::
 
@@ -68,7 +69,7 @@ PICTURES: dict[str, tuple[str, Callable[[EpisodeRecord], bool]]] = {
               lambda r: r.label == "Cutoff" and _intervened(r) and r.brake_time is None and not r.collision),
     "brakes": ("Cutoff: the emergency layer brakes hard",
                lambda r: _first_brake_risk(r) is not None and _first_brake_risk(r) >= RiskConfig().brake),
-    "rss": ("Cutoff: the merged car is inside the RSS distance, the follow layer brakes hard",
+    "rss": ("Cutoff: a car merging ahead, the full brake for the RSS distance",
             lambda r: _first_brake_risk(r) is not None and _first_brake_risk(r) < RiskConfig().brake),
 }
 
