@@ -433,6 +433,7 @@ class CreeperDriver(_CrashDriver):
     at the end of its creep whatever it saw, stands ``restop_pause`` and only then judges."""
 
     family = "creeper"
+    extra_draws = ("restops",)  # 1: it stops again at the end of its creep this episode, 0: it does not
     Params = CreeperParams
     accepts = CreeperParams
 

@@ -294,6 +294,8 @@ class _Driver:
 
     family: str  # set per class (an instance attribute to the protocol)
     Params: ClassVar[type[FamilyParams]]
+    # Draws of ``params`` beside the ranges of ``Params`` (each a float, e.g. 1 or 0 for a yes/no draw)
+    extra_draws: ClassVar[tuple[str, ...]] = ()
     accepts: ClassVar[type[FamilyParams]]
     sight: ClassVar[str] = "line"  # what the world shows it of the ego (SIGHTS; see WorldDriver)
 
