@@ -62,7 +62,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from cdf_mj.analysis.metrics import Rate, mcnemar_exact, of_planner, paired_counts, planner_metrics
+from cdf_mj.analysis.metrics import PlannerMetrics, Rate, mcnemar_exact, of_planner, paired_counts, planner_metrics
 from cdf_mj.analysis.pages import ScriptParser, command_line, markdown_table, verdict, write_page
 from cdf_mj.analysis.pareto import (
     DECIDERS,
@@ -227,7 +227,7 @@ def _targets_of(run: PresetRun, planner: str) -> list[str]:
     return lines
 
 
-def _family_targets(m: Any, hits: Rate) -> list[str]:
+def _family_targets(m: PlannerMetrics, hits: Rate) -> list[str]:
     """Markdown bullets: issue 36's targets on a family that cuts off (point estimates)."""
     others = m.episodes - m.imminent
     hard, iv = Rate(m.false_alarms.k, others), m.false_interventions
