@@ -16,12 +16,13 @@ import itertools
 import math
 import subprocess
 import sys
-from collections.abc import Callable
 from pathlib import Path
 from types import MappingProxyType
 
+import driver_loop
 import numpy as np
 import pytest
+from driver_loop import EGO_SPEED, always, progress
 
 from cdf_mj.config import DRIVER_FAMILIES, ScenarioConfig
 from cdf_mj.model.driver import DriverModel, Intent
@@ -54,9 +55,14 @@ from cdf_mj.scenario.world import World
 from cdf_mj.sim.visibility import visible_share
 
 CRASH = ("looked-but-failed", "misjudged-speed", "distracted", "creeper")
-DT = 0.1  # [s]
-EGO_SPEED = 13.4  # [m/s]
+
 SEEDS = range(40)  # the real world's seeds for the shares
+
+
+def run(layout, driver: WorldDriver, intent: int = LEFT, **kwargs) -> driver_loop.Run:
+    """:func:`driver_loop.run` as the world shows a crash family the ego: only on the ticks
+    it looks (8 s by default)."""
+    return driver_loop.run(layout, driver, intent, **{"seconds": 8.0, **kwargs}, only_looking=True)
 
 
 @pytest.fixture(scope="module")
@@ -89,51 +95,7 @@ def cutoffs(scene, family: str, seeds=SEEDS, params=None) -> list[bool]:
     return [world_run(scene, family, seed, params).collision == "obstacle" for seed in seeds]
 
 
-@dataclasses.dataclass
-class Run:
-    t: np.ndarray  # (K,) [s]
-    pose: np.ndarray  # (K, 4) the obstacle's pose at the start of each tick
-    mode: np.ndarray  # (K,) after its decision
-    looking: np.ndarray  # (K,) it looked on the tick
 
-    def first(self, mask: np.ndarray) -> float:
-        hits = np.flatnonzero(mask)
-        return float(self.t[hits[0]]) if len(hits) else math.inf
-
-
-def run(layout, driver: WorldDriver, intent: int = LEFT, *, seed: int = 0,
-        sight: Callable[[float], bool] = lambda t: False, seconds: float = 8.0, ego_shift: float = 0.0) -> Run:
-    """Closed loop of ``driver`` and a scripted ego ``ego_shift`` [m] ahead of its nominal start."""
-    driver.reset(layout, intent, np.random.default_rng(seed))
-    car, route = layout.obstacle, layout.route_ego
-    pose = np.array(driver.start, dtype=float)
-    s_ego = float(route.project(layout.ego_start[:2])[0]) + ego_shift
-    rows = []
-    for k in range(round(seconds / DT)):
-        t = round(k * DT, 9)
-        ahead = route.point_at(s_ego + 1.0) - route.point_at(s_ego)
-        ego = np.array([*route.point_at(s_ego), math.atan2(ahead[1], ahead[0]), EGO_SPEED])
-        looking = driver.looking
-        accel, steer = driver.control(t, pose.copy(), ego if sight(t) and looking else None, DT)
-        assert car.accel_range[0] - 1e-12 <= accel <= car.accel_range[1] + 1e-12
-        assert abs(steer) <= car.max_steer + 1e-12
-        rows.append((t, *pose, driver.mode, looking))
-        x, y, th, v = pose
-        pose = np.array([x + v * DT * math.cos(th), y + v * DT * math.sin(th),
-                         th + v * DT / car.wheelbase * math.tan(steer), max(v + accel * DT, 0.0)])
-        s_ego += EGO_SPEED * DT
-    a = np.array(rows)
-    return Run(t=a[:, 0], pose=a[:, 1:5], mode=a[:, 5].astype(int), looking=a[:, 6].astype(bool))
-
-
-def progress(layout, pose: np.ndarray) -> np.ndarray:
-    """[m] the rear axle past its stop position along the side road's direction."""
-    x0, y0, th0, _ = layout.obstacle_start
-    return (pose[:, 0] - x0) * math.cos(th0) + (pose[:, 1] - y0) * math.sin(th0)
-
-
-def always(t: float) -> bool:
-    return True
 
 
 # ---------------------------------------------------------------------------- registry

@@ -13,11 +13,11 @@ import dataclasses
 import math
 import subprocess
 import sys
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
+from driver_loop import DT, EGO_SPEED, always, progress, run
 
 from cdf_mj.model.modes import COMMITTED, GOING, LEFT, RIGHT, WAITING, YIELDING, Intent, Mode
 from cdf_mj.scenario import drivers
@@ -30,65 +30,10 @@ from cdf_mj.scenario.drivers import (
     make_driver,
 )
 
-DT = 0.1  # [s]
-EGO_SPEED = 13.4  # [m/s]
-
-
-def always(t: float) -> bool:
-    return True
-
-
-def never(t: float) -> bool:
-    return False
-
 
 @pytest.fixture(scope="module")
 def layout(scene):
     return scene.layout()
-
-
-@dataclasses.dataclass
-class Run:
-    t: np.ndarray  # (K,) [s]
-    pose: np.ndarray  # (K, 4) the obstacle's pose at the start of each tick
-    mode: np.ndarray  # (K,) after its decision
-    accel: np.ndarray  # (K,) [m/s^2] as commanded
-    ego_s: np.ndarray  # (K,) [m] the ego's rear axle along its route
-
-    def first(self, mask: np.ndarray) -> float:
-        """The first time where ``mask`` holds (inf if never)."""
-        hits = np.flatnonzero(mask)
-        return float(self.t[hits[0]]) if len(hits) else math.inf
-
-
-def run(layout, driver: WorldDriver, intent: int, *, seed: int = 0, sight: Callable[[float], bool] = never,
-        seconds: float = 10.0, ego_shift: float = 0.0) -> Run:
-    """Closed loop of ``driver`` and a scripted ego ``ego_shift`` [m] ahead of its nominal start."""
-    driver.reset(layout, intent, np.random.default_rng(seed))
-    car, route = layout.obstacle, layout.route_ego
-    pose = np.array(driver.start, dtype=float)
-    s_ego = float(route.project(layout.ego_start[:2])[0]) + ego_shift
-    rows = []
-    for k in range(round(seconds / DT)):
-        t = round(k * DT, 9)
-        ahead = route.point_at(s_ego + 1.0) - route.point_at(s_ego)
-        ego = np.array([*route.point_at(s_ego), math.atan2(ahead[1], ahead[0]), EGO_SPEED])
-        accel, steer = driver.control(t, pose.copy(), ego if sight(t) else None, DT)
-        assert car.accel_range[0] - 1e-12 <= accel <= car.accel_range[1] + 1e-12
-        assert abs(steer) <= car.max_steer + 1e-12
-        rows.append((t, *pose, driver.mode, accel, s_ego))
-        x, y, th, v = pose
-        pose = np.array([x + v * DT * math.cos(th), y + v * DT * math.sin(th),
-                         th + v * DT / car.wheelbase * math.tan(steer), max(v + accel * DT, 0.0)])
-        s_ego += EGO_SPEED * DT
-    a = np.array(rows)
-    return Run(t=a[:, 0], pose=a[:, 1:5], mode=a[:, 5].astype(int), accel=a[:, 6], ego_s=a[:, 7])
-
-
-def progress(layout, pose: np.ndarray) -> np.ndarray:
-    """[m] the rear axle past its stop position along the side road's direction."""
-    x0, y0, th0, _ = layout.obstacle_start
-    return (pose[:, 0] - x0) * math.cos(th0) + (pose[:, 1] - y0) * math.sin(th0)
 
 
 def ego_passed(layout) -> float:
