@@ -196,6 +196,21 @@ def _plain_masses(hyps: np.ndarray, plans: np.ndarray, dt: float, cmap: Any, laz
     return out
 
 
+def _random_case(rng: np.random.Generator, layout: Layout, rule: LayeredRule) -> tuple[np.ndarray, np.ndarray]:
+    """The rule's plans for an ego up to 45 m short of (or 2 m past) the conflict point at
+    0-15 m/s, and 40 random hypotheses around it: columns weight, arc length on the left
+    route [m], speed [m/s], acceleration [m/s^2], top speed [m/s], delay [s]."""
+    q_conflict = float(layout.route_ego.project(layout.conflict)[0])
+    s_conflict = float(layout.route_left.project(layout.conflict)[0])
+    ego = route_poses(layout.route_ego, np.array([q_conflict - rng.uniform(-2.0, 45.0)]))[0]
+    ego[3] = rng.uniform(0.0, 15.0)
+    n = 40
+    hyps = np.column_stack([rng.uniform(0.1, 1.0, n), s_conflict + rng.uniform(-20.0, 30.0, n),
+                            rng.uniform(0.0, 9.0, n), rng.uniform(-2.0, 3.0, n), rng.uniform(3.0, 16.0, n),
+                            rng.choice([0.0, 0.0, 0.4, 1.5, 9.0], n)])
+    return rule.plans(ego), hyps
+
+
 def test_the_compiled_rolls_equal_the_plain_rolls_exactly(layouts: dict[str, Layout]) -> None:
     """The kernel's shortcuts (a single plan left open rolls without the table while short of
     every overlap ahead) leave every mass as the plain tick-by-tick rolls give it, bit for
@@ -206,16 +221,8 @@ def test_the_compiled_rolls_equal_the_plain_rolls_exactly(layouts: dict[str, Lay
         rule = LayeredRule()
         rule.reset(PlannerContext.of(layout, config))
         cmap = rule.map
-        q_conflict = float(layout.route_ego.project(layout.conflict)[0])
-        s_conflict = float(layout.route_left.project(layout.conflict)[0])
         for trial in range(6):
-            ego = route_poses(layout.route_ego, np.array([q_conflict - rng.uniform(-2.0, 45.0)]))[0]
-            ego[3] = rng.uniform(0.0, 15.0)
-            plans = rule.plans(ego)
-            n = 40
-            hyps = np.column_stack([rng.uniform(0.1, 1.0, n), s_conflict + rng.uniform(-20.0, 30.0, n),
-                                    rng.uniform(0.0, 9.0, n), rng.uniform(-2.0, 3.0, n), rng.uniform(3.0, 16.0, n),
-                                    rng.choice([0.0, 0.0, 0.4, 1.5, 9.0], n)])
+            plans, hyps = _random_case(rng, layout, rule)
             for lazy, gate in ((-1, -1), (GO, DEFER)):
                 got = collision_masses(*(np.ascontiguousarray(c) for c in hyps.T), plans, config.timing.dt, cmap.ds,
                                        cmap.q_lo, cmap.q_hi, cmap.q_lo_ahead, lazy, gate)
@@ -240,17 +247,9 @@ def test_the_option_rows_rss_rolls_equal_the_plain_rolls_exactly(layouts: dict[s
         assert lane_entry(layout, math.radians(30.0)) >= lane_from  # a stricter heading: later in the turn
         with pytest.raises(ValueError, match=r"^lane_entry: within=-1\.0 must be in \[0, pi\]"):
             lane_entry(layout, -1.0)
-        q_conflict = float(layout.route_ego.project(layout.conflict)[0])
-        s_conflict = float(layout.route_left.project(layout.conflict)[0])
         for trial in range(6):
-            ego = route_poses(layout.route_ego, np.array([q_conflict - rng.uniform(-2.0, 45.0)]))[0]
-            ego[3] = rng.uniform(0.0, 15.0)
-            plans = rule.plans(ego)
+            plans, hyps = _random_case(rng, layout, rule)
             assert len(plans) == SLOW_RSS + 1
-            n = 40
-            hyps = np.column_stack([rng.uniform(0.1, 1.0, n), s_conflict + rng.uniform(-20.0, 30.0, n),
-                                    rng.uniform(0.0, 9.0, n), rng.uniform(-2.0, 3.0, n), rng.uniform(3.0, 16.0, n),
-                                    rng.choice([0.0, 0.0, 0.4, 1.5, 9.0], n)])
             rss = ((1 << OPTION) | (1 << SLOW_RSS), 2.5, lane_from, layout.obstacle.max_brake)
             got = collision_masses(*(np.ascontiguousarray(c) for c in hyps.T), plans, config.timing.dt, cmap.ds,
                                    cmap.q_lo, cmap.q_hi, cmap.q_lo_ahead, -1, -1, *rss)
