@@ -300,6 +300,22 @@ def test_the_option_is_lost_short_of_the_rss_distance_behind_a_merged_car(scene:
     assert len(go.plans(ego)) == OPTION and len(go._read(ego, near)[0]) == OPTION
 
 
+def test_the_escalation_has_its_own_threshold(scene: Scene) -> None:
+    """Seed 23 of the default world, a Yield whose driver is seen late: the option rule at
+    anticipate 0.5 slows from 0.5 s and, its escalation reading that threshold too, turns
+    the slowing into a hard brake at 0.6 s; with the escalation at 1.0 the same slowing
+    stays comfortable. An escalation threshold out of range is one clear error."""
+    def brake_time(escalate: float | None) -> float | None:
+        layers = LayeredConfig(anticipation="option", option_time=1.0, anticipate=0.5, anticipate_release=0.25,
+                               escalate=escalate)
+        return run_episode(ScenarioConfig(), 23, CDFPlanner(CDFConfig(layered=layers)), scene, label=False).brake_time
+
+    assert brake_time(None) is not None and brake_time(0.5) == brake_time(None)
+    assert brake_time(1.0) is None
+    with pytest.raises(ValueError, match="layered.escalate"):
+        LayeredConfig(escalate=1.5)
+
+
 def test_plans_brake_and_go_as_the_ego_would(scene: Scene) -> None:
     layout = scene.layout()
     rule = RiskRule()

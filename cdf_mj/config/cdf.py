@@ -183,11 +183,17 @@ class LayeredConfig:
     # slow once a collision going on has probability `anticipate`.
     anticipation: str = "go"
     option_time: float = bounded(1.0, 0.0, MAX_DURATION, "s")
+    # With "option": the probability of slowing short of the RSS distance behind the car
+    # merging ahead at which the slowing escalates to the full brake (None: `anticipate`,
+    # as before this field; docs/FRONTIER.md measures the rule with it apart).
+    escalate: float | None = None
 
     def __post_init__(self) -> None:
         validate(self, "layered.")
         _check(isinstance(self.anticipation, str) and self.anticipation in ANTICIPATIONS, "layered.anticipation",
                self.anticipation, " or ".join(map(repr, ANTICIPATIONS)))
+        _check(self.escalate is None or _within(self.escalate, 0.0, 1.0, open_low=True), "layered.escalate",
+               self.escalate, "None or in (0, 1] (a probability)")
         _check(self.anticipate_release <= self.anticipate, "layered.anticipate_release", self.anticipate_release,
                f"at most layered.anticipate = {self.anticipate} (hysteresis)")
         _check(self.comfort_brake < self.hard_brake, "layered.comfort_brake", self.comfort_brake,

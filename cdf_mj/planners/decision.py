@@ -295,7 +295,7 @@ class Layers:
     option: float = math.nan
     # P(collision going on that even the comfortable brake from now would leave short of the
     # RSS distance behind the merged car): with anticipation="option", the anticipation
-    # escalates to the full brake at `anticipate` once it slows (NaN with "go")
+    # escalates to the full brake at `escalate` (default `anticipate`) once it slows (NaN with "go")
     slow_rss: float = math.nan
 
 
@@ -327,7 +327,7 @@ class LayeredRule(RiskRule):
     as time at its nominal speed, twice the std). The follow layer reads the measured
     pose of a car ahead in the ego's lane. With the option rule the anticipation escalates
     to the full brake when, slowing since an earlier tick, the comfortable brake from now
-    is still likely (``anticipate``) to leave the ego short of that RSS distance behind the
+    is still likely (``layers.escalate``, by default ``anticipate``) to leave the ego short of that RSS distance behind the
     car merging ahead (:data:`SLOW_RSS`; ``Layers.slow_rss``), before that car is in the
     lane, where the follow layer would take over: RSS's proper response, brought forward
     by the belief; it holds until that is no longer likely (and the emergency layer's
@@ -393,6 +393,7 @@ class LayeredRule(RiskRule):
         self._lane_from = lane_entry(context.layout, FOLLOW_WITHIN) if self._option else 0
         self._lead_brake = context.layout.obstacle.max_brake
         self._option_risk = math.nan
+        self._escalate = lay.escalate if lay.escalate is not None else lay.anticipate
         self._cap = math.inf  # [m/s^2] the command now (its ramp is limited by comfort_jerk)
         self._hard = False  # the full brake is on
         self._hard_since = -math.inf
@@ -527,7 +528,7 @@ class LayeredRule(RiskRule):
         # leave the ego short of the RSS distance behind the car merging ahead: the full brake
         # until it no longer does (RSS's proper response, before that car is in the lane).
         escalate = (self._option and self._slowing and gap == math.inf and not inside
-                    and slow_rss >= lay.anticipate and now <= slow_rss)
+                    and slow_rss >= self._escalate and now <= slow_rss)
         if self._hard:
             release = (emergency < cfg.release or (inside and emergency < now)) and not escalate
             # Behind a car: only once the comfortable brake would stop it behind that car's stop.
