@@ -88,6 +88,28 @@ def _scene_args(args: argparse.Namespace) -> str:
     return shlex.join(words)
 
 
+def _estimated_rate(path: str | None) -> float | None:
+    """P(failure) of an ``estimate`` run (its directory or its estimate.json), for the
+    first failure's comparison with Monte Carlo; one line (CLIError) for a file that cannot
+    be read or holds no rate in (0, 1]."""
+    if path is None:
+        return None
+    from pathlib import Path
+
+    from cdf_mj.inputs import SETTINGS_MAX_BYTES, InputError, parse_json, read_text
+
+    file = Path(path) / "estimate.json" if Path(path).is_dir() else Path(path)
+    try:
+        data = parse_json(read_text(file, "estimate file", SETTINGS_MAX_BYTES), f"estimate file {file}")
+    except (InputError, ValueError, OSError) as exc:
+        raise CLIError(f"--estimate: {exc}") from None
+    p = data.get("p") if isinstance(data, dict) else None
+    if isinstance(p, bool) or not isinstance(p, (int, float)) or not 0.0 < p <= 1.0:
+        raise CLIError(f"--estimate: {file} holds no failure probability in (0, 1] (its 'p' is {p!r}): give the "
+                       "directory of a finished `cdf-mj estimate` that saw failures")
+    return float(p)
+
+
 def _cmd_falsify(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -95,6 +117,7 @@ def _cmd_falsify(args: argparse.Namespace) -> int:
 
     pool = pool_from_args(args)
     space = _space(args)
+    rate = _estimated_rate(args.estimate)
     with tqdm(total=args.episodes, unit="ep", desc=f"falsify {args.planner}", disable=args.quiet) as bar:
         def generation(g: Generation) -> None:
             bar.update(g.episodes - bar.n)
@@ -105,16 +128,20 @@ def _cmd_falsify(args: argparse.Namespace) -> int:
                 bar.write(f"{failures} failures: clustering, minimising and replaying them")
 
         result = falsify(space, args.planner, args.episodes, args.out, compare=args.compare or (), seed=args.seed,
-                         popsize=args.popsize, scene=args.scene, max_clusters=args.max_clusters,
+                         popsize=args.popsize, objective=args.objective, scene=args.scene,
+                         max_clusters=args.max_clusters,
                          figure=not args.no_figure, on_generation=generation, on_search_done=counterexamples,
                          scene_args=_scene_args(args), **pool)
     s = result.search
     first = f"first after {s.first_failure} episodes" if s.first_failure else "none within the budget"
+    if rate is not None:
+        first += f" (Monte Carlo expects one in {1 / rate:.0f} at the estimated rate {rate:.3g})"
     print(f"{len(s.failures)} failures of {args.planner} ({space.failure.text}) in {len(s.evaluations)} episodes; "
           f"{first}; {len(result.counterexamples)} counterexamples")
     for i, c in enumerate(result.counterexamples, 1):
         traits = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in c.changed.items())
-        print(f"  {i}. {len(c.members)} failures: {traits or 'the base world'} (seed {c.seed}): {c.path}")
+        print(f"  {i}. {len(c.members)} failures, log-likelihood {c.likeliest:.1f}: {traits or 'the base world'} "
+              f"(seed {c.seed}): {c.path}")
     print(f"wrote {result.out / 'report.md'}, {result.out / 'summary.json'}")
     if result.errors:
         print(f"{PROG}: {len(result.errors)} episodes raised (counted as no failure; in the search, the "
@@ -149,6 +176,8 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     ess = f"; effective sample size {result.ess:.1f}" if result.ess is not None else ""
     print(f"P({space.failure.text}) per encounter of {args.planner} on space {space.name}: {result.text()} "
           f"(95 %; {how}, {result.episodes} episodes, {result.failures} failures in the last {result.n}{ess})")
+    if result.p > 0:
+        print(f"at this rate plain Monte Carlo expects its first failure after {1 / result.p:.0f} episodes")
     print(f"wrote {args.out}/estimate.json")
     if result.errors:
         print(f"{PROG}: {result.errors} episodes raised (counted as no failure); see {args.out}/evaluations.jsonl",
@@ -182,7 +211,8 @@ def add_falsify(subparsers: argparse._SubParsersAction) -> None:
         summary="search a space of worlds for a planner's failures; counterexamples as presets",
         description="Search a declared space of worlds (driver family and traits, after-merge behaviour, the "
                     "ego's start, speed and sensing, ...) for episodes in which the planner fails, by CMA-ES "
-                    "on a continuous robustness; cluster and minimise the failures, replay them on the "
+                    "on a continuous robustness from the space's nominal (its first generation is a nominal "
+                    "sample); cluster and minimise the failures, list them likeliest first, replay them on the "
                     "--compare planners, and write OUT/report.md, OUT/summary.json, OUT/progress.png and "
                     "OUT/counterexamples/NN-seed-S.toml (replay: cdf-mj episode --preset FILE --seed S). "
                     "Killed, the same command goes on.")
@@ -191,6 +221,12 @@ def add_falsify(subparsers: argparse._SubParsersAction) -> None:
                    help="comma-separated planners to replay the counterexamples on, beside --planner")
     p.add_argument("--popsize", type=_popsize, default=None,
                    help="the first generation's candidates (default CMA-ES's 4 + 3 ln d; doubled at each restart)")
+    p.add_argument("--objective", choices=("robustness", "likely"), default="robustness",
+                   help="robustness: find failures (default); likely: then the likeliest failures under the "
+                        "space's nominal (every counterexample carries its log-likelihood either way)")
+    p.add_argument("--estimate", default=None, metavar="DIR|FILE",
+                   help="a `cdf-mj estimate` run of the same space and planner: the first failure is printed "
+                        "beside the episodes plain Monte Carlo expects at its rate")
     p.add_argument("--max-clusters", type=_clusters, default=12,
                    help="clusters of failures minimised and written (largest first; default 12)")
     p.add_argument("--no-figure", action="store_true", help="no progress figure (no matplotlib needed)")

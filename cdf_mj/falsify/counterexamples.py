@@ -5,6 +5,12 @@ on other planners, and written as preset files that ``cdf-mj episode`` and
 - **Clusters**: failures with the same choices (driver family, route, after-merge
   behaviour, whole-number latencies: every discrete dimension) form one cluster; its
   representative is its most severe failure (least robustness, then the first found).
+- **Likelihood**: every counterexample carries the nominal log-likelihood of its
+  representative's world and of its cluster's likeliest failure
+  (:meth:`SearchSpace.log_likelihood`), and the nominal probability of its choices (an
+  upper bound on the cluster's probability mass); the counterexamples are listed
+  likeliest first (the likeliest failure of each, then the choices' probability), so a
+  failure of everyday traffic comes before one that needs a rare corner of the space.
 - **Minimised**: each representative's options are put back to the base world's values
   one at a time, in the space's order, keeping each reset under which the same seed still
   fails, in passes until a pass puts none back (a one-minimal set: no single remaining
@@ -27,12 +33,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from cdf_mj.config import GROUPS, ScenarioConfig
 from cdf_mj.falsify.evaluate import Evaluation, Evaluator
 from cdf_mj.falsify.space import SearchSpace
 from cdf_mj.records import write_atomic
 
-__all__ = ["Counterexample", "cluster_failures", "find_counterexamples", "preset_text", "write_counterexamples"]
+__all__ = ["Counterexample", "choice_mass", "cluster_failures", "find_counterexamples", "preset_text", "write_counterexamples"]
 
 
 @dataclass
@@ -52,12 +60,31 @@ class Counterexample:
     # (None: the episode raised)
     others_members: dict[str, tuple[int, int]] = field(default_factory=dict)  # planner -> (fail, replayed)
     path: str | None = None
+    log_likelihood: float = math.nan  # of the representative's point under the space's nominal
+    likeliest: float = math.nan  # the largest of the cluster's failures'
+    choice_mass: float = math.nan  # the nominal probability of its choices (every discrete dimension)
 
     def to_dict(self) -> dict[str, Any]:
         return {"planner": self.planner, "seed": self.seed, "point": list(self.point), "keep": list(self.keep),
                 "changed": self.changed, "robustness": self.robustness, "summary": self.summary,
                 "cluster_size": len(self.members), "contact": self.contact, "others": self.others,
-                "others_members": {k: list(v) for k, v in self.others_members.items()}, "path": self.path}
+                "others_members": {k: list(v) for k, v in self.others_members.items()}, "path": self.path,
+                "log_likelihood": _finite_or_none(self.log_likelihood),
+                "likeliest": _finite_or_none(self.likeliest), "choice_mass": _finite_or_none(self.choice_mass)}
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def choice_mass(space: SearchSpace, point: Sequence[float]) -> float:
+    """The nominal probability of ``point``'s choices: the product of each discrete
+    dimension's nominal weight of its value."""
+    mass = 1.0
+    for d, x in zip(space.dims, point, strict=True):
+        if d.discrete:
+            mass *= float(np.exp(d.log_nominal(np.array([float(x)]))[0]))
+    return mass
 
 
 def _signature(space: SearchSpace, point: Sequence[float], keep: Sequence[str] = ()) -> tuple[Any, ...]:
@@ -128,7 +155,8 @@ def find_counterexamples(evaluator: Evaluator, planner: str, failures: Sequence[
                          compare: Sequence[str] = (), *, max_clusters: int = 12,
                          replay: int = 20) -> list[Counterexample]:
     """Cluster ``failures`` of ``planner``, minimise the ``max_clusters`` largest clusters'
-    representatives, merge those that minimise alike, and replay them on ``compare``."""
+    representatives, merge those that minimise alike, order them likeliest first (module
+    docstring) and replay them on ``compare``."""
     space = evaluator.space
     clusters = cluster_failures(space, failures)[:max_clusters]
     if not clusters:
@@ -143,7 +171,11 @@ def find_counterexamples(evaluator: Evaluator, planner: str, failures: Sequence[
         changed = {k: v for k, v in space.values(ev.point).items() if k not in keep}
         merged[sig] = Counterexample(planner, ev.seed, ev.point, keep, changed, ev.robustness, ev.summary,
                                      list(cluster))
-    out = sorted(merged.values(), key=lambda c: -len(c.members))
+    for c in merged.values():
+        c.log_likelihood = float(space.log_likelihood([c.members[0].point])[0])
+        c.likeliest = float(space.log_likelihood([m.point for m in c.members]).max())
+        c.choice_mass = choice_mass(space, c.members[0].point)
+    out = sorted(merged.values(), key=lambda c: (-c.likeliest, -c.choice_mass, -len(c.members)))
     for other in compare:
         got = evaluator.evaluate([(c.point, c.seed) for c in out], [other], keep=[c.keep for c in out])
         for c, result in zip(out, got, strict=True):

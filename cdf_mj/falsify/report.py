@@ -82,8 +82,9 @@ def _fmt(value: Any) -> str:
 def counterexample_table(found: Sequence[Counterexample], compare: Sequence[str]) -> list[str]:
     """Markdown rows: one per counterexample, its traits, the contact and the other planners."""
     head = ("| # | failures | traits away from the base world | seed | label "
-            "| speeds at contact (ego / obstacle) [m/s] |")
-    rule = "|---|---|---|---|---|---|"
+            "| speeds at contact (ego / obstacle) [m/s] | log-likelihood (likeliest of the cluster) "
+            "| probability of its choices |")
+    rule = "|---|---|---|---|---|---|---|---|"
     for p in compare:
         head += f" {p} |"
         rule += "---|"
@@ -92,7 +93,8 @@ def counterexample_table(found: Sequence[Counterexample], compare: Sequence[str]
         traits = "; ".join(f"`{k}` = {_fmt(v)}" for k, v in c.changed.items()) or "(none)"
         speeds = [max(c.contact[k], 0.0) + 0.0 for k in ("ego_speed", "obstacle_speed")] if c.contact else []
         contact = f"{speeds[0]:.1f} / {speeds[1]:.1f}" if speeds else "no touch"  # + 0.0: no "-0.0"
-        row = f"| {i} | {len(c.members)} | {traits} | {c.seed} | {c.summary.get('label')} | {contact} |"
+        row = (f"| {i} | {len(c.members)} | {traits} | {c.seed} | {c.summary.get('label')} | {contact} "
+               f"| {c.log_likelihood:.1f} ({c.likeliest:.1f}) | {c.choice_mass:.2g} |")
         for p in compare:
             failed, replayed = c.others_members.get(p, (0, 0))
             got = c.others.get(p)
@@ -121,7 +123,9 @@ def falsify_markdown(result: FalsifyOutcome, figure: str | None) -> str:
     lines += ["", "## Counterexamples", ""]
     if result.counterexamples:
         lines += [f"Clusters of failures with the same choices, each minimised (options put back to the base "
-                  f"world's while the seed still fails). Replay one with "
+                  f"world's while the seed still fails), likeliest first: by the nominal log-likelihood of the "
+                  f"cluster's likeliest failure, then the nominal probability of its choices (an upper bound on "
+                  f"the cluster's probability mass). Replay one with "
                   f"`cdf-mj episode --preset FILE --seed SEED --planner {s.planner}`.", ""]
         lines += counterexample_table(result.counterexamples, compare)
         lines += ["", "Files: " + ", ".join(f"`{Path(c.path).name}`" for c in result.counterexamples if c.path)]

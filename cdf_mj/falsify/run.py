@@ -31,7 +31,7 @@ from cdf_mj.experiments.store import check_run_kind, locked
 from cdf_mj.falsify.counterexamples import Counterexample, find_counterexamples, write_counterexamples
 from cdf_mj.falsify.estimate import Estimate, cross_entropy, monte_carlo
 from cdf_mj.falsify.evaluate import JOURNAL_FILE, Evaluation, Evaluator, Journal
-from cdf_mj.falsify.search import Generation, SearchResult, run_search
+from cdf_mj.falsify.search import SEARCH, Generation, SearchResult, run_search
 from cdf_mj.falsify.space import SearchSpace
 from cdf_mj.inputs import SETTINGS_MAX_BYTES, InputError, parse_json, read_text
 from cdf_mj.records import jsonable, write_atomic
@@ -135,21 +135,22 @@ def _open(out: str | Path, wanted: dict[str, Any], stack: ExitStack) -> tuple[Pa
 
 
 def falsify(space: SearchSpace, planner: str, budget: int, out: str | Path, *, compare: Sequence[str] = (),
-            seed: int = 0, popsize: int | None = None, scene: str | Path = DEFAULT_SCENE,
-            backend: Backend = "process", workers: int | None = None, address: str | None = None,
-            max_clusters: int = 12, figure: bool = True, on_episode: Callable[[int], None] | None = None,
+            seed: int = 0, popsize: int | None = None, objective: str = "robustness",
+            scene: str | Path = DEFAULT_SCENE, backend: Backend = "process", workers: int | None = None,
+            address: str | None = None, max_clusters: int = 12, figure: bool = True, on_episode: Callable[[int], None] | None = None,
             on_generation: Callable[[Generation], None] | None = None,
             on_search_done: Callable[[int], None] | None = None, scene_args: str = "") -> FalsifyResult:
     """Search ``space`` for failures of ``planner`` within ``budget`` episodes, cluster and
     minimise them, replay them on ``compare``, and write the run's files into ``out``
-    (see the module docstring). Resumable: the same call goes on from the journal. A scene
+    (see the module docstring); ``objective``: what the search ranks by
+    (:func:`~cdf_mj.falsify.search.run_search`). Resumable: the same call goes on from the journal. A scene
     of your own: ``scene`` and, with other names, ``space.base.names`` (``scene_args``: how
     the replay commands in the counterexamples' descriptions should name them)."""
     from cdf_mj.falsify.report import falsify_markdown, progress_figure
 
     wanted = {"kind": "falsify", "version": __version__, "space": space.name, "space_spec": space_spec(space),
               "space_text": space.text, "planner": planner, "seed": seed, "popsize": popsize,
-              **_scene_settings(scene, space)}
+              "search": SEARCH, "objective": objective, **_scene_settings(scene, space)}
     with ExitStack() as stack:
         out_dir, journal = _open(out, wanted, stack)
         for name in ("summary.json", "report.md", *(("progress.png",) if figure else ())):
@@ -157,7 +158,8 @@ def falsify(space: SearchSpace, planner: str, budget: int, out: str | Path, *, c
         evaluator = Evaluator(space, [planner, *compare], journal, scene=scene, backend=backend, workers=workers,
                               address=address, on_episode=on_episode)
         stack.callback(evaluator.close)
-        search = run_search(evaluator, planner, budget, seed=seed, popsize=popsize, on_generation=on_generation)
+        search = run_search(evaluator, planner, budget, seed=seed, popsize=popsize, objective=objective,
+                            on_generation=on_generation)
         if on_search_done is not None:
             on_search_done(len(search.failures))
         found = find_counterexamples(evaluator, planner, search.failures, [c for c in compare if c != planner],

@@ -68,7 +68,7 @@ from cdf_mj.inputs import (
 )
 from cdf_mj.presets import PresetError, read_preset
 
-__all__ = ["MARGINS", "MARGIN_CAP", "MAX_DIMS", "MAX_VALUES", "Choice", "Dim", "FailureSpec", "Range",
+__all__ = ["LATENT_CAP", "MARGINS", "MARGIN_CAP", "MAX_DIMS", "MAX_VALUES", "Choice", "Dim", "FailureSpec", "Range",
            "SearchSpace", "SpaceError", "load_space", "space_names", "truncnorm_logpdf", "truncnorm_matching",
            "truncnorm_moments", "truncnorm_sample"]
 
@@ -83,6 +83,8 @@ MARGIN_CAP = 10.0
 MAX_DIMS = 64
 #: Most values of one choice or integer range.
 MAX_VALUES = 1000
+#: The search's standard-normal coordinates are read within this many standard deviations.
+LATENT_CAP = 8.0
 SUFFIX = TOML_SUFFIX
 _TOP = ("description", "preset", "failure", "dims")
 _NORMAL = NormalDist()
@@ -167,6 +169,21 @@ class Range:
             return (self.low + self.high) / 2, math.inf
         return self.mean, self.std
 
+    def from_latent(self, z: float) -> float:
+        """The coordinate at standard-normal ``z``: its nominal's inverse CDF at Phi(z), so
+        that ``z ~ N(0, 1)`` gives the nominal distribution."""
+        u = _NORMAL.cdf(float(min(max(z, -LATENT_CAP), LATENT_CAP)))
+        mean, std = self.nominal_mean_std()
+        if _flat(std, self.low, self.high):
+            return self.from_unit(u)
+        a, b = _NORMAL.cdf((self.low - mean) / std), _NORMAL.cdf((self.high - mean) / std)
+        q = min(max(a + u * (b - a), 1e-15), 1 - 1e-15)
+        return float(min(max(mean + std * _NORMAL.inv_cdf(q), self.low), self.high))
+
+    def log_nominal(self, x: np.ndarray) -> np.ndarray:
+        """Log density of the nominal at coordinates ``x`` [per the option's unit]."""
+        return truncnorm_logpdf(x, *self.nominal_mean_std(), self.low, self.high)
+
 
 @dataclass(frozen=True)
 class Choice:
@@ -193,6 +210,20 @@ class Choice:
     def to_unit(self, x: float) -> float:
         """The middle of index ``x``'s part of the unit interval."""
         return (self.index(x) + 0.5) / len(self.values)
+
+    def from_latent(self, z: float) -> float:
+        """The index at standard-normal ``z``: Phi(z) cut by the nominal weights' cumulative
+        sums, so that ``z ~ N(0, 1)`` draws each value with its nominal weight."""
+        u = _NORMAL.cdf(float(min(max(z, -LATENT_CAP), LATENT_CAP)))
+        cum = np.cumsum(self.weights) / sum(self.weights)
+        return float(min(int(np.searchsorted(cum, u, side="right")), len(self.values) - 1))
+
+    def log_nominal(self, x: np.ndarray) -> np.ndarray:
+        """Log of the nominal weight of the values at coordinates ``x``."""
+        w = np.asarray(self.weights, dtype=float) / sum(self.weights)
+        idx = np.clip(np.rint(np.asarray(x, dtype=float)).astype(int), 0, len(w) - 1)
+        with np.errstate(divide="ignore"):
+            return np.log(w[idx])
 
 
 Dim = Range | Choice
@@ -240,6 +271,21 @@ class SearchSpace:
 
     def to_unit(self, point: Sequence[float]) -> np.ndarray:
         return np.array([d.to_unit(float(x)) for d, x in zip(self.dims, point, strict=True)])
+
+    def from_latent(self, z: Sequence[float]) -> np.ndarray:
+        """The point of a standard-normal vector (the search's coordinates): each dimension
+        through its nominal's inverse CDF, so that ``z ~ N(0, I)`` is a nominal draw."""
+        return np.array([d.from_latent(float(x)) for d, x in zip(self.dims, z, strict=True)])
+
+    def log_likelihood(self, points: np.ndarray | Sequence[Sequence[float]]) -> np.ndarray:
+        """Log-likelihood of each point under the nominal (a density for the ranges times a
+        probability for the choices): how likely the world is per encounter, up to the
+        ranges' units. Shape ``(n,)`` for ``points`` ``(n, d)``."""
+        pts = np.atleast_2d(np.asarray(points, dtype=float))
+        out = np.zeros(len(pts))
+        for j, d in enumerate(self.dims):
+            out += d.log_nominal(pts[:, j])
+        return out
 
     def default_of(self, key: str) -> Any:
         """The base world's value of an option (a pair as it stands: the world draws from it)."""

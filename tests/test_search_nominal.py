@@ -1,0 +1,171 @@
+"""The falsifier's search starts from the space's nominal and beats sampling (issue 37).
+
+The search algorithm is checked on functions of the point whose failure probability is
+known exactly (no episodes: an evaluator of a formula, as the estimator's own check in
+tests/test_falsify.py), and on real episodes for what a run writes (likelihoods, the
+order of the counterexamples, the settings that refuse another search)."""
+
+from __future__ import annotations
+
+import math
+from statistics import NormalDist, median
+
+import numpy as np
+import pytest
+from cli_helpers import run_cli
+
+from cdf_mj.falsify.counterexamples import choice_mass
+from cdf_mj.falsify.estimate import Proposal
+from cdf_mj.falsify.evaluate import Evaluation
+from cdf_mj.falsify.run import falsify
+from cdf_mj.falsify.search import run_search
+from cdf_mj.falsify.space import load_space
+
+
+class _Formula:
+    """An evaluator of ``robustness(point)`` (<= 0 fails): the search alone, on a known function."""
+
+    def __init__(self, space, robustness) -> None:
+        self.space, self.robustness, self.asked = space, robustness, []
+
+    def evaluate(self, items, planners, keep=None):
+        out = []
+        for point, seed in items:
+            self.asked.append(np.asarray(point, dtype=float))
+            r = float(self.robustness(np.asarray(point, dtype=float)))
+            out.append({planners[0]: Evaluation(planners[0], seed, tuple(point), (), r, r <= 0.0, {})})
+        return out
+
+
+@pytest.fixture(scope="module")
+def space():
+    return load_space("default")
+
+
+def _speed_tail(t: float) -> float:
+    """P(ego.speed > t) under the default space's nominal (normal 13.4, 1.5 truncated to [9, 18])."""
+    n = NormalDist()
+    a, b = n.cdf((9 - 13.4) / 1.5), n.cdf((18 - 13.4) / 1.5)
+    return (b - n.cdf((t - 13.4) / 1.5)) / (b - a)
+
+
+def test_the_first_generation_is_a_nominal_sample(space):
+    """Started at the latent origin with a step of 1, the search's first generation is
+    drawn from the space's nominal: over 60 runs, each choice's share and each range's mean
+    match the nominal's (a search from the unit cube's centre would draw every driver
+    family alike, half of them aggressive or off-route)."""
+    firsts = []
+    for seed in range(60):
+        ev = _Formula(space, lambda p: 1.0)
+        run_search(ev, "x", 13, seed=seed, popsize=13)
+        firsts.extend(ev.asked)
+    points = np.array(firsts)
+    sample = Proposal.nominal(space).sample(space, np.random.default_rng(0), 20000)
+    for j, d in enumerate(space.dims):
+        got, want = points[:, j], sample[:, j]
+        if d.discrete:
+            for k in range(len(d.values)):
+                p = float(np.mean(want == k))
+                assert abs(float(np.mean(got == k)) - p) <= 4 * math.sqrt(p * (1 - p) / len(got)) + 1e-3, d.key
+        else:
+            assert abs(got.mean() - want.mean()) <= 4 * want.std() / math.sqrt(len(got)), d.key
+
+
+def test_the_search_beats_sampling_ten_times_on_a_rare_smooth_failure(space):
+    """Fails when the ego is faster than 17.6 m/s (nominal probability 1.5e-3: plain Monte
+    Carlo expects its first failure after about 670 episodes); the robustness falls with
+    the speed. The search's median first failure over 5 run seeds is within a tenth of that."""
+    j = space.keys.index("ego.speed")
+    p = _speed_tail(17.6)
+    assert 1e-3 < p < 2e-3
+    firsts = []
+    for seed in range(5):
+        result = run_search(_Formula(space, lambda x: 17.6 - x[j]), "x", 400, seed=seed)
+        firsts.append(result.first_failure or math.inf)
+    assert median(firsts) <= 0.1 / p, firsts
+
+
+def test_every_evaluation_carries_its_nominal_log_likelihood(space):
+    ev = _Formula(space, lambda x: 1.0)
+    result = run_search(ev, "x", 30, seed=3)
+    assert len(result.log_likelihood) == len(result.evaluations) == 30
+    want = Proposal.nominal(space).logpdf(space, np.array([e.point for e in result.evaluations]))
+    assert np.allclose(result.log_likelihood, want)
+    assert result.to_dict()["likeliest_failure"] is None  # nothing failed
+
+
+def test_the_likely_objective_finds_likelier_failures(space):
+    """Two ways to fail: an aggressive driver (nominal 0.1) and anything at all once the ego
+    is faster than 17 m/s. The robustness reads only the speed, so the plain search goes to
+    fast egos; asked for likely failures it keeps failing and moves towards the nominal's
+    likelier worlds: its likeliest failure is likelier than the plain search's (median of 5 run seeds)."""
+    fam, speed = space.keys.index("obstacle.family"), space.keys.index("ego.speed")
+
+    def robustness(x):
+        return -1.0 if round(x[fam]) == 3 else 17.0 - x[speed]
+
+    plain, likely = [], []
+    for seed in range(5):
+        plain.append(run_search(_Formula(space, robustness), "x", 300, seed=seed).to_dict()["likeliest_failure"])
+        likely.append(run_search(_Formula(space, robustness), "x", 300, seed=seed,
+                                 objective="likely").to_dict()["likeliest_failure"])
+    assert None not in likely and None not in plain
+    assert median(likely) > median(plain) + 0.3, (plain, likely)
+    with pytest.raises(ValueError, match="objective"):
+        run_search(_Formula(space, robustness), "x", 10, objective="fast")
+
+
+def test_choice_mass_is_the_product_of_the_choices_nominal_weights(space):
+    point = Proposal.nominal(space).sample(space, np.random.default_rng(1), 1)[0]
+    want = 1.0
+    for d, x in zip(space.dims, point, strict=True):
+        if d.discrete:
+            want *= d.weights[int(round(x))] / sum(d.weights)
+    assert math.isclose(choice_mass(space, point), want, rel_tol=1e-12)
+
+
+def test_a_run_lists_its_counterexamples_likeliest_first_and_refuses_another_search(tmp_path, capsys):
+    """Real episodes: reactive on the small test space; the counterexamples carry their
+    likelihoods and come likeliest first, in summary.json, report.md and the command's
+    output; a directory made by another search is refused in one line."""
+    from test_falsify import FAST_PRESET, SMALL_SPACE  # the suite's small space and its preset
+
+    path = tmp_path / "small.toml"
+    path.write_text(SMALL_SPACE)
+    (tmp_path / "fast.toml").write_text(FAST_PRESET)
+    space = load_space(path)
+    result = falsify(space, "reactive", 60, tmp_path / "run", workers=1, figure=False)
+    found = result.counterexamples
+    assert found, "reactive fails on the small space within 60 episodes"
+    keys = [(c.likeliest, c.choice_mass) for c in found]
+    assert keys == sorted(keys, reverse=True)
+    for c in found:
+        assert math.isfinite(c.log_likelihood) and c.likeliest >= c.log_likelihood
+        assert 0.0 < c.choice_mass <= 1.0
+    report = (tmp_path / "run" / "report.md").read_text()
+    assert "log-likelihood (likeliest of the cluster)" in report
+    settings = (tmp_path / "run" / "settings.json")
+    settings.write_text(settings.read_text().replace('"latent-cma-1"', '"unit-cube-cma"'))
+    status, _, err = run_cli(capsys, "falsify", "--space", str(path), "--planner", "reactive", "--episodes", "60",
+                             "--workers", "1", "--out", str(tmp_path / "run"), "--quiet", "--no-figure")
+    assert status == 2 and err.count("\n") == 1 and "another search" in err
+
+
+def test_the_first_failure_is_printed_beside_monte_carlos_expectation(tmp_path, capsys):
+    """``--estimate`` reads an estimate run's rate: the first failure and the episodes Monte
+    Carlo expects at that rate on one line; a file without a rate is one line, exit 2."""
+    from test_falsify import FAST_PRESET, SMALL_SPACE
+
+    path = tmp_path / "small.toml"
+    path.write_text(SMALL_SPACE)
+    (tmp_path / "fast.toml").write_text(FAST_PRESET)
+    (tmp_path / "est").mkdir()
+    (tmp_path / "est" / "estimate.json").write_text('{"p": 0.05}')
+    argv = ["falsify", "--space", str(path), "--planner", "reactive", "--episodes", "20", "--workers", "1",
+            "--quiet", "--no-figure", "--max-clusters", "1"]
+    status, out, err = run_cli(capsys, *argv, "--out", str(tmp_path / "run"), "--estimate", str(tmp_path / "est"))
+    assert status == 0, err
+    assert "(Monte Carlo expects one in 20 at the estimated rate 0.05)" in out.splitlines()[0]
+    (tmp_path / "bad.json").write_text('{"p": 1.5}')
+    status, _, err = run_cli(capsys, *argv, "--out", str(tmp_path / "run2"), "--estimate", str(tmp_path / "bad.json"))
+    assert status == 2 and err.count("\n") == 1 and "--estimate" in err and "(0, 1]" in err
