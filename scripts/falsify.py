@@ -7,9 +7,9 @@ Parts, each resumable (the same command goes on where a killed run stopped; resu
 ``OUT/<part>``):
 
 1. **Search** (:func:`cdf_mj.falsify.run.falsify`): ``--runs`` independent CMA-ES
-   searches of ``--episodes`` episodes for the first planner (the issue's target: a
-   collision of ``cdf`` within 2000 episodes in each of 5 runs), one for each other
-   planner; each planner's first run replays its counterexamples on every other planner.
+   searches of ``--episodes`` episodes for the first planner (a collision of ``cdf`` in
+   each run), one for each other planner; each planner's first run replays its
+   counterexamples (likeliest first, with their log-likelihoods) on every other planner.
    The first planner's counterexamples are written to ``docs/falsify/`` so that a reader
    can replay them (``cdf-mj episode --preset docs/falsify/cdf/01-seed-S.toml --seed S
    --planner cdf``).
@@ -26,12 +26,17 @@ Parts, each resumable (the same command goes on where a killed run stopped; resu
    stops in 1 encounter of 10^4), both estimators on ``--rare-episodes`` episodes each,
    against the reference 1e-4 x P(failure | the stop), the second factor by plain Monte
    Carlo with the stop pinned (400 episodes).
+6. **First failure against Monte Carlo** (issue 37): for every planner on the default
+   space, the first planner on ``near-default`` and ``cdf-risk`` on ``rare-stop``,
+   :data:`FIRST_RUNS` searches that stop at their first failure, their median against the
+   episodes plain Monte Carlo expects at the rate measured above; and the mixture
+   estimator (``--method mixture``) beside the validation's and near the default world.
 
 Nothing is tuned here: the spaces (cdf_mj/falsify/spaces/), the search and the
 estimators run with their defaults; the seeds are the runs' seeds 0, 1, ... Results are
 as measured, whichever planner they favour. ::
 
-    python scripts/falsify.py                                  # everything (about an hour on 2 cores)
+    python scripts/falsify.py                                  # everything (about 40 minutes on 2 cores)
     python scripts/falsify.py --episodes 100 --runs 1 --estimate-episodes 200 --validate-episodes 400 \\
         --near-episodes 200 --rare-episodes 200 --planner cdf,cdf-risk --doc /tmp/f.md --out /tmp/f  # a look
 
@@ -65,14 +70,19 @@ from cdf_mj.cli.args import worker_count as _workers
 from cdf_mj.experiments.runner import WorkerDiedError
 from cdf_mj.falsify.counterexamples import write_counterexamples
 from cdf_mj.falsify.estimate import Estimate, agree
-from cdf_mj.falsify.evaluate import JOURNAL_FILE, Evaluation, Journal
+from cdf_mj.falsify.evaluate import JOURNAL_FILE, Evaluation, Evaluator, Journal
 from cdf_mj.falsify.report import counterexample_table, progress_figure
 from cdf_mj.falsify.run import FalsifyResult, estimate, falsify
+from cdf_mj.falsify.search import run_search
 from cdf_mj.falsify.space import Choice, Range, SearchSpace, load_space
 
 PROG = "falsify"
 PLANNERS = ("cdf", "cdf-risk", "cdf-threshold", "imm-layered", "reactive")
-BUDGET, RUNS = 2000, 5
+BUDGET, RUNS = 500, 5
+#: Run seeds of each first-failure measurement (the target's median is over them), and the
+#: most episodes each may take on a space (a run stops at its first failure).
+FIRST_RUNS = 5
+FIRST_CAP = {"default": 500, "near-default": 1000, "rare-stop": 2500}
 ESTIMATE_BUDGET = 2000
 VALIDATE, VALIDATE_EPISODES = "cdf", 20000
 #: The near case: the first planner on the space of small departures from the default world.
@@ -119,6 +129,53 @@ def pinned(space: SearchSpace, key: str, value: object) -> SearchSpace:
     return dataclasses.replace(space, name=f"{space.name} with {key} = {value}", dims=dims)
 
 
+def first_failures(space: SearchSpace, planner: str, seeds: range, cap: int, out: Path,
+                   workers: int | None) -> list[int | None]:
+    """Each run seed's episodes to its first failure of ``planner`` on ``space`` (a search
+    that stops there; None: none within ``cap``), each run resumable in ``out/seed-S``."""
+    found: list[int | None] = []
+    for seed in seeds:
+        directory = out / f"seed-{seed}"
+        directory.mkdir(parents=True, exist_ok=True)
+        journal = Journal(directory / JOURNAL_FILE)
+        evaluator = Evaluator(space, [planner], journal, workers=workers)
+        try:
+            found.append(run_search(evaluator, planner, cap, seed=seed, until_failure=True).first_failure)
+        finally:
+            evaluator.close()
+            journal.close()
+    return found
+
+
+def _median(values: Sequence[float]) -> float:
+    ordered = sorted(values)
+    mid = len(ordered) // 2
+    return ordered[mid] if len(ordered) % 2 else (ordered[mid - 1] + ordered[mid]) / 2
+
+
+def first_failure_rows(parts: Parts) -> tuple[list[str], list[str]]:
+    """The table of first failures against Monte Carlo's expectation, and the target lines."""
+    rows, missed, rare_missed = [], [], []
+    for (space, planner), (found, rate, source) in parts.first.items():
+        expect = 1 / rate if rate > 0 else math.inf
+        med = _median([math.inf if f is None else f for f in found])
+        rare = rate <= 0.005
+        ok = med <= expect and (not rare or med <= expect / 10)
+        (rare_missed if rare and not ok else missed if not ok else []).append(f"`{planner}` on `{space}`")
+        rows.append([f"`{space}`", f"`{planner}`", f"{rate:.3g} ({source})", f"{expect:.0f}",
+                     ", ".join("none" if f is None else str(f) for f in found),
+                     "none" if math.isinf(med) else f"{med:g}", f"{med / expect:.2f}" if math.isfinite(med) else "-",
+                     ("met" if ok else "**missed**") + (" (<= 1/10: rate <= 0.5 %)" if rare else "")])
+    table = markdown_table(["space", "planner", "failure rate (from)", "Monte Carlo expects a first failure after",
+                            f"first failures of {FIRST_RUNS} runs", "median", "median / Monte Carlo",
+                            "target"], rows)
+    n = len(parts.first)
+    lines = [f"- **First failure no later than Monte Carlo's expectation, on every space and planner** (median "
+             f"of {FIRST_RUNS} run seeds): {n - len(missed) - len(rare_missed)} of {n} met"
+             + (f"; missed: {', '.join(missed + rare_missed)}" if missed or rare_missed else "") + "."]
+    return table, lines
+
+
 @dataclasses.dataclass
 class Parts:
     """Everything the page reports."""
@@ -132,6 +189,10 @@ class Parts:
     rare_other: tuple[int, int]  # failures, episodes of the rare runs in which the merged car did not stop
     paired: dict[str, dict[tuple[int, tuple[float, ...]], bool]]  # planner -> (seed, point) -> failed, Monte Carlo
     budget: int
+    # (space, planner) -> the run seeds' first failures (None: none within the cap), Monte Carlo's rate, its source
+    first: dict[tuple[str, str], tuple[list[int | None], float, str]] = dataclasses.field(default_factory=dict)
+    validation_mixture: Estimate | None = None  # the mixture estimator beside the validation's
+    near_mixture: Estimate | None = None
 
 
 def targets(parts: Parts) -> list[str]:
@@ -143,6 +204,21 @@ def targets(parts: Parts) -> list[str]:
     lines = [f"- **`{first}`: a collision found within {parts.budget} episodes in {hit} of {len(runs)} independent "
              f"runs** ({'met' if hit == len(runs) else 'missed'}); first failure after "
              + ", ".join("none" if f is None else str(f) for f in found) + " episodes."]
+    if parts.first:
+        lines += first_failure_rows(parts)[1]
+    if parts.validation is not None and parts.validation_mixture is not None:
+        name, mc, _ = parts.validation
+        mix = parts.validation_mixture
+        inside = not mix.upper_only and mc.ci[0] <= mix.ci[0] and mix.ci[1] <= mc.ci[1]
+        mc_rel = _mc_rel_error(mc.p, mix.episodes)
+        ok = (mix.ess or 0) >= 100 and inside and (mix.rel_error or math.inf) <= mc_rel / 2
+        lines.append(f"- **The mixture estimator on a planner with several failure modes** (`{name}`): {mix.text()} "
+                     f"from {mix.episodes} episodes, ESS {mix.ess or 0:.0f} (>= 100: "
+                     f"{'yes' if (mix.ess or 0) >= 100 else 'no'}), its interval "
+                     f"{'inside' if inside else 'not inside'} Monte Carlo's {mc.episodes}-episode {mc.text()}, "
+                     f"relative s.e. {mix.rel_error or math.inf:.3f} against {mc_rel:.3f} for Monte Carlo on "
+                     f"{mix.episodes} episodes (at most half: {'yes' if (mix.rel_error or math.inf) <= mc_rel / 2 else 'no'}) "
+                     f"({'met' if ok else 'missed'}).")
     if parts.validation is not None:
         name, mc, ce = parts.validation
         ok = agree(mc, ce) and ce.episodes * 5 <= mc.episodes and ce.reliable
@@ -183,8 +259,9 @@ def page(parts: Parts, figure: str | None) -> str:
              f"(`cdf-mj estimate`). Failure: {space.failure.text}. The space file, the search and the estimators: "
              "[FALSIFICATION.md](FALSIFICATION.md).", "", "## Targets", "", *targets(parts),
              "", "## Search", "",
-             f"CMA-ES on the least time to collision, {parts.budget} episodes a run, runs seeded 0, 1, ...; each "
-             "candidate one episode with its own seed.", ""]
+             f"CMA-ES on the least time to collision in the space's standard-normal coordinates, from its nominal "
+             f"(the first generation is a nominal sample), {parts.budget} episodes a run, runs seeded 0, 1, ...; "
+             "each candidate one episode with its own seed.", ""]
     rows = []
     for p, results in parts.searches.items():
         for seed, r in enumerate(results):
@@ -196,6 +273,14 @@ def page(parts: Parts, figure: str | None) -> str:
                              "least robustness [s]", "episodes that raised"], rows)
     if figure:
         lines += ["", f"![search progress]({figure})"]
+    if parts.first:
+        lines += ["", "### First failure against plain Monte Carlo", "",
+                  f"Episodes to the first failure, {FIRST_RUNS} run seeds per space and planner (a run seeded 0, "
+                  "1, ... that stops at its first failure; on the default space the full searches above count "
+                  "for their seeds), against the episodes plain Monte Carlo expects at the measured failure "
+                  "rate (1 / rate). The search's first generation is a nominal sample, so it starts as Monte "
+                  "Carlo does; the target asks that its median be no later, and a tenth of it where the rate is "
+                  "0.5 % or less.", "", *first_failure_rows(parts)[0]]
     for p, results in parts.searches.items():
         r = results[0]
         others = [q for q in planners if q != p]
@@ -248,12 +333,29 @@ def page(parts: Parts, figure: str | None) -> str:
                   f"sampling {ce.p:.4f} [{ce.ci[0]:.4f}, {ce.ci[1]:.4f}] from {ce.episodes} episodes "
                   f"({ce.failures} failures in its last stage of {ce.n}, ESS {ce.ess or 0:.1f}; stages: "
                   f"{_stages(ce)})."]
+        mix = parts.validation_mixture
+        if mix is not None:
+            lines += ["", f"The estimators on the same planner, each against Monte Carlo's relative standard error "
+                          "at its own number of episodes:", ""]
+            rows = [[label, e.text(), str(e.episodes), "-" if e.ess is None else f"{e.ess:.0f}",
+                     "-" if e.rel_error is None else f"{e.rel_error:.3f}", f"{_mc_rel_error(mc.p, e.episodes):.3f}"]
+                    for label, e in (("Monte Carlo", mc), ("cross-entropy (one proposal)", ce),
+                                     ("cross-entropy, mixture of failure modes", mix))]
+            lines += markdown_table(["estimator", "estimate [95 %]", "episodes", "ESS", "relative s.e.",
+                                     "Monte Carlo's relative s.e. at as many episodes"], rows)
+            modes = next((st.get("modes") for st in mix.stages if st.get("final")), None) or []
+            if modes:
+                lines += ["", "The mixture's failure modes (its last stage), heaviest first: "
+                          + "; ".join(f"{', '.join(f'{k} = {v}' for k, v in m['choices'].items())}: "
+                                      f"{m['p']:.2g} ({m['failures']} failures)" for m in modes[:6]) + "."]
     unit = "m" if space.failure.margin == "gap" else "s"
     name, ce, mc = parts.near
     lines += ["", f"### Near the default world: `{name}` on space `{NEAR_SPACE}`", "",
               f"Importance sampling {ce.text()} from {ce.episodes} episodes ({ce.failures} failures in its last "
               f"stage of {ce.n}, ESS {ce.ess or 0:.1f}; stages: {_stages(ce, unit)}); Monte Carlo "
-              f"{mc.failures}/{mc.n}: {mc.text()}."]
+              f"{mc.failures}/{mc.n}: {mc.text()}."
+              + (f" The mixture estimator: {parts.near_mixture.text()} from {parts.near_mixture.episodes} episodes "
+                 f"(ESS {parts.near_mixture.ess or 0:.1f})." if parts.near_mixture is not None else "")]
     name, weight, ce, mc, cond = parts.rare
     lines += ["", f"### A rare case with a reference: `{name}` on space `{RARE_SPACE}`", "",
               f"Importance sampling {ce.text()} from {ce.episodes} episodes ({ce.failures} failures in its last "
@@ -313,8 +415,38 @@ def run(args: argparse.Namespace) -> Parts:
               if round(e.point[column]) != stop]
     paired = {planner: {(e.seed, e.point): e.failed for e in _journal(out / f"mc-{planner}") if e.error is None}
               for planner in args.planner}
+    validation_mixture = None
+    if args.validate != "none":
+        _say(q, f"validation {args.validate}: the mixture estimator, {args.validate_episodes // 5}")
+        validation_mixture = estimate(space, args.validate, max(args.validate_episodes // 5, 100),
+                                      out / f"validate-mixture-{args.validate}", method="mixture",
+                                      workers=args.workers)
+    _say(q, f"near the default world: {first} on {NEAR_SPACE}, the mixture estimator, {args.near_episodes}")
+    near_mixture = estimate(near_space, first, args.near_episodes, out / f"near-mixture-{first}", method="mixture",
+                            workers=args.workers)
+    # Episodes to the first failure, FIRST_RUNS run seeds per space and planner, against the
+    # episodes Monte Carlo expects at the measured rate.
+    first_found: dict[tuple[str, str], tuple[list[int | None], float, str]] = {}
+    for planner in args.planner:
+        full = [r.search.first_failure for r in searches[planner]]
+        _say(q, f"first failures: {planner} on default, run seeds {len(full)}-{FIRST_RUNS - 1}")
+        more = first_failures(space, planner, range(len(full), FIRST_RUNS), FIRST_CAP["default"],
+                              out / f"first-default-{planner}", args.workers)
+        ce, mc = estimates[planner]
+        rate, source = (mc.p, f"Monte Carlo, {mc.failures}/{mc.n}") if mc.failures else (ce.p, "importance sampling")
+        first_found[("default", planner)] = ([*full, *more][:FIRST_RUNS], rate, source)
+    _say(q, f"first failures: {first} on {NEAR_SPACE}")
+    near_mc = near[2]
+    first_found[(NEAR_SPACE, first)] = (
+        first_failures(near_space, first, range(FIRST_RUNS), FIRST_CAP[NEAR_SPACE], out / f"first-near-{first}",
+                       args.workers), near_mc.p, f"Monte Carlo, {near_mc.failures}/{near_mc.n}")
+    _say(q, f"first failures: {RARE_PLANNER} on {RARE_SPACE}")
+    cond = rare[4]
+    first_found[(RARE_SPACE, RARE_PLANNER)] = (
+        first_failures(rare_space, RARE_PLANNER, range(FIRST_RUNS), FIRST_CAP[RARE_SPACE], out / "first-rare",
+                       args.workers), weight * cond.p, f"the reference, {weight:g} x {cond.failures}/{cond.n}")
     return Parts(space, searches, estimates, validation, near, rare, (sum(e.failed for e in others), len(others)),
-                 paired, args.episodes)
+                 paired, args.episodes, first_found, validation_mixture, near_mixture)
 
 
 def _journal(directory: Path) -> list[Evaluation]:
@@ -388,7 +520,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     write_page(doc, page(parts, relative), command)
     _say(args.quiet, f"wrote {doc}, {figure_path}")
     estimates = [*(e for pair in parts.estimates.values() for e in pair), *parts.near[1:], *parts.rare[2:],
-                 *(parts.validation[1:] if parts.validation else ())]
+                 *(parts.validation[1:] if parts.validation else ()),
+                 *(e for e in (parts.validation_mixture, parts.near_mixture) if e is not None)]
     errors = sum(len(r.search.errors) for v in parts.searches.values() for r in v) + sum(e.errors for e in estimates)
     if errors:
         print(f"{PROG}: {errors} episode(s) raised (counted as no failure); see the journals in {args.out}",

@@ -160,11 +160,11 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     pool = pool_from_args(args)
     space = _space(args)
     n = args.episodes
-    if args.method == "ce" and n < MIN_CE_BUDGET:  # before a directory is made
-        raise CLIError(f"--method ce needs --episodes {MIN_CE_BUDGET} or more (an adaptive stage of 50 and a "
+    if args.method != "mc" and n < MIN_CE_BUDGET:  # before a directory is made
+        raise CLIError(f"--method {args.method} needs --episodes {MIN_CE_BUDGET} or more (an adaptive stage of 50 and a "
                        f"last stage), got {n}; use --method mc below that")
     if args.stage is not None and args.method == "mc":
-        raise CLIError("--stage is for --method ce (its adaptive stages); Monte Carlo has none")
+        raise CLIError("--stage is for --method ce or mixture (their adaptive stages); Monte Carlo has none")
     if args.stage is not None and args.stage > n - n // 5:
         raise CLIError(f"--stage {args.stage} leaves no adaptive stage before the last fifth of --episodes "
                        f"{n}: give at most {n - n // 5}")
@@ -172,7 +172,8 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
               disable=args.quiet) as bar:
         result = estimate(space, args.planner, n, args.out, method=args.method, seed=args.seed,
                           stage=args.stage, scene=args.scene, on_episode=bar.update, **pool)
-    how = "cross-entropy importance sampling" if result.method == "ce" else "Monte Carlo"
+    how = {"ce": "cross-entropy importance sampling", "mixture": "cross-entropy importance sampling with a "
+           "mixture of failure modes", "mc": "Monte Carlo"}[result.method]
     ess = f"; effective sample size {result.ess:.1f}" if result.ess is not None else ""
     print(f"P({space.failure.text}) per encounter of {args.planner} on space {space.name}: {result.text()} "
           f"(95 %; {how}, {result.episodes} episodes, {result.failures} failures in the last {result.n}{ess})")
@@ -243,8 +244,10 @@ def add_estimate(subparsers: argparse._SubParsersAction) -> None:
                     "interval and the effective sample size) or plain Monte Carlo (--method mc: Wilson "
                     "interval). Writes OUT/estimate.json; killed, the same command goes on.")
     _common(p, "results/estimate", 4000)
-    p.add_argument("--method", choices=("ce", "mc"), default="ce",
-                   help="ce: cross-entropy importance sampling (default); mc: plain Monte Carlo")
+    p.add_argument("--method", choices=("ce", "mixture", "mc"), default="ce",
+                   help="ce: cross-entropy importance sampling (default); mixture: the same with a mixture "
+                        "proposal, one component per failure mode (for a planner that fails in several ways); "
+                        "mc: plain Monte Carlo")
     p.add_argument("--stage", type=int_in(10, 10**6, "episodes per adaptive stage"), default=None,
-                   help="ce: episodes per adaptive stage (default a fifth of --episodes)")
+                   help="ce, mixture: episodes per adaptive stage (default a fifth of --episodes)")
     p.set_defaults(func=_cmd_estimate)

@@ -57,13 +57,15 @@ from cdf_mj.falsify.space import (
     truncnorm_sample,
 )
 
-__all__ = ["MIN_CE_BUDGET", "Estimate", "Proposal", "agree", "cross_entropy", "monte_carlo"]
+__all__ = ["MIN_CE_BUDGET", "Estimate", "Mixture", "Proposal", "agree", "cross_entropy", "monte_carlo"]
 
 Z95 = 1.959963984540054
 #: Least std of a fitted range, as a share of its width (a proposal never collapses to a point).
 MIN_STD_SHARE = 0.05
 #: Least probability of a choice in a fitted proposal, as a share of 1 / (its values).
 MIN_CHOICE_SHARE = 0.05
+#: Most choice dimensions that tell the mixture estimator's failure modes apart.
+MODE_CHOICES = 2
 #: Least budget of the cross-entropy estimator [episodes]: one adaptive stage of 50 and a
 #: last stage of at least a fifth of the budget.
 MIN_CE_BUDGET = 100
@@ -116,6 +118,46 @@ class Proposal:
         return out
 
 
+@dataclass(frozen=True)
+class Mixture:
+    """A mixture of :class:`Proposal` components (one per failure mode) with ``weights``
+    summing to 1; :meth:`sample` and :meth:`logpdf` as a proposal's."""
+
+    components: tuple[Proposal, ...]
+    weights: tuple[float, ...]
+
+    def sample(self, space: SearchSpace, rng: np.random.Generator, n: int) -> np.ndarray:
+        """``n`` points, shape ``(n, d)``: each from a component drawn by its weight."""
+        which = rng.choice(len(self.components), size=n, p=np.asarray(self.weights))
+        out = np.zeros((n, len(space.dims)))
+        for k, comp in enumerate(self.components):
+            idx = np.flatnonzero(which == k)
+            if len(idx):
+                out[idx] = comp.sample(space, rng, len(idx))
+        return out
+
+    def logpdf(self, space: SearchSpace, points: np.ndarray) -> np.ndarray:
+        """Log density of the mixture at each point."""
+        logs = [math.log(w) + c.logpdf(space, points) for c, w in zip(self.components, self.weights, strict=True)]
+        return np.logaddexp.reduce(np.stack(logs), axis=0)
+
+    def to_dict(self, space: SearchSpace) -> list[dict[str, Any]]:
+        """Each component's weight and distribution, for estimate.json."""
+        return [{"weight": float(w), "proposal": c.to_dict(space)}
+                for c, w in zip(self.components, self.weights, strict=True)]
+
+
+def _signature(space: SearchSpace, point: np.ndarray) -> tuple[int, ...]:
+    """The choices of a point (its discrete coordinates): a failure mode's key."""
+    return tuple(int(round(float(x))) for d, x in zip(space.dims, point, strict=True) if d.discrete)
+
+
+def _describe(space: SearchSpace, signature: tuple[int, ...]) -> dict[str, Any]:
+    """A signature as option -> value."""
+    discrete = [d for d in space.dims if d.discrete]
+    return {d.key: d.values[i] for d, i in zip(discrete, signature, strict=True)}
+
+
 def _refit(space: SearchSpace, nominal: Proposal, old: Proposal, points: np.ndarray, weights: np.ndarray,
            smoothing: float) -> Proposal:
     """The proposal fitted to the elite ``points`` (likelihood-ratio ``weights``).
@@ -158,11 +200,58 @@ def _refit(space: SearchSpace, nominal: Proposal, old: Proposal, points: np.ndar
     return Proposal(tuple(params))
 
 
+def _moved_choices(space: SearchSpace, nominal: Proposal, points: np.ndarray, weights: np.ndarray) -> list[int]:
+    """The choice dimensions (their indices) whose weighted shares among ``points`` differ
+    clearly from the nominal (any share beyond 3 of its standard errors, the elite's
+    effective size setting them), the :data:`MODE_CHOICES` furthest from it (chi-square
+    distance): the choices the failure modes are told apart by (more would split a mode
+    into cells too many for the components)."""
+    w = weights / weights.sum()
+    n_eff = 1.0 / float((w**2).sum())
+    moved: list[tuple[float, int]] = []
+    for j, (d, p0) in enumerate(zip(space.dims, nominal.params, strict=True)):
+        if d.discrete:
+            k = len(p0)
+            freq = np.bincount(np.clip(np.rint(points[:, j]).astype(int), 0, k - 1), weights=w, minlength=k)
+            if not np.all(np.abs(freq - p0) <= 3 * np.sqrt(p0 * (1 - p0) / n_eff) + 1e-12):
+                moved.append((float(np.sum((freq - p0) ** 2 / p0)), j))  # chi-square distance to the nominal
+    return [j for _, j in sorted(moved, reverse=True)[:MODE_CHOICES]]
+
+
+def _refit_modes(space: SearchSpace, nominal: Proposal, old: Proposal | Mixture, points: np.ndarray,
+                 weights: np.ndarray, smoothing: float, components: int) -> Mixture:
+    """The mixture fitted to failures ``points`` (likelihood-ratio ``weights``): a failure
+    mode is a set of values of the choices the failures depend on (:func:`_moved_choices`,
+    over all of them); one component per mode, the ``components`` heaviest by weight, each
+    drawing its mode's values of those choices (all but :data:`MIN_CHOICE_SHARE` of an
+    equal share) and the rest :func:`_refit` to the mode's failures from the nominal;
+    weights in proportion to the modes' weight, each at least 5 % of an equal share."""
+    moved = _moved_choices(space, nominal, points, weights)
+    groups: dict[tuple[int, ...], list[int]] = {}
+    for i, point in enumerate(points):
+        groups.setdefault(tuple(int(round(float(point[j]))) for j in moved), []).append(i)
+    ranked = sorted(groups.items(), key=lambda kv: -float(weights[kv[1]].sum()))[:components]
+    comps, mass = [], []
+    for values, idx in ranked:
+        fitted = _refit(space, nominal, nominal, points[idx], weights[idx], smoothing)
+        params = list(fitted.params)
+        for j, v in zip(moved, values, strict=True):
+            k = len(params[j])
+            q = np.full(k, MIN_CHOICE_SHARE / k)
+            q[v] = 1.0 - q.sum() + q[v]
+            params[j] = q
+        comps.append(Proposal(tuple(params)))
+        mass.append(float(weights[idx].sum()))
+    share = np.asarray(mass) / sum(mass)
+    share = np.maximum(share, MIN_CHOICE_SHARE / len(share))
+    return Mixture(tuple(comps), tuple(float(x) for x in share / share.sum()))
+
+
 @dataclass
 class Estimate:
     """A probability of failure per encounter, with its 95 % interval."""
 
-    method: str  # "mc" | "ce"
+    method: str  # "mc" | "ce" | "mixture"
     planner: str
     episodes: int  # all episodes spent (the cross-entropy stages included)
     n: int  # episodes of the estimating stage
@@ -180,7 +269,7 @@ class Estimate:
         """Standard error over the estimate (None where it is 0)."""
         if self.p <= 0:
             return None
-        return (self.ci[1] - self.p) / Z95 / self.p if self.method == "ce" else math.sqrt((1 - self.p) /
+        return (self.ci[1] - self.p) / Z95 / self.p if self.method != "mc" else math.sqrt((1 - self.p) /
                                                                                           (self.n * self.p))
 
     @property
@@ -238,15 +327,36 @@ def monte_carlo(evaluator: Evaluator, planner: str, n: int, *, seed: int = 0) ->
     return Estimate("mc", planner, n, n, k, k / n, (lo, hi), upper_only=k == 0, errors=errors)
 
 
+def _defensive_sample(space: SearchSpace, q: Proposal | Mixture, nominal: Proposal, defensive: float,
+                      rng: np.random.Generator, n: int) -> np.ndarray:
+    """``n`` points of ``(1 - defensive) q + defensive nominal`` (each point's source drawn first)."""
+    from_q = rng.random(n) >= defensive
+    return np.where(from_q[:, None], q.sample(space, rng, n), nominal.sample(space, rng, n))
+
+
+def _defensive_logpdf(space: SearchSpace, q: Proposal | Mixture, nominal: Proposal, defensive: float,
+                      points: np.ndarray) -> np.ndarray:
+    """Log density of the defensive mixture at ``points``."""
+    return np.logaddexp(math.log1p(-defensive) + q.logpdf(space, points),
+                        math.log(defensive) + nominal.logpdf(space, points))
+
+
 def cross_entropy(evaluator: Evaluator, planner: str, budget: int, *, seed: int = 0, stage: int | None = None,
                   rho: float = 0.1, smoothing: float = 0.7, defensive: float = 0.1, max_stages: int = 4,
-                  min_failures: int = 3, on_stage: Callable[[dict[str, Any]], None] | None = None) -> Estimate:
+                  min_failures: int = 3, components: int = 1,
+                  on_stage: Callable[[dict[str, Any]], None] | None = None) -> Estimate:
     """Cross-entropy importance sampling within ``budget`` episodes (see the module
     docstring). ``stage``: episodes per adaptive stage (default a fifth of the budget, at
     least 50); ``min_failures`` failures make a stage's elite whatever their share; the
     stages stop once a stage's failures are a ``rho`` share of it (the proposal then fitted
     to a well-sampled set of failures), and the last stage gets what is left (at least a
-    fifth of the budget)."""
+    fifth of the budget). ``components`` > 1: the mixture estimator (module docstring): once
+    a stage has ``min_failures`` failures, they are grouped by their choices (a failure
+    mode each) and the proposal is a mixture of one component per mode, at most
+    ``components`` of them (the heaviest by their weights), each weighted by its modes'
+    share of the weight."""
+    if not 1 <= components <= 64:
+        raise ValueError(f"cross_entropy: components must be 1 to 64, got {components}")
     if not 0 < rho < 1 or not 0 < defensive < 1 or not 0 < smoothing <= 1 or not 0 < max_stages < 100:
         raise ValueError("cross_entropy: rho and defensive must be in (0, 1), smoothing in (0, 1], "
                          "max_stages in [1, 99]")
@@ -256,11 +366,19 @@ def cross_entropy(evaluator: Evaluator, planner: str, budget: int, *, seed: int 
     space = evaluator.space
     stage = stage or max(50, budget // 5)
     nominal = Proposal.nominal(space)
-    q, spent, stages, errors = nominal, 0, [], 0
+    q: Proposal | Mixture = nominal
+    spent, stages, errors = 0, [], 0
+    pool_points, pool_weights = [], []  # the mixture's failures of every stage, weighted by their stage's ratio
     for k in range(max_stages):
         if budget - spent - stage < budget // 5:
             break
-        points = q.sample(space, np.random.default_rng([int(seed), 100 + k]), stage)
+        rng_k = np.random.default_rng([int(seed), 100 + k])
+        if components > 1:  # the mixture's stages keep the defensive share: a mode not yet fitted is still drawn
+            points = _defensive_sample(space, q, nominal, defensive, rng_k, stage)
+            log_q = _defensive_logpdf(space, q, nominal, defensive, points)
+        else:
+            points = q.sample(space, rng_k, stage)
+            log_q = q.logpdf(space, points)
         r, e = _run(evaluator, planner, points, seed, 100 + k)
         spent, errors = spent + stage, errors + e
         n_fail = int((r <= 0).sum())
@@ -270,36 +388,49 @@ def cross_entropy(evaluator: Evaluator, planner: str, budget: int, *, seed: int 
             elite = np.zeros(len(r), dtype=bool)
             elite[np.argsort(r, kind="stable")[: max(1, math.ceil(rho * len(r)))]] = True
             level = max(float(r[elite].max()), 0.0)
-        w = np.exp(nominal.logpdf(space, points[elite]) - q.logpdf(space, points[elite]))
+        w = np.exp(nominal.logpdf(space, points[elite]) - log_q[elite])
         info: dict[str, Any] = {"stage": k, "episodes": stage, "level": level, "failures": int((r <= 0).sum()),
                 "elite": int(elite.sum())}
+        if components > 1 and n_fail:
+            pool_points.append(points[r <= 0])
+            pool_weights.append(np.exp(nominal.logpdf(space, points[r <= 0]) - log_q[r <= 0]))
+        if w.sum() > 0:
+            if components > 1 and sum(len(x) for x in pool_points) >= min_failures:
+                q = _refit_modes(space, nominal, q, np.concatenate(pool_points), np.concatenate(pool_weights),
+                                 smoothing, components)
+                info["modes"] = len(q.components) if isinstance(q, Mixture) else 1
+            else:
+                q = _refit(space, nominal, q if isinstance(q, Proposal) else nominal, points[elite], w, smoothing)
         stages.append(info)
         if on_stage is not None:
             on_stage(info)
-        if w.sum() > 0:
-            q = _refit(space, nominal, q, points[elite], w, smoothing)
         if n_fail >= rho * stage:  # a well-sampled set of failures: the proposal is fitted to it
             break
     n = budget - spent
     rng = np.random.default_rng([int(seed), 200])
-    from_q = rng.random(n) >= defensive
-    points = np.where(from_q[:, None], q.sample(space, rng, n), nominal.sample(space, rng, n))
+    points = _defensive_sample(space, q, nominal, defensive, rng, n)
     r, e = _run(evaluator, planner, points, seed, 200)
     errors += e
-    log_p = nominal.logpdf(space, points)
-    log_mix = np.logaddexp(math.log1p(-defensive) + q.logpdf(space, points), math.log(defensive) + log_p)
-    w = np.exp(log_p - log_mix)
+    w = np.exp(nominal.logpdf(space, points) - _defensive_logpdf(space, q, nominal, defensive, points))
     hw = np.where(r <= 0, w, 0.0)
     k_fail = int((r <= 0).sum())
-    stages.append({"stage": len(stages), "episodes": n, "level": 0.0, "failures": k_fail, "final": True,
-                   "proposal": dict(q.to_dict(space))})
+    method = "mixture" if components > 1 else "ce"
+    final: dict[str, Any] = {"stage": len(stages), "episodes": n, "level": 0.0, "failures": k_fail, "final": True,
+                             "proposal": q.to_dict(space) if isinstance(q, Mixture) else dict(q.to_dict(space))}
+    if components > 1:  # each failure mode's share of the estimate, heaviest first
+        modes: dict[tuple[int, ...], list[float]] = {}
+        for point, weight in zip(points[r <= 0], hw[r <= 0], strict=True):
+            modes.setdefault(_signature(space, point), []).append(float(weight))
+        final["modes"] = [{"choices": _describe(space, sig), "p": sum(ws) / n, "failures": len(ws)}
+                          for sig, ws in sorted(modes.items(), key=lambda kv: -sum(kv[1]))]
+    stages.append(final)
     if k_fail == 0:
-        return Estimate("ce", planner, budget, n, 0, 0.0, (0.0, 3.0 / (n * defensive)), upper_only=True,
+        return Estimate(method, planner, budget, n, 0, 0.0, (0.0, 3.0 / (n * defensive)), upper_only=True,
                         stages=stages, errors=errors)
     p = float(hw.mean())
     se = float(hw.std(ddof=1) / math.sqrt(n))
     ess = float(hw.sum() ** 2 / (hw**2).sum())
-    return Estimate("ce", planner, budget, n, k_fail, p, (max(p - Z95 * se, 0.0), p + Z95 * se), ess=ess,
+    return Estimate(method, planner, budget, n, k_fail, p, (max(p - Z95 * se, 0.0), p + Z95 * se), ess=ess,
                     top_share=float(hw.max() / hw.sum()), stages=stages, errors=errors)
 
 

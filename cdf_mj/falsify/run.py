@@ -38,9 +38,13 @@ from cdf_mj.records import jsonable, write_atomic
 from cdf_mj.records.files import check_output_target
 from cdf_mj.sim.scene import DEFAULT_SCENE, Scene
 
-__all__ = ["SETTINGS", "FalsifyResult", "estimate", "falsify"]
+__all__ = ["METHODS", "MIXTURE_COMPONENTS", "SETTINGS", "FalsifyResult", "estimate", "falsify"]
 
 SETTINGS = "settings.json"
+#: The estimators of :func:`estimate`.
+METHODS = ("ce", "mixture", "mc")
+#: Most components of the mixture estimator's proposal (failure modes weighed apart).
+MIXTURE_COMPONENTS = 8
 
 
 @dataclass
@@ -180,10 +184,12 @@ def estimate(space: SearchSpace, planner: str, budget: int, out: str | Path, *, 
              on_episode: Callable[[int], None] | None = None,
              on_stage: Callable[[dict[str, Any]], None] | None = None) -> Estimate:
     """P(failure) of ``planner`` per encounter of ``space``'s nominal distribution, by
-    ``method`` ``"ce"`` (cross-entropy importance sampling) or ``"mc"`` (plain Monte
-    Carlo), within ``budget`` episodes; written to ``out/estimate.json``. Resumable."""
-    if method not in ("ce", "mc"):
-        raise ValueError(f"method must be 'ce' or 'mc', got {method!r}")
+    ``method`` ``"ce"`` (cross-entropy importance sampling, one proposal), ``"mixture"``
+    (cross-entropy with a mixture proposal, a component per failure mode) or ``"mc"``
+    (plain Monte Carlo), within ``budget`` episodes; written to ``out/estimate.json``.
+    Resumable."""
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {', '.join(map(repr, METHODS))}, got {method!r}")
     wanted = {"kind": "estimate", "version": __version__, "space": space.name, "space_spec": space_spec(space),
               "space_text": space.text, "planner": planner, "seed": seed, "method": method, "stage": stage,
               **_scene_settings(scene, space)}
@@ -196,7 +202,8 @@ def estimate(space: SearchSpace, planner: str, budget: int, out: str | Path, *, 
         if method == "mc":
             result = monte_carlo(evaluator, planner, budget, seed=seed)
         else:
-            result = cross_entropy(evaluator, planner, budget, seed=seed, stage=stage, on_stage=on_stage)
+            result = cross_entropy(evaluator, planner, budget, seed=seed, stage=stage, on_stage=on_stage,
+                                   components=MIXTURE_COMPONENTS if method == "mixture" else 1)
         write_atomic(out_dir / "estimate.json", json.dumps({"space": space.name, "failure": space.failure.text,
                                                              **result.to_dict()}, indent=2, allow_nan=False) + "\n")
         return result

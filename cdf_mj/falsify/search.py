@@ -120,15 +120,16 @@ def _fitness(ev: Evaluation, log_likelihood: float, objective: str) -> float:
 
 
 def run_search(evaluator: Evaluator, planner: str, budget: int, *, seed: int = 0, popsize: int | None = None,
-               sigma0: float = 1.0, objective: str = "robustness",
+               sigma0: float = 1.0, objective: str = "robustness", until_failure: bool = False,
                on_generation: Callable[[Generation], None] | None = None) -> SearchResult:
     """Search ``evaluator``'s space for failures of ``planner`` within ``budget`` episodes.
 
     ``popsize``: the first population (default CMA-ES's 4 + 3 ln d); ``sigma0``: the first
     step in the latent coordinates (1: the first generation is a nominal sample);
     ``objective``: ``"robustness"`` (find failures) or ``"likely"`` (then the likeliest
-    failures; module docstring). The same ``seed``, budget and space give the same
-    candidates and results on any backend and worker count.
+    failures; module docstring); ``until_failure``: stop after the generation of the first
+    failure (to time it). The same ``seed``, budget and space give the same candidates and
+    results on any backend and worker count.
     """
     import cma  # a dependency; imported where the search runs (its import takes 0.2 s)
 
@@ -176,8 +177,8 @@ def run_search(evaluator: Evaluator, planner: str, budget: int, *, seed: int = 0
             if on_generation is not None:
                 on_generation(result.generations[-1])
             gen += 1
-            if n < len(asked):  # the budget ended within the generation
-                break
+            if n < len(asked) or (until_failure and result.first_failure is not None):
+                break  # the budget ended within the generation, or the first failure was all that was asked
             scores = [_fitness(ev, ll, objective) for ev, ll in zip(got, lls, strict=True)]
             es.tell(asked, scores)
             stale = 0 if min(scores) < best_here - 1e-3 else stale + 1
@@ -188,6 +189,8 @@ def run_search(evaluator: Evaluator, planner: str, budget: int, *, seed: int = 0
                 settled = settled + 1 if sum(ev.failed for ev in got) * 2 >= len(got) else 0
             if es.stop() or stale >= PATIENCE or settled >= SETTLED:
                 break
+        if until_failure and result.first_failure is not None:
+            break
         restart += 1
         if settled >= SETTLED or best_open is None:  # a mode found: look for the next from the nominal
             mean, step = np.zeros(d), sigma0

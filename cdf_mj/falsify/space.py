@@ -73,9 +73,10 @@ __all__ = ["LATENT_CAP", "MARGINS", "MARGIN_CAP", "MAX_DIMS", "MAX_VALUES", "Cho
            "truncnorm_moments", "truncnorm_sample"]
 
 #: What a failure's margin may be: the least bumper-to-bumper gap [m] (the record's
-#: ``min_gap``), the least time to collision [s] or the least time headway [s] (its
-#: ``safety.min_ttc`` / ``safety.min_headway``, docs/SAFETY.md).
-MARGINS = ("gap", "ttc", "headway")
+#: ``min_gap``), the least time to collision [s], the least time headway [s] or the
+#: post-encroachment time at the conflict area [s] (its ``safety.min_ttc`` /
+#: ``safety.min_headway`` / ``safety.pet``, docs/SAFETY.md).
+MARGINS = ("gap", "ttc", "headway", "pet")
 #: [s] The margin of an episode in which a time margin never happened (never closing,
 #: never following): far above any threshold, and finite for the search.
 MARGIN_CAP = 10.0
@@ -104,7 +105,12 @@ class FailureSpec:
     they guide a search differently: the least gap is over the whole episode, so a
     right-turner passing the ego 1 m away in its own lane reads nearer failure than a
     pull-out 3 m ahead of a fast ego; the least TTC is over the ticks with the obstacle in
-    the ego's lane and falls with the closing speed (the default space's margin).
+    the ego's lane and falls with the closing speed (the default space's margin), so on a
+    narrow junction a right-turner whose turn sweeps into the ego's lane reads near failure
+    too. The post-encroachment time (``pet``) is the time between one car leaving the
+    conflict area and the other entering it: only crossing traffic has one (a car passing
+    in its own lane never enters, and reads the cap), it is 0 when both are in the area
+    together, and it falls smoothly as their crossings come closer in time.
     """
 
     margin: str = "gap"
@@ -116,7 +122,7 @@ class FailureSpec:
             value = float(record["min_gap"])
         else:
             safety = record.get("safety") or {}
-            got = safety.get("min_ttc" if self.margin == "ttc" else "min_headway")
+            got = safety.get({"ttc": "min_ttc", "headway": "min_headway", "pet": "pet"}[self.margin])
             value = MARGIN_CAP if got is None else min(float(got), MARGIN_CAP)
         r = value - self.threshold
         return min(r, 0.0) if record.get("collision") else r
