@@ -224,3 +224,14 @@ def test_the_mixture_estimator_weighs_several_failure_modes(space):
     assert median([e.rel_error for e in runs]) < mc_rel
     families = {m["choices"]["obstacle.family"] for e in runs for m in e.stages[-1]["modes"][:6]}
     assert {"aggressive", "off-route"} <= families
+
+
+def test_the_mixture_estimator_takes_a_choice_the_nominal_never_draws():
+    """near-default gives a latency of 3 ticks weight 0: failures there alone (the
+    proposal's floor draws it) weigh nothing, and the estimate is 0, not an error."""
+    from cdf_mj.falsify.estimate import cross_entropy
+
+    near = load_space("near-default")
+    lat = near.keys.index("sensing.latency")
+    est = cross_entropy(_Formula(near, lambda x: 3 - x[lat]), "x", 1000, seed=0, components=8)
+    assert est.method == "mixture" and est.p == 0.0

@@ -214,7 +214,8 @@ def _moved_choices(space: SearchSpace, nominal: Proposal, points: np.ndarray, we
             k = len(p0)
             freq = np.bincount(np.clip(np.rint(points[:, j]).astype(int), 0, k - 1), weights=w, minlength=k)
             if not np.all(np.abs(freq - p0) <= 3 * np.sqrt(p0 * (1 - p0) / n_eff) + 1e-12):
-                moved.append((float(np.sum((freq - p0) ** 2 / p0)), j))  # chi-square distance to the nominal
+                chi = float(np.sum((freq - p0) ** 2 / np.maximum(p0, 1e-12)))  # chi-square distance to the nominal
+                moved.append((chi, j))
     return [j for _, j in sorted(moved, reverse=True)[:MODE_CHOICES]]
 
 
@@ -226,6 +227,10 @@ def _refit_modes(space: SearchSpace, nominal: Proposal, old: Proposal | Mixture,
     drawing its mode's values of those choices (all but :data:`MIN_CHOICE_SHARE` of an
     equal share) and the rest :func:`_refit` to the mode's failures from the nominal;
     weights in proportion to the modes' weight, each at least 5 % of an equal share."""
+    keep = weights > 0  # a failure the nominal cannot draw (a choice of weight 0) weighs nothing
+    points, weights = points[keep], weights[keep]
+    if not len(points):
+        return old if isinstance(old, Mixture) else Mixture((old,), (1.0,))
     moved = _moved_choices(space, nominal, points, weights)
     groups: dict[tuple[int, ...], list[int]] = {}
     for i, point in enumerate(points):
@@ -395,7 +400,8 @@ def cross_entropy(evaluator: Evaluator, planner: str, budget: int, *, seed: int 
             pool_points.append(points[r <= 0])
             pool_weights.append(np.exp(nominal.logpdf(space, points[r <= 0]) - log_q[r <= 0]))
         if w.sum() > 0:
-            if components > 1 and sum(len(x) for x in pool_points) >= min_failures:
+            if components > 1 and sum(float(x.sum()) > 0 for x in pool_weights) and \
+                    sum(len(x) for x in pool_points) >= min_failures:
                 q = _refit_modes(space, nominal, q, np.concatenate(pool_points), np.concatenate(pool_weights),
                                  smoothing, components)
                 info["modes"] = len(q.components) if isinstance(q, Mixture) else 1
@@ -424,8 +430,8 @@ def cross_entropy(evaluator: Evaluator, planner: str, budget: int, *, seed: int 
         final["modes"] = [{"choices": _describe(space, sig), "p": sum(ws) / n, "failures": len(ws)}
                           for sig, ws in sorted(modes.items(), key=lambda kv: -sum(kv[1]))]
     stages.append(final)
-    if k_fail == 0:
-        return Estimate(method, planner, budget, n, 0, 0.0, (0.0, 3.0 / (n * defensive)), upper_only=True,
+    if k_fail == 0 or hw.sum() <= 0:  # no failure, or only failures the nominal cannot draw (weight 0)
+        return Estimate(method, planner, budget, n, k_fail, 0.0, (0.0, 3.0 / (n * defensive)), upper_only=True,
                         stages=stages, errors=errors)
     p = float(hw.mean())
     se = float(hw.std(ddof=1) / math.sqrt(n))
