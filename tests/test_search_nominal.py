@@ -173,14 +173,16 @@ def test_the_first_failure_is_printed_beside_monte_carlos_expectation(tmp_path, 
 
 def test_the_post_encroachment_margin_reads_only_crossing_traffic():
     """``pet``: the time between the cars' crossings of the conflict area; a car that never
-    crosses (a right-turner in its own lane) reads the cap, not a near miss; a collision fails."""
-    from cdf_mj.falsify.space import MARGIN_CAP, FailureSpec
+    crosses (a right-turner in its own lane) reads the cap, not a near miss; two cars in the
+    area together read their least gap as time; only a collision fails at threshold 0."""
+    from cdf_mj.falsify.space import MARGIN_CAP, PET_GAP_SPEED, FailureSpec
 
     spec = FailureSpec("pet", 0.0)
     assert spec.robustness({"min_gap": 0.5, "collision": False, "safety": {"pet": 1.25}}) == 1.25
     assert spec.robustness({"min_gap": 0.5, "collision": False, "safety": {"pet": None}}) == MARGIN_CAP
+    assert spec.robustness({"min_gap": 0.5, "collision": False, "safety": {"pet": 0.0}}) == 0.5 / PET_GAP_SPEED
     assert spec.robustness({"min_gap": 0.0, "collision": True, "safety": {"pet": 0.0}}) <= 0.0
-    assert "pet" in spec.text
+    assert spec.text == "a collision"
 
 
 def test_a_search_can_stop_at_its_first_failure(space):
@@ -235,3 +237,30 @@ def test_the_mixture_estimator_takes_a_choice_the_nominal_never_draws():
     lat = near.keys.index("sensing.latency")
     est = cross_entropy(_Formula(near, lambda x: 3 - x[lat]), "x", 1000, seed=0, components=8)
     assert est.method == "mixture" and est.p == 0.0
+
+
+def test_on_a_narrow_junction_the_pet_guided_search_finds_a_left_turner_collision(tmp_path):
+    """The narrow (3.2 m), rotated, mirrored junction on which the TTC-guided search spent
+    most of its budget on right-turners passing half a metre away: with the PET the
+    default space's search (the route not pinned) collides with a left-turner within 500
+    episodes of cdf, run seed 0."""
+    from junctions import build_junction
+
+    from cdf_mj.falsify.evaluate import Evaluator, Journal
+
+    scene = tmp_path / "narrow.xml"
+    scene.write_text(build_junction(rotation=0.7, lane_width=3.2, center=(25.0, -40.0), mirror=True).to_xml())
+    text = load_space("default").text.replace('margin = "ttc"', 'margin = "pet"')
+    (tmp_path / "narrow_pet.toml").write_text(text)
+    narrow = load_space(tmp_path / "narrow_pet.toml")
+    assert narrow.failure.margin == "pet"
+    journal = Journal(tmp_path / "j.jsonl")
+    evaluator = Evaluator(narrow, ["cdf"], journal, scene=scene, workers=1)
+    try:
+        result = run_search(evaluator, "cdf", 500, seed=0, until_failure=True)
+    finally:
+        evaluator.close()
+        journal.close()
+    assert result.first_failure is not None
+    hit = result.evaluations[result.first_failure - 1]
+    assert hit.summary["collision"] and hit.summary["intent"] == "left"

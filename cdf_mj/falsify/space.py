@@ -68,7 +68,7 @@ from cdf_mj.inputs import (
 )
 from cdf_mj.presets import PresetError, read_preset
 
-__all__ = ["LATENT_CAP", "MARGINS", "MARGIN_CAP", "MAX_DIMS", "MAX_VALUES", "Choice", "Dim", "FailureSpec", "Range",
+__all__ = ["LATENT_CAP", "MARGINS", "MARGIN_CAP", "PET_GAP_SPEED", "MAX_DIMS", "MAX_VALUES", "Choice", "Dim", "FailureSpec", "Range",
            "SearchSpace", "SpaceError", "load_space", "space_names", "truncnorm_logpdf", "truncnorm_matching",
            "truncnorm_moments", "truncnorm_sample"]
 
@@ -84,6 +84,9 @@ MARGIN_CAP = 10.0
 MAX_DIMS = 64
 #: Most values of one choice or integer range.
 MAX_VALUES = 1000
+#: [m/s] With the ``pet`` margin, two cars in the conflict area on one tick (a PET of 0)
+#: read their least gap at this speed [s]: 0 only at contact, as the other margins.
+PET_GAP_SPEED = 10.0
 #: The search's standard-normal coordinates are read within this many standard deviations.
 LATENT_CAP = 8.0
 SUFFIX = TOML_SUFFIX
@@ -109,8 +112,10 @@ class FailureSpec:
     narrow junction a right-turner whose turn sweeps into the ego's lane reads near failure
     too. The post-encroachment time (``pet``) is the time between one car leaving the
     conflict area and the other entering it: only crossing traffic has one (a car passing
-    in its own lane never enters, and reads the cap), it is 0 when both are in the area
-    together, and it falls smoothly as their crossings come closer in time.
+    in its own lane never enters, and reads the cap), and it falls smoothly as their
+    crossings come closer in time; where both are in the area on one tick it reads their
+    least gap over :data:`PET_GAP_SPEED`, so that it too is 0 only at contact and
+    threshold 0 fails collisions only.
     """
 
     margin: str = "gap"
@@ -124,13 +129,15 @@ class FailureSpec:
             safety = record.get("safety") or {}
             got = safety.get({"ttc": "min_ttc", "headway": "min_headway", "pet": "pet"}[self.margin])
             value = MARGIN_CAP if got is None else min(float(got), MARGIN_CAP)
+            if self.margin == "pet" and got is not None and value <= 0.0:  # both in the conflict area together:
+                value = max(float(record["min_gap"]), 0.0) / PET_GAP_SPEED  # how near they came, as time
         r = value - self.threshold
         return min(r, 0.0) if record.get("collision") else r
 
     @property
     def text(self) -> str:
         """In words, for reports."""
-        if self.threshold == 0.0 and self.margin in ("gap", "ttc"):
+        if self.threshold == 0.0 and self.margin in ("gap", "ttc", "pet"):
             return "a collision"
         unit = "m" if self.margin == "gap" else "s"
         return f"a collision, or the least {self.margin} at or below {self.threshold:g} {unit}"
