@@ -240,7 +240,8 @@ def targets(parts: Parts) -> list[str]:
                      f"{'yes' if (mix.ess or 0) >= 100 else 'no'}), its interval "
                      f"{'inside' if inside else 'not inside'} Monte Carlo's {mc.episodes}-episode {mc.text()}, "
                      f"relative s.e. {mix.rel_error or math.inf:.3f} against {mc_rel:.3f} for Monte Carlo on "
-                     f"{mix.episodes} episodes (at most half: {'yes' if (mix.rel_error or math.inf) <= mc_rel / 2 else 'no'}) "
+                     f"{mix.episodes} episodes (at most half: "
+                     f"{'yes' if (mix.rel_error or math.inf) <= mc_rel / 2 else 'no'}) "
                      f"({'met' if ok else 'missed'}).")
     if parts.validation is not None:
         name, mc, ce = parts.validation
@@ -358,7 +359,7 @@ def page(parts: Parts, figure: str | None) -> str:
                   f"{_stages(ce)})."]
         mix = parts.validation_mixture
         if mix is not None:
-            lines += ["", f"The estimators on the same planner, each against Monte Carlo's relative standard error "
+            lines += ["", "The estimators on the same planner, each against Monte Carlo's relative standard error "
                           "at its own number of episodes:", ""]
             rows = [[label, e.text(), str(e.episodes), "-" if e.ess is None else f"{e.ess:.0f}",
                      "-" if e.rel_error is None else f"{e.rel_error:.3f}", f"{_mc_rel_error(mc.p, e.episodes):.3f}"]

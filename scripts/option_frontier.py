@@ -166,7 +166,8 @@ def main(argv: list[str] | None = None) -> int:
     lines = ["# The option rule's frontier on the development seeds", "",
              f"Seeds 0-{args.episodes - 1} (development) of {', '.join(f'`{s}`' for s in SCENARIOS)}. The question, "
              "declared in `scripts/option_frontier.py` before it ran: does any point of the option rule (`option_time` "
-             f"{OPTION_TIME:g} s, the escalation to the full brake at {ESCALATE:g}) reach issue 35's targets on all six "
+             f"{OPTION_TIME:g} s, the escalation to the full brake at {ESCALATE:g}) reach issue 35's targets on all "
+             "six "
              "at once: no collision, non-Cutoff interventions <= 10 %, hard brakes <= 1 %? A measurement, nothing "
              "is chosen from it.", "",
              "**Answer: " + (f"yes, {', '.join(met)}.**" if met else "no point does.**"), "",

@@ -312,7 +312,7 @@ def test_the_escalation_has_its_own_threshold(scene: Scene) -> None:
 
     assert brake_time(None) is not None and brake_time(0.5) == brake_time(None)
     assert brake_time(1.0) is None
-    with pytest.raises(ValueError, match="layered.escalate"):
+    with pytest.raises(ValueError, match=r"layered\.escalate"):
         LayeredConfig(escalate=1.5)
 
 

@@ -684,7 +684,8 @@ def test_the_estimate_command_prints_its_estimate_and_writes_it(spaces, tmp_path
     shown = f"< {hi:.2g}" if saved["upper_only"] else f"{saved['p']:.3g} [{lo:.2g}, {hi:.2g}]"
     assert shown in lines[0] and "Monte Carlo, 60 episodes" in lines[0]
     if saved["p"] > 0:  # the first failure Monte Carlo expects at the rate, for the search to be set against
-        assert lines.pop(1) == f"at this rate plain Monte Carlo expects its first failure after {60 / saved['failures']:.0f} episodes"
+        expected = 60 / saved["failures"]
+        assert lines.pop(1) == f"at this rate plain Monte Carlo expects its first failure after {expected:.0f} episodes"
     assert lines[1] == f"wrote {out}/estimate.json"
     journal = (out / JOURNAL_FILE).read_bytes()
     assert journal.count(b"\n") == 60

@@ -120,7 +120,7 @@ def test_choice_mass_is_the_product_of_the_choices_nominal_weights(space):
     want = 1.0
     for d, x in zip(space.dims, point, strict=True):
         if d.discrete:
-            want *= d.weights[int(round(x))] / sum(d.weights)
+            want *= d.weights[round(x)] / sum(d.weights)
     assert math.isclose(choice_mass(space, point), want, rel_tol=1e-12)
 
 

@@ -161,7 +161,8 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     space = _space(args)
     n = args.episodes
     if args.method != "mc" and n < MIN_CE_BUDGET:  # before a directory is made
-        raise CLIError(f"--method {args.method} needs --episodes {MIN_CE_BUDGET} or more (an adaptive stage of 50 and a "
+        raise CLIError(f"--method {args.method} needs --episodes {MIN_CE_BUDGET} or more (an adaptive stage of 50 "
+                       "and a "
                        f"last stage), got {n}; use --method mc below that")
     if args.stage is not None and args.method == "mc":
         raise CLIError("--stage is for --method ce or mixture (their adaptive stages); Monte Carlo has none")

@@ -40,7 +40,8 @@ from cdf_mj.falsify.evaluate import Evaluation, Evaluator
 from cdf_mj.falsify.space import SearchSpace
 from cdf_mj.records import write_atomic
 
-__all__ = ["Counterexample", "choice_mass", "cluster_failures", "find_counterexamples", "preset_text", "write_counterexamples"]
+__all__ = ["Counterexample", "choice_mass", "cluster_failures", "find_counterexamples", "preset_text",
+           "write_counterexamples"]
 
 
 @dataclass

@@ -49,6 +49,7 @@ import numpy as np
 from cdf_mj.analysis.metrics import wilson_interval
 from cdf_mj.falsify.evaluate import Evaluator, episode_seed
 from cdf_mj.falsify.space import (
+    Choice,
     Range,
     SearchSpace,
     truncnorm_logpdf,
@@ -149,12 +150,12 @@ class Mixture:
 
 def _signature(space: SearchSpace, point: np.ndarray) -> tuple[int, ...]:
     """The choices of a point (its discrete coordinates): a failure mode's key."""
-    return tuple(int(round(float(x))) for d, x in zip(space.dims, point, strict=True) if d.discrete)
+    return tuple(round(float(x)) for d, x in zip(space.dims, point, strict=True) if isinstance(d, Choice))
 
 
 def _describe(space: SearchSpace, signature: tuple[int, ...]) -> dict[str, Any]:
     """A signature as option -> value."""
-    discrete = [d for d in space.dims if d.discrete]
+    discrete = [d for d in space.dims if isinstance(d, Choice)]
     return {d.key: d.values[i] for d, i in zip(discrete, signature, strict=True)}
 
 
@@ -234,7 +235,7 @@ def _refit_modes(space: SearchSpace, nominal: Proposal, old: Proposal | Mixture,
     moved = _moved_choices(space, nominal, points, weights)
     groups: dict[tuple[int, ...], list[int]] = {}
     for i, point in enumerate(points):
-        groups.setdefault(tuple(int(round(float(point[j]))) for j in moved), []).append(i)
+        groups.setdefault(tuple(round(float(point[j])) for j in moved), []).append(i)
     ranked = sorted(groups.items(), key=lambda kv: -float(weights[kv[1]].sum()))[:components]
     comps, mass = [], []
     for values, idx in ranked:

@@ -141,7 +141,8 @@ def _open(out: str | Path, wanted: dict[str, Any], stack: ExitStack) -> tuple[Pa
 def falsify(space: SearchSpace, planner: str, budget: int, out: str | Path, *, compare: Sequence[str] = (),
             seed: int = 0, popsize: int | None = None, objective: str = "robustness",
             scene: str | Path = DEFAULT_SCENE, backend: Backend = "process", workers: int | None = None,
-            address: str | None = None, max_clusters: int = 12, figure: bool = True, on_episode: Callable[[int], None] | None = None,
+            address: str | None = None, max_clusters: int = 12, figure: bool = True,
+            on_episode: Callable[[int], None] | None = None,
             on_generation: Callable[[Generation], None] | None = None,
             on_search_done: Callable[[int], None] | None = None, scene_args: str = "") -> FalsifyResult:
     """Search ``space`` for failures of ``planner`` within ``budget`` episodes, cluster and

@@ -68,9 +68,26 @@ from cdf_mj.inputs import (
 )
 from cdf_mj.presets import PresetError, read_preset
 
-__all__ = ["LATENT_CAP", "MARGINS", "MARGIN_CAP", "PET_GAP_SPEED", "MAX_DIMS", "MAX_VALUES", "Choice", "Dim", "FailureSpec", "Range",
-           "SearchSpace", "SpaceError", "load_space", "space_names", "truncnorm_logpdf", "truncnorm_matching",
-           "truncnorm_moments", "truncnorm_sample"]
+__all__ = [
+    "LATENT_CAP",
+    "MARGINS",
+    "MARGIN_CAP",
+    "MAX_DIMS",
+    "MAX_VALUES",
+    "PET_GAP_SPEED",
+    "Choice",
+    "Dim",
+    "FailureSpec",
+    "Range",
+    "SearchSpace",
+    "SpaceError",
+    "load_space",
+    "space_names",
+    "truncnorm_logpdf",
+    "truncnorm_matching",
+    "truncnorm_moments",
+    "truncnorm_sample",
+]
 
 #: What a failure's margin may be: the least bumper-to-bumper gap [m] (the record's
 #: ``min_gap``), the least time to collision [s], the least time headway [s] or the

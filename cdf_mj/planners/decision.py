@@ -327,8 +327,9 @@ class LayeredRule(RiskRule):
     as time at its nominal speed, twice the std). The follow layer reads the measured
     pose of a car ahead in the ego's lane. With the option rule the anticipation escalates
     to the full brake when, slowing since an earlier tick, the comfortable brake from now
-    is still likely (``layers.escalate``, by default ``anticipate``) to leave the ego short of that RSS distance behind the
-    car merging ahead (:data:`SLOW_RSS`; ``Layers.slow_rss``), before that car is in the
+    is still likely (``layers.escalate``, by default ``anticipate``) to leave the ego short
+    of that RSS distance behind the car merging ahead (:data:`SLOW_RSS`;
+    ``Layers.slow_rss``), before that car is in the
     lane, where the follow layer would take over: RSS's proper response, brought forward
     by the belief; it holds until that is no longer likely (and the emergency layer's
     release rules allow).
