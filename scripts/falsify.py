@@ -170,7 +170,7 @@ def _median(values: Sequence[float]) -> float:
 def first_failure_rows(parts: Parts) -> tuple[list[str], list[str]]:
     """The table of first failures against Monte Carlo's expectation, and the target lines."""
     rows, missed, rare_missed = [], [], []
-    unmeasured = []
+    unmeasured, behind_median = [], []
     for (space, planner), (found, rate, source) in parts.first.items():
         med = _median([math.inf if f is None else f for f in found])
         shown = ", ".join("none" if f is None else str(f) for f in found)
@@ -180,13 +180,17 @@ def first_failure_rows(parts: Parts) -> tuple[list[str], list[str]]:
                          "none" if math.isinf(med) else f"{med:g}", "-", "no rate measured"])
             continue
         expect = 1 / rate
+        mc_median = math.ceil(math.log(0.5) / math.log1p(-rate)) if rate < 1 else 1  # Monte Carlo's median wait
         rare = rate <= 0.005
         ok = med <= expect and (not rare or med <= expect / 10)
         (rare_missed if rare and not ok else missed if not ok else []).append(f"`{planner}` on `{space}`")
-        rows.append([f"`{space}`", f"`{planner}`", f"{rate:.3g} ({source})", f"{expect:.0f}", shown,
+        if med > (mc_median / 10 if rare else mc_median):
+            behind_median.append(f"`{planner}` on `{space}`")
+        rows.append([f"`{space}`", f"`{planner}`", f"{rate:.3g} ({source})", f"{expect:.0f} ({mc_median})", shown,
                      "none" if math.isinf(med) else f"{med:g}", f"{med / expect:.2f}" if math.isfinite(med) else "-",
                      ("met" if ok else "**missed**") + (" (<= 1/10: rate <= 0.5 %)" if rare else "")])
-    table = markdown_table(["space", "planner", "failure rate (from)", "Monte Carlo expects a first failure after",
+    table = markdown_table(["space", "planner", "failure rate (from)",
+                            "Monte Carlo expects a first failure after (its median)",
                             f"first failures of {FIRST_RUNS} runs", "median", "median / Monte Carlo",
                             "target"], rows)
     n = len(parts.first) - len(unmeasured)
@@ -195,7 +199,9 @@ def first_failure_rows(parts: Parts) -> tuple[list[str], list[str]]:
              f"{n - len(missed) - len(rare_missed)} of {n} met"
              + (f"; missed: {', '.join(missed + rare_missed)}" if missed or rare_missed else "")
              + (f"; no rate measured (Monte Carlo saw no failure): {', '.join(unmeasured)}" if unmeasured else "")
-             + "."]
+             + ". The expectation is Monte Carlo's mean wait, 1 / rate; its median wait is 0.69 of it, and "
+             + (f"against that median (a tenth of it at rates <= 0.5 %) the search is behind on "
+                f"{', '.join(behind_median)}." if behind_median else "the search is no later than that either.")]
     return table, lines
 
 
@@ -302,7 +308,8 @@ def page(parts: Parts, figure: str | None) -> str:
                   f"Episodes to the first failure, {FIRST_RUNS} run seeds per space and planner (a run seeded 0, "
                   "1, ... that stops at its first failure; on the default space the full searches above count "
                   "for their seeds), against the episodes plain Monte Carlo expects at the measured failure "
-                  "rate (1 / rate). The search's first generation is a nominal sample, so it starts as Monte "
+                  "rate (1 / rate; in brackets Monte Carlo's median wait, ln 2 / -ln(1 - rate)). The search's "
+                  "first generation is a nominal sample, so it starts as Monte "
                   "Carlo does; the target asks that its median be no later, and a tenth of it where the rate is "
                   "0.5 % or less.", "", *first_failure_rows(parts)[0]]
     for p, results in parts.searches.items():
@@ -367,9 +374,10 @@ def page(parts: Parts, figure: str | None) -> str:
                                      ("cross-entropy, mixture of failure modes", mix))]
             lines += markdown_table(["estimator", "estimate [95 %]", "episodes", "ESS", "relative s.e.",
                                      "Monte Carlo's relative s.e. at as many episodes"], rows)
-            modes = next((st.get("modes") for st in mix.stages if st.get("final")), None) or []
+            modes = next((st.get("cells") for st in mix.stages if st.get("final")), None) or []
             if modes:
-                lines += ["", "The mixture's failure modes (its last stage), heaviest first: "
+                lines += ["", "The failures' cells of choices in the mixture's last stage (every choice's value: "
+                          "finer than its components), heaviest first: "
                           + "; ".join(f"{', '.join(f'{k} = {v}' for k, v in m['choices'].items())}: "
                                       f"{m['p']:.2g} ({m['failures']} failures)" for m in modes[:6]) + "."]
     unit = "m" if space.failure.margin == "gap" else "s"

@@ -88,10 +88,11 @@ def _scene_args(args: argparse.Namespace) -> str:
     return shlex.join(words)
 
 
-def _estimated_rate(path: str | None) -> float | None:
-    """P(failure) of an ``estimate`` run (its directory or its estimate.json), for the
-    first failure's comparison with Monte Carlo; one line (CLIError) for a file that cannot
-    be read or holds no rate in (0, 1]."""
+def _estimated_rate(path: str | None, space: SearchSpace, planner: str) -> float | None:
+    """P(failure) of an ``estimate`` run (its directory or its estimate.json) of the same
+    space, planner and failure, for the first failure's comparison with Monte Carlo; one
+    line (CLIError) for a file that cannot be read, of another run, or without a rate in
+    (0, 1]."""
     if path is None:
         return None
     from pathlib import Path
@@ -102,10 +103,16 @@ def _estimated_rate(path: str | None) -> float | None:
     try:
         data = parse_json(read_text(file, "estimate file", SETTINGS_MAX_BYTES), f"estimate file {file}")
     except (InputError, ValueError, OSError) as exc:
-        raise CLIError(f"--estimate: {exc}") from None
-    p = data.get("p") if isinstance(data, dict) else None
-    if isinstance(p, bool) or not isinstance(p, (int, float)) or not 0.0 < p <= 1.0:
-        raise CLIError(f"--estimate: {file} holds no failure probability in (0, 1] (its 'p' is {p!r}): give the "
+        raise CLIError(f"--estimate {file}: {exc}") from None
+    if not isinstance(data, dict):
+        raise CLIError(f"--estimate: {file} is not an estimate (a JSON object with its 'p')")
+    for key, want in (("space", space.name), ("planner", planner), ("failure", space.failure.text)):
+        if data.get(key) != want:
+            raise CLIError(f"--estimate: {file} is an estimate of {key} {data.get(key)!r}, this search's is "
+                           f"{want!r}: give an estimate of the same space, planner and failure")
+    p = data.get("p")
+    if isinstance(p, bool) or not isinstance(p, (int, float)) or not 1e-12 <= p <= 1.0:
+        raise CLIError(f"--estimate: {file} holds no failure probability in [1e-12, 1] (its 'p' is {p!r}): give the "
                        "directory of a finished `cdf-mj estimate` that saw failures")
     return float(p)
 
@@ -117,7 +124,7 @@ def _cmd_falsify(args: argparse.Namespace) -> int:
 
     pool = pool_from_args(args)
     space = _space(args)
-    rate = _estimated_rate(args.estimate)
+    rate = _estimated_rate(args.estimate, space, args.planner)
     with tqdm(total=args.episodes, unit="ep", desc=f"falsify {args.planner}", disable=args.quiet) as bar:
         def generation(g: Generation) -> None:
             bar.update(g.episodes - bar.n)
@@ -230,7 +237,8 @@ def add_falsify(subparsers: argparse._SubParsersAction) -> None:
                    help="a `cdf-mj estimate` run of the same space and planner: the first failure is printed "
                         "beside the episodes plain Monte Carlo expects at its rate")
     p.add_argument("--max-clusters", type=_clusters, default=12,
-                   help="clusters of failures minimised and written (largest first; default 12)")
+                   help="clusters of failures minimised and written (the largest are kept; they are listed "
+                        "likeliest first; default 12)")
     p.add_argument("--no-figure", action="store_true", help="no progress figure (no matplotlib needed)")
     p.set_defaults(func=_cmd_falsify)
 

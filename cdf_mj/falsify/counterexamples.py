@@ -175,7 +175,8 @@ def find_counterexamples(evaluator: Evaluator, planner: str, failures: Sequence[
     for c in merged.values():
         c.log_likelihood = float(space.log_likelihood([c.members[0].point])[0])
         c.likeliest = float(space.log_likelihood([m.point for m in c.members]).max())
-        c.choice_mass = choice_mass(space, c.members[0].point)
+        cells = {_signature(space, m.point): m.point for m in c.members}  # merged clusters span several
+        c.choice_mass = sum(choice_mass(space, point) for point in cells.values())
     out = sorted(merged.values(), key=lambda c: (-c.likeliest, -c.choice_mass, -len(c.members)))
     for other in compare:
         got = evaluator.evaluate([(c.point, c.seed) for c in out], [other], keep=[c.keep for c in out])

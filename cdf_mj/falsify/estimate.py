@@ -297,7 +297,9 @@ class Estimate:
         (effective sample size under 10), or one failure carrying more than a quarter of it."""
         raised = f"not reliable: {self.errors} of {self.episodes} episodes raised, counted as no failure"
         if self.upper_only:
-            return f"< {self.ci[1]:.2g} (0 failures in {self.n}{'; ' + raised if self.errors else ''})"
+            seen = (f"{self.failures} failures in {self.n}, none the nominal can draw" if self.failures
+                    else f"0 failures in {self.n}")
+            return f"< {self.ci[1]:.2g} ({seen}{'; ' + raised if self.errors else ''})"
         shown = f"{self.p:.3g} [{self.ci[0]:.2g}, {self.ci[1]:.2g}]"
         if self.errors:
             return f"{shown} ({raised})"
@@ -424,11 +426,11 @@ def cross_entropy(evaluator: Evaluator, planner: str, budget: int, *, seed: int 
     method = "mixture" if components > 1 else "ce"
     final: dict[str, Any] = {"stage": len(stages), "episodes": n, "level": 0.0, "failures": k_fail, "final": True,
                              "proposal": q.to_dict(space) if isinstance(q, Mixture) else dict(q.to_dict(space))}
-    if components > 1:  # each failure mode's share of the estimate, heaviest first
+    if components > 1:  # each cell of choices' share of the estimate, heaviest first (finer than the components)
         modes: dict[tuple[int, ...], list[float]] = {}
         for point, weight in zip(points[r <= 0], hw[r <= 0], strict=True):
             modes.setdefault(_signature(space, point), []).append(float(weight))
-        final["modes"] = [{"choices": _describe(space, sig), "p": sum(ws) / n, "failures": len(ws)}
+        final["cells"] = [{"choices": _describe(space, sig), "p": sum(ws) / n, "failures": len(ws)}
                           for sig, ws in sorted(modes.items(), key=lambda kv: -sum(kv[1]))]
     stages.append(final)
     if k_fail == 0 or hw.sum() <= 0:  # no failure, or only failures the nominal cannot draw (weight 0)

@@ -16,9 +16,10 @@ again, so that the budget finds several failure modes, not one many times.
 
 Why CMA-ES (the ``cma`` package, N. Hansen's reference implementation): the robustness is
 a noisy, non-smooth function of 20-odd mixed dimensions with no gradient; CMA-ES needs
-no gradient, is rank-based (so the ``likely`` objective is only an ordering: every
-failure before every non-failure, the likelier failure first, as adaptive stress testing
-maximises the likelihood of a failure path), learns which dimensions matter together,
+no gradient, is rank-based (the ``likely`` objective, a penalty method, ranks a failure by
+its negative log-likelihood and a non-failure by that plus a penalty per unit of
+robustness left, as adaptive stress testing maximises the likelihood of a failure
+path), learns which dimensions matter together,
 and works in batches (one generation is one batch of episodes for the workers).
 
 Each candidate is one episode of a point of the space with a seed of its own
@@ -94,7 +95,8 @@ class SearchResult:
         return [e for e in self.evaluations if e.error is not None]
 
     def to_dict(self) -> dict[str, Any]:
-        fails = [ll for ll, e in zip(self.log_likelihood, self.evaluations, strict=True) if e.failed]
+        fails = [ll for ll, e in zip(self.log_likelihood, self.evaluations, strict=True)
+                 if e.failed and math.isfinite(ll)]
         return {"planner": self.planner, "objective": self.objective, "episodes": len(self.evaluations),
                 "failures": len(self.failures), "first_failure": self.first_failure,
                 "best": min((e.robustness for e in self.evaluations), default=None),
@@ -166,7 +168,8 @@ def run_search(evaluator: Evaluator, planner: str, budget: int, *, seed: int = 0
                 if ev.failed:
                     if result.first_failure is None:
                         result.first_failure = start + i + 1
-                    likeliest = lls[i] if likeliest is None else max(likeliest, lls[i])
+                    if math.isfinite(lls[i]):
+                        likeliest = lls[i] if likeliest is None else max(likeliest, lls[i])
                 elif ev.error is None and (best_open is None or ev.robustness < best_open[0]):
                     best_open = (ev.robustness, np.asarray(asked[i], dtype=float))
             values = [ev.robustness for ev in got]

@@ -104,7 +104,10 @@ MAX_VALUES = 1000
 #: [m/s] With the ``pet`` margin, two cars in the conflict area on one tick (a PET of 0)
 #: read their least gap at this speed [s]: 0 only at contact, as the other margins.
 PET_GAP_SPEED = 10.0
-#: The search's standard-normal coordinates are read within this many standard deviations.
+#: The search's standard-normal coordinates are read within this many standard deviations:
+#: a range whose nominal is far narrower than it is searched within about 8 of the
+#: nominal's standard deviations of its mean (beyond, the nominal density is below e^-32);
+#: to have a far corner searched, give the space a wider nominal there.
 LATENT_CAP = 8.0
 SUFFIX = TOML_SUFFIX
 _TOP = ("description", "preset", "failure", "dims")
@@ -245,8 +248,10 @@ class Choice:
         """The index at standard-normal ``z``: Phi(z) cut by the nominal weights' cumulative
         sums, so that ``z ~ N(0, 1)`` draws each value with its nominal weight."""
         u = _NORMAL.cdf(float(min(max(z, -LATENT_CAP), LATENT_CAP)))
-        cum = np.cumsum(self.weights) / sum(self.weights)
-        return float(min(int(np.searchsorted(cum, u, side="right")), len(self.values) - 1))
+        cum = np.cumsum(self.weights)
+        cum = cum / cum[-1]
+        last = max(i for i, w in enumerate(self.weights) if w > 0)  # never a value of weight 0 past the last
+        return float(min(int(np.searchsorted(cum, u, side="right")), last))
 
     def log_nominal(self, x: np.ndarray) -> np.ndarray:
         """Log of the nominal weight of the values at coordinates ``x``."""
@@ -295,7 +300,7 @@ class SearchSpace:
         return self.base.with_values(values)
 
     def from_unit(self, u: Sequence[float]) -> np.ndarray:
-        """The point of a unit-cube vector (the search's coordinates): each range scaled,
+        """The point of a unit-cube vector (the old search's coordinates): each range scaled,
         each choice's ``[0, 1)`` cut into equal parts."""
         return np.array([d.from_unit(float(x)) for d, x in zip(self.dims, u, strict=True)])
 
