@@ -32,9 +32,12 @@ group         writes (under ``--docs``, default ``docs/img``)
 ``pareto``    ``decision/pareto.png``: every planner's trade-off on the held-out seeds,
               ``python scripts/decision.py --tuning results/tune_option`` (which remakes
               docs/DECISION_RESULTS.md with it: about half an hour on 2 cores)
+``frontier``  ``frontier/frontier.png``: the option rule's thresholds against issue 35's
+              targets, ``python scripts/option_frontier.py`` (which remakes
+              docs/FRONTIER.md with it: about 12 minutes on 2 cores, seconds after)
 ``falsify``   ``falsify/progress.png``: the falsification page's searches,
-              ``python scripts/falsify.py`` (which remakes docs/FALSIFY.md with it: about an
-              hour on 2 cores the first time, seconds from its results after)
+              ``python scripts/falsify.py`` (which remakes docs/FALSIFY.md with it: about 45
+              minutes on 2 cores the first time, seconds from its results after)
 ============  ============================================================================
 
 Experiment directories go under ``--results`` (default ``results/figures``) and are
@@ -60,7 +63,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 PROG = "make_figures"
-GROUPS = ("report", "analysis", "sweeps", "decision", "pareto", "falsify", "frame", "gif")  # the renderer's last
+GROUPS = ("report", "analysis", "sweeps", "decision", "pareto", "frontier", "falsify", "frame", "gif")  # the renderer's last
 DECISION_PICTURES = ("anticipate", "emergency", "follow")  # scripts/decision_figures.py's
 OPTION_PICTURES = ("option_waits", "option_right", "option_brakes", "option_rss")  # scripts/option_figures.py's
 ANALYSIS_PLANNERS = "cdf,reactive,cv,imm"
@@ -180,6 +183,14 @@ def make_pareto(opts: Options) -> None:
                    *_workers(opts)], f"{figure} and docs/DECISION_RESULTS.md", opts)
 
 
+def make_frontier(opts: Options) -> None:
+    """docs/img/frontier/frontier.png: written by the frontier page's script, which remakes
+    docs/FRONTIER.md from the same runs."""
+    figure = opts.docs / "frontier" / "frontier.png"
+    python_script(["scripts/option_frontier.py", "--figure", str(figure), *_workers(opts)],
+                  f"{figure} and docs/FRONTIER.md", opts)
+
+
 def make_falsify(opts: Options) -> None:
     """docs/img/falsify/progress.png: written by the falsification page's script, which
     remakes docs/FALSIFY.md from the same runs."""
@@ -202,7 +213,7 @@ def make_gif(opts: Options) -> None:
 
 MAKERS: dict[str, Callable[[Options], None]] = {
     "report": make_report, "analysis": make_analysis, "sweeps": make_sweeps, "decision": make_decision,
-    "pareto": make_pareto,
+    "pareto": make_pareto, "frontier": make_frontier,
     "falsify": make_falsify, "frame": make_frame, "gif": make_gif,
 }
 

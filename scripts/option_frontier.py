@@ -152,8 +152,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--episodes", type=int, default=200, help="development seeds from 0 (default 200)")
     parser.add_argument("--workers", type=int, default=None, help="worker processes (default: one per CPU)")
     parser.add_argument("--doc", default="docs/FRONTIER.md",
-                        help="Markdown page written, its figure under docs/img/frontier (default docs/FRONTIER.md; "
-                             "'' for none)")
+                        help="Markdown page written (default docs/FRONTIER.md; '' for none)")
+    parser.add_argument("--figure", type=Path, default=None,
+                        help="its figure (default img/frontier/frontier.png beside the page)")
     args = parser.parse_args(argv)
     if args.episodes < 1:
         parser.error(f"--episodes must be at least 1, got {args.episodes}")
@@ -188,9 +189,11 @@ def main(argv: list[str] | None = None) -> int:
                                          for m in (cells[pt][s] for s in SCENARIOS))] for pt in POINTS])
     text = "\n".join(lines)
     print(text)
+    if args.doc or args.figure:
+        doc = Path(args.doc or "docs/FRONTIER.md")
+        figure = args.figure or doc.parent / "img" / "frontier" / "frontier.png"
+        _figure(figure, rows)
     if args.doc:
-        doc = Path(args.doc)
-        _figure(doc.parent / "img" / "frontier" / "frontier.png", rows)
         command = command_line("scripts/option_frontier.py",
                                [("--episodes", args.episodes if args.episodes != 200 else None)])
         write_page(doc, text, command)

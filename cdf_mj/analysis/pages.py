@@ -56,6 +56,7 @@ RESULTS_PAGES: dict[str, str] = {
     "STRESS.md": "scripts/stress.py",
     "FALSIFY.md": "scripts/falsify.py",
     "TUNING.md": "scripts/tune_option.py",
+    "FRONTIER.md": "scripts/option_frontier.py",
 }
 
 #: Options of the page scripts that leave parts out of a page (parts or presets): a page in
