@@ -63,7 +63,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 PROG = "make_figures"
-GROUPS = ("report", "analysis", "sweeps", "decision", "pareto", "frontier", "falsify", "frame", "gif")  # the renderer's last
+# The renderer's last.
+GROUPS = ("report", "analysis", "sweeps", "decision", "pareto", "frontier", "falsify", "frame", "gif")
 DECISION_PICTURES = ("anticipate", "emergency", "follow")  # scripts/decision_figures.py's
 OPTION_PICTURES = ("option_waits", "option_right", "option_brakes", "option_rss")  # scripts/option_figures.py's
 ANALYSIS_PLANNERS = "cdf,reactive,cv,imm"
