@@ -5,8 +5,12 @@ scripted ego, without MuJoCo: the driver's own kinematic bicycle integrated at `
 
 from __future__ import annotations
 
+import ast
 import dataclasses
+import importlib.util
 import math
+import subprocess
+import sys
 from collections.abc import Callable
 
 import numpy as np
@@ -74,3 +78,24 @@ def progress(layout, pose: np.ndarray) -> np.ndarray:
     """[m] the rear axle past its stop position along the side road's direction."""
     x0, y0, th0, _ = layout.obstacle_start
     return (pose[:, 0] - x0) * math.cos(th0) + (pose[:, 1] - y0) * math.sin(th0)
+
+
+#: What a world driver, written apart from the filter, must not import.
+FILTER_MODULES = ("cdf_mj.model.driver", "cdf_mj.model.kernels", "cdf_mj.inference")
+
+
+def assert_written_apart(module: str, then: str = "") -> None:
+    """``module`` (a world driver's) imports none of :data:`FILTER_MODULES`, and importing
+    it (then running ``then``) in a fresh interpreter loads none of them either."""
+    spec = importlib.util.find_spec(module)
+    assert spec is not None and spec.origin is not None, module
+    with open(spec.origin, encoding="utf-8") as fh:
+        tree = ast.parse(fh.read())
+    imported = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+    imported |= {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    assert not [m for m in imported if m and m.startswith(FILTER_MODULES)], imported
+    code = (f"import sys, {module}\n{then}"
+            f"print(sorted(m for m in sys.modules if m.startswith({FILTER_MODULES!r})))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=False)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "[]"
