@@ -32,8 +32,9 @@ from pathlib import Path
 from cdf_mj.analysis.metrics import PlannerMetrics, Rate, planner_metrics
 from cdf_mj.analysis.pages import command_line, markdown_table, write_page
 from cdf_mj.analysis.tables import format_rate
+from cdf_mj.cli.args import episode_count, worker_count
 from cdf_mj.config import CDFConfig, LayeredConfig, RiskConfig
-from cdf_mj.experiments.experiment import ResultsExistError, run_experiment
+from cdf_mj.experiments.experiment import run_experiment
 from cdf_mj.presets import load_preset
 
 SCENARIOS = ("default", "stop-and-wait", "stress-looked-but-failed", "stress-misjudged-speed", "stress-distracted",
@@ -79,10 +80,7 @@ def _run(out: Path, scenario: str, point: Point, episodes: int, workers: int | N
     """The metrics of one point on one scenario (run, or resumed)."""
     kwargs = {**point.kwargs(), "config": load_preset(scenario), "workers": workers, "progress": False}
     path = out / scenario / point.name
-    try:
-        result = run_experiment(path, range(episodes), **kwargs)
-    except ResultsExistError:
-        result = run_experiment(path, range(episodes), resume=True, **kwargs)
+    result = run_experiment(path, range(episodes), resume=True, **kwargs)  # a fresh directory starts
     return planner_metrics(result)[kwargs["planners"][0]]
 
 
@@ -149,19 +147,20 @@ def _figure(path: Path, rows: dict[Point, Pooled]) -> None:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="option_frontier", description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=Path("results/frontier"), help="result directory")
-    parser.add_argument("--episodes", type=int, default=200, help="development seeds from 0 (default 200)")
-    parser.add_argument("--workers", type=int, default=None, help="worker processes (default: one per CPU)")
+    parser.add_argument("--episodes", type=episode_count, default=200, help="development seeds from 0 (default 200)")
+    parser.add_argument("--workers", type=worker_count, default=None, help="worker processes (default: one per CPU)")
     parser.add_argument("--doc", default="docs/FRONTIER.md",
                         help="Markdown page written (default docs/FRONTIER.md; '' for none)")
     parser.add_argument("--figure", type=Path, default=None,
                         help="its figure (default img/frontier/frontier.png beside the page)")
     args = parser.parse_args(argv)
-    if args.episodes < 1:
-        parser.error(f"--episodes must be at least 1, got {args.episodes}")
     cells: dict[Point, dict[str, PlannerMetrics]] = {pt: {} for pt in POINTS}
     for scenario, point in itertools.product(SCENARIOS, POINTS):
         print(f"{scenario}, {point.name}", file=sys.stderr, flush=True)
-        cells[point][scenario] = _run(args.out, scenario, point, args.episodes, args.workers)
+        try:
+            cells[point][scenario] = _run(args.out, scenario, point, args.episodes, args.workers)
+        except (ValueError, OSError) as exc:  # a directory of other settings, not a directory, ...
+            parser.error(str(exc))
     rows = {pt: pooled(cells[pt]) for pt in POINTS}
     met = [pt.name for pt, p in rows.items() if p.meets and pt.anticipate is not None]
     lines = ["# The option rule's frontier on the development seeds", "",

@@ -30,7 +30,7 @@ from pathlib import Path
 
 from cdf_mj.analysis.metrics import planner_metrics
 from cdf_mj.config import CDFConfig, LayeredConfig
-from cdf_mj.experiments.experiment import ResultsExistError, run_experiment
+from cdf_mj.experiments.experiment import run_experiment
 from cdf_mj.presets import load_preset
 
 SCENARIOS = ("default", "stop-and-wait", "slow-pull-out", "fast-ego")
@@ -45,10 +45,7 @@ def _point(out: Path, scenario: str, value: float, episodes: int, workers: int |
                   "planner_args": {p: {"layered": layers} for p in PLANNERS if p != "cdf"},
                   "workers": workers, "progress": False}
     path = out / scenario / f"{value:g}"
-    try:
-        result = run_experiment(path, range(episodes), **kwargs)
-    except ResultsExistError:
-        result = run_experiment(path, range(episodes), resume=True, **kwargs)
+    result = run_experiment(path, range(episodes), resume=True, **kwargs)  # a fresh directory starts
     return planner_metrics(result)
 
 

@@ -38,7 +38,7 @@ from pathlib import Path
 from cdf_mj.analysis.metrics import PlannerMetrics, planner_metrics
 from cdf_mj.analysis.pages import command_line, write_page
 from cdf_mj.config import CDFConfig, LayeredConfig
-from cdf_mj.experiments.experiment import ResultsExistError, run_experiment
+from cdf_mj.experiments.experiment import run_experiment
 from cdf_mj.presets import load_preset
 
 SCENARIOS = ("default", "stop-and-wait", "slow-pull-out", "fast-ego")
@@ -74,10 +74,7 @@ def _point(out: Path, scenario: str, point: tuple[float | None, float], episodes
               "planner_args": {p: {"layered": layers} for p in PLANNERS if p != "cdf"},
               "workers": workers, "progress": False}
     path = out / scenario / name_of(point)
-    try:
-        result = run_experiment(path, range(episodes), **kwargs)
-    except ResultsExistError:
-        result = run_experiment(path, range(episodes), resume=True, **kwargs)
+    result = run_experiment(path, range(episodes), resume=True, **kwargs)  # a fresh directory starts
     return planner_metrics(result)
 
 
@@ -109,7 +106,11 @@ def main(argv: list[str] | None = None) -> int:
     for scenario in SCENARIOS:
         for point in POINTS:
             print(f"{scenario}, {name_of(point)}", file=sys.stderr, flush=True)
-            for planner, m in _point(args.out, scenario, point, args.episodes, args.workers).items():
+            try:
+                got = _point(args.out, scenario, point, args.episodes, args.workers)
+            except (ValueError, OSError) as exc:  # a directory of other settings, not a directory, ...
+                parser.error(str(exc))
+            for planner, m in got.items():
                 if planner in PLANNERS:
                     cells[planner][point][scenario] = m
     lines = ["# The layered rule's anticipation, chosen on the development seeds", "",

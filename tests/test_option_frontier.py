@@ -42,3 +42,12 @@ def test_bad_input_is_one_line(capsys):
     err = capsys.readouterr().err
     assert err.startswith("usage:") or "option_frontier: error: " in err
     assert "--episodes" in err
+
+
+def test_an_output_that_is_not_a_directory_is_one_line(tmp_path, capsys):
+    (tmp_path / "file").write_text("")
+    with pytest.raises(SystemExit) as exit_:
+        frontier.main(["--episodes", "1", "--out", str(tmp_path / "file"), "--doc", ""])
+    assert exit_.value.code == 2
+    last = capsys.readouterr().err.splitlines()[-1]
+    assert last.startswith("option_frontier: error: ") and "Not a directory" in last
