@@ -159,6 +159,15 @@ def _describe(space: SearchSpace, signature: tuple[int, ...]) -> dict[str, Any]:
     return {d.key: d.values[i] for d, i in zip(discrete, signature, strict=True)}
 
 
+def _choice_shares(x: np.ndarray, w: np.ndarray, p0: np.ndarray, n_eff: float) -> tuple[np.ndarray, bool]:
+    """A choice's weighted shares of its values among points ``x`` (normalised weights
+    ``w``), and whether they differ clearly from the nominal ``p0`` (any share beyond 3 of
+    its standard errors at the effective size ``n_eff``)."""
+    k = len(p0)
+    freq = np.bincount(np.clip(np.rint(x).astype(int), 0, k - 1), weights=w, minlength=k)
+    return freq, not np.all(np.abs(freq - p0) <= 3 * np.sqrt(p0 * (1 - p0) / n_eff) + 1e-12)
+
+
 def _refit(space: SearchSpace, nominal: Proposal, old: Proposal, points: np.ndarray, weights: np.ndarray,
            smoothing: float) -> Proposal:
     """The proposal fitted to the elite ``points`` (likelihood-ratio ``weights``).
@@ -192,9 +201,7 @@ def _refit(space: SearchSpace, nominal: Proposal, old: Proposal, points: np.ndar
             params.append(truncnorm_matching(*target, d.low, d.high))
         else:
             k = len(p)
-            freq = np.bincount(np.clip(np.rint(x).astype(int), 0, k - 1), weights=w, minlength=k)
-            bound = 3 * np.sqrt(p0 * (1 - p0) / n_eff) + 1e-12
-            moved = not np.all(np.abs(freq - p0) <= bound)
+            freq, moved = _choice_shares(x, w, p0, n_eff)
             q = smoothing * freq + (1 - smoothing) * p if moved else p0
             q = np.maximum(q, MIN_CHOICE_SHARE / k)  # every value stays explored, the nominal's rare ones too
             params.append(q / q.sum())
@@ -212,9 +219,8 @@ def _moved_choices(space: SearchSpace, nominal: Proposal, points: np.ndarray, we
     moved: list[tuple[float, int]] = []
     for j, (d, p0) in enumerate(zip(space.dims, nominal.params, strict=True)):
         if d.discrete:
-            k = len(p0)
-            freq = np.bincount(np.clip(np.rint(points[:, j]).astype(int), 0, k - 1), weights=w, minlength=k)
-            if not np.all(np.abs(freq - p0) <= 3 * np.sqrt(p0 * (1 - p0) / n_eff) + 1e-12):
+            freq, moved_j = _choice_shares(points[:, j], w, p0, n_eff)
+            if moved_j:
                 chi = float(np.sum((freq - p0) ** 2 / np.maximum(p0, 1e-12)))  # chi-square distance to the nominal
                 moved.append((chi, j))
     return [j for _, j in sorted(moved, reverse=True)[:MODE_CHOICES]]
