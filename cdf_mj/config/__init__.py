@@ -17,7 +17,7 @@ import json
 from collections.abc import Mapping
 from typing import Any
 
-from cdf_mj.config.cdf import CDFConfig, DriverPrior, LayeredConfig, RiskConfig
+from cdf_mj.config.cdf import AdaptiveConfig, CDFConfig, DriverPrior, LayeredConfig, RiskConfig
 from cdf_mj.config.scale import scaled, unit_of
 from cdf_mj.config.scenario import (
     AFTER_MERGE,
@@ -70,6 +70,7 @@ __all__ = [
     "MAX_TOLD_STD",
     "MAX_WORKERS",
     "SCENARIO_KEYS",
+    "AdaptiveConfig",
     "AfterMerge",
     "CDFConfig",
     "DriverPrior",

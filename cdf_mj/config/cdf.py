@@ -18,7 +18,7 @@ from cdf_mj.traits import MAX_ACCEL, MAX_DURATION, MAX_JERK, MAX_LENGTH, bounded
 from cdf_mj.traits import check as _check
 from cdf_mj.traits import within as _within
 
-__all__ = ["CDFConfig", "DriverPrior", "LayeredConfig", "RiskConfig"]
+__all__ = ["AdaptiveConfig", "CDFConfig", "DriverPrior", "LayeredConfig", "RiskConfig"]
 
 #: The CDF's decision rules (``CDFConfig.decision``).
 DECISIONS = ("layered", "risk", "threshold")
@@ -209,6 +209,40 @@ class LayeredConfig:
 
 
 @dataclass(frozen=True)
+class AdaptiveConfig:
+    """An adaptive particle count: KLD-sampling (Fox 2003, "Adapting the sample size in
+    particle filters through KLD-sampling") at each resampling.
+
+    Before each resampling, particles are drawn one at a time from the weights, each in a
+    bin of the obstacle's state (its position on a ``bin_pos`` grid, its speed on a
+    ``bin_speed`` grid, its mode, intent and whether it has seen the ego), until there are
+    enough for the bins they occupy: with probability ``1 - delta`` the Kullback-Leibler
+    divergence between a sample's distribution over the bins and the posterior's is at
+    most ``epsilon``. The filter then resamples that many (stratified). At least
+    ``n_min`` (the driver parameters and beliefs, which no bin resolves, keep that many),
+    at most ``CDFConfig.n_particles``: few where the measurement pins the other car's pose,
+    more where its hypotheses spread out (an occluded sensor's unseen approach, a lost
+    track). ValueError naming the field for a value out of its range.
+    """
+
+    epsilon: float = bounded(0.05, 0.0, 1.0, "1", open_low=True)
+    delta: float = bounded(0.01, 0.0, 0.5, "1", open_low=True)
+    n_min: int = 500
+    bin_pos: float = bounded(0.5, 0.0, MAX_LENGTH, "m", open_low=True)
+    bin_speed: float = bounded(0.5, 0.0, 100.0, "m/s", open_low=True)
+
+    def __post_init__(self) -> None:
+        validate(self, "adaptive.")
+        _check(isinstance(self.n_min, numbers.Integral) and not isinstance(self.n_min, bool)
+               and 1 <= self.n_min <= MAX_PARTICLES, "adaptive.n_min", self.n_min,
+               f"an integer in [1, {MAX_PARTICLES:.0e}]")
+
+    def to_dict(self) -> dict:
+        """JSON-serialisable view."""
+        return dataclasses.asdict(self)
+
+
+@dataclass(frozen=True)
 class CDFConfig:
     """Parameters of the CDF particle filter and planner (chosen on seeds 0-199 only).
 
@@ -274,11 +308,18 @@ class CDFConfig:
     decision: str = "layered"
     risk: RiskConfig = field(default_factory=lambda: RiskConfig())
     layered: LayeredConfig = field(default_factory=lambda: LayeredConfig())
+    # How many particles: None, always n_particles; an AdaptiveConfig, as many as
+    # KLD-sampling asks for at each resampling, from its n_min up to n_particles.
+    adaptive: AdaptiveConfig | None = None
 
     def __post_init__(self) -> None:
         # read back from JSON (settings.json)
         _groups_of_mappings(self, {"prior": DriverPrior, "risk": RiskConfig, "process_noise": ProcessNoise,
                                    "layered": LayeredConfig})
+        if self.adaptive is not None:
+            _groups_of_mappings(self, {"adaptive": AdaptiveConfig})
+            _check(self.adaptive.n_min <= self.n_particles, "adaptive.n_min", self.adaptive.n_min,
+                   f"at most n_particles = {self.n_particles} (the most particles)")
         _check(isinstance(self.decision, str) and self.decision in DECISIONS, "decision",
                self.decision, "'layered', 'risk' or 'threshold' (the paper's)")
         _check(_within(self.mode_jump, 0.0, 0.5), "mode_jump", self.mode_jump, "in [0, 0.5] [1/tick]")

@@ -439,6 +439,24 @@ def posterior(w: np.ndarray, cfg: np.ndarray, table: np.ndarray, nseg: np.ndarra
 
 # ---------------------------------------------------------------------------- resample
 @numba.njit(cache=CACHE, nogil=True)
+def _cumulative(w: np.ndarray) -> np.ndarray:
+    """The cumulative sums of the weights ``w`` in numpy.cumsum's order (sequential),
+    normalised to end at exactly 1; ValueError if they do not have a positive finite sum."""
+    n = w.shape[0]
+    c = np.empty(n)
+    total = 0.0
+    for i in range(n):
+        total += w[i]
+        c[i] = total
+    if not 0.0 < total < math.inf:
+        raise ValueError("weights must have a positive finite sum")
+    if total != 1.0:
+        c /= total
+    c[-1] = 1.0
+    return c
+
+
+@numba.njit(cache=CACHE, nogil=True)
 def resample_indexes(w: np.ndarray, u: np.ndarray) -> np.ndarray:
     """Resampling of weights ``w`` (finite, >= 0) with the uniforms ``u`` in [0, 1): one
     per particle (stratified) or one for all (systematic, ``u`` of length 1). Index ``i``
@@ -447,16 +465,7 @@ def resample_indexes(w: np.ndarray, u: np.ndarray) -> np.ndarray:
     positions clamped below 1 (:mod:`cdf_mj.inference.resampling`). ValueError if the
     weights do not have a positive finite sum."""
     n = w.shape[0]
-    c = np.empty(n)
-    total = 0.0
-    for i in range(n):  # numpy.cumsum's order (sequential)
-        total += w[i]
-        c[i] = total
-    if not 0.0 < total < math.inf:
-        raise ValueError("weights must have a positive finite sum")
-    if total != 1.0:
-        c /= total
-    c[-1] = 1.0
+    c = _cumulative(w)
     shared = u.shape[0] != n
     out = np.empty(n, dtype=np.intp)
     j = 0
@@ -473,14 +482,25 @@ def resample(rng: np.random.Generator, w: np.ndarray, theta: np.ndarray, mode: n
              jitter_std: np.ndarray, lo: np.ndarray, hi: np.ndarray, intent_floor: float,
              p_left: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Stratified resampling (N uniforms): the indexes of the particles kept, and their
-    parameters and intents after the jitter (six normals per particle, kept in
-    ``[lo, hi]``) and the intent floor (N uniforms; a held-back particle drawn redraws its
-    intent, one uniform each). The caller gathers the other particle arrays."""
+    parameters and intents after :func:`rejuvenate`. The caller gathers the other
+    particle arrays."""
     n = w.shape[0]
     u = np.empty(n)
     for i in range(n):
         u[i] = _uniform(rng)
     keep = resample_indexes(w, u)
+    theta2, intent2 = rejuvenate(rng, keep, theta, mode, intent, jitter_std, lo, hi, intent_floor, p_left)
+    return keep, theta2, intent2
+
+
+@numba.njit(cache=CACHE, nogil=True)
+def rejuvenate(rng: np.random.Generator, keep: np.ndarray, theta: np.ndarray, mode: np.ndarray,
+               intent: np.ndarray, jitter_std: np.ndarray, lo: np.ndarray, hi: np.ndarray, intent_floor: float,
+               p_left: float) -> tuple[np.ndarray, np.ndarray]:
+    """The parameters and intents of the particles ``keep`` after the jitter (six normals
+    per particle, kept in ``[lo, hi]``) and the intent floor (one uniform per particle; a
+    held-back particle drawn redraws its intent, one uniform each)."""
+    n = keep.shape[0]
     n_theta = theta.shape[1]
     jitter = jitter_std.shape[0]
     theta2 = np.empty((n, n_theta))
@@ -501,7 +521,84 @@ def resample(rng: np.random.Generator, w: np.ndarray, theta: np.ndarray, mode: n
         for i in range(n):
             if redraw[i]:
                 intent2[i] = LEFT if _uniform(rng) < p_left else RIGHT
-    return keep, theta2, intent2
+    return theta2, intent2
+
+
+@numba.njit(cache=CACHE, nogil=True)
+def kld_bound(k: int, epsilon: float, z: float) -> float:
+    """Fox's (2003) KLD-sampling bound: the sample size at which, with probability
+    ``Phi(z)``, the Kullback-Leibler divergence between a sample's distribution over ``k``
+    occupied bins and the true one is at most ``epsilon`` (the Wilson-Hilferty
+    approximation of the chi-square quantile); 0 for one bin."""
+    if k < 2:
+        return 0.0
+    a = 2.0 / (9.0 * (k - 1))
+    c = 1.0 - a + math.sqrt(a) * z
+    return (k - 1) / (2.0 * epsilon) * c * c * c
+
+
+@numba.njit(cache=CACHE, nogil=True)
+def resample_to(rng: np.random.Generator, w: np.ndarray, m: int) -> np.ndarray:
+    """Stratified resampling of ``m`` particles from the weights ``w``: ``m`` uniforms, index
+    ``i`` the first ``j`` with ``C_j > (i + u_i) / m`` (for ``m`` = N the indexes of
+    :func:`resample_indexes`, the same arithmetic)."""
+    u = np.empty(m)
+    for i in range(m):
+        u[i] = _uniform(rng)
+    c = _cumulative(w)
+    out = np.empty(m, dtype=np.intp)
+    j = 0
+    for i in range(m):
+        pos = min((i + u[i]) / m, _BELOW_ONE)
+        while c[j] <= pos:
+            j += 1
+        out[i] = j
+    return out
+
+
+@numba.njit(cache=CACHE, nogil=True)
+def kld_bins(keep: np.ndarray, pose: np.ndarray, mode: np.ndarray, intent: np.ndarray, has_belief: np.ndarray,
+             bin_pos: float, bin_speed: float) -> int:
+    """How many bins of the state the particles ``keep`` occupy: the position on a
+    ``bin_pos`` [m] grid, the speed on a ``bin_speed`` [m/s] grid, the mode, the intent and
+    whether it has seen the ego (an open-addressing set of the bins' keys)."""
+    m = keep.shape[0]
+    size = 1
+    while size < 4 * m:  # at most a quarter full
+        size *= 2
+    slots = np.zeros(size, dtype=np.int64)  # a key + 1; 0 is an empty slot
+    k = 0
+    for i in range(m):
+        j = keep[i]
+        bx = np.int64(math.floor(pose[j, 0] / bin_pos)) & 0xFFFFF
+        by = np.int64(math.floor(pose[j, 1] / bin_pos)) & 0xFFFFF
+        bv = np.int64(math.floor(pose[j, 3] / bin_speed)) & 0x3FF
+        h = (((((((bx << 20) | by) << 10 | bv) << 2 | mode[j]) << 1 | intent[j]) << 1) | np.int64(has_belief[j])) + 1
+        slot = (h * 2654435761) & (size - 1)
+        while slots[slot] != 0 and slots[slot] != h:
+            slot = (slot + 1) & (size - 1)
+        if slots[slot] == 0:
+            slots[slot] = h
+            k += 1
+    return k
+
+
+@numba.njit(cache=CACHE, nogil=True)
+def kld_resample(rng: np.random.Generator, w: np.ndarray, pose: np.ndarray, mode: np.ndarray, intent: np.ndarray,
+                 has_belief: np.ndarray, bin_pos: float, bin_speed: float, epsilon: float, z: float, n_min: int,
+                 n_max: int) -> np.ndarray:
+    """KLD-resampling: stratified resampling of ``n_min`` particles (:func:`resample_to`);
+    while :func:`kld_bound` asks more for the bins they occupy (:func:`kld_bins`), of that
+    many instead (at most ``n_max``). Returns the indexes kept. Where the posterior fills
+    few bins this is stratified resampling of ``n_min`` particles, draw for draw."""
+    m = n_min
+    while True:
+        keep = resample_to(rng, w, m)
+        bins = kld_bins(keep, pose, mode, intent, has_belief, bin_pos, bin_speed)
+        need = min(max(math.ceil(kld_bound(bins, epsilon, z)), n_min), n_max)
+        if need <= m:
+            return keep
+        m = need
 
 
 @numba.njit(cache=CACHE, nogil=True)

@@ -56,6 +56,7 @@ rule (:mod:`cdf_mj.planners.decision`) rolls forward. ::
 from __future__ import annotations
 
 import math
+import statistics
 from dataclasses import dataclass
 
 import numpy as np
@@ -183,7 +184,14 @@ class ParticleFilter:
         # log(miss): the weight of a particle in sight on a tick without a measurement (-inf at 0).
         self._log_miss = math.log(miss) if miss > 0.0 else -math.inf
         self.cdf, self.rng, self.dt = cdf, rng, model.dt
-        self.n = cdf.n_particles
+        #: The most particles (``cdf.n_particles``); ``n`` is how many there are now: fewer
+        #: after a resampling where the count is adaptive (``cdf.adaptive``).
+        self.n_max = self.n = cdf.n_particles
+        adaptive = cdf.adaptive
+        # KLD-sampling's terms (bins, epsilon, its quantile z, n_min), or None: a fixed count.
+        self._kld = None if adaptive is None else (
+            float(adaptive.bin_pos), float(adaptive.bin_speed), float(adaptive.epsilon),
+            statistics.NormalDist().inv_cdf(1.0 - adaptive.delta), int(adaptive.n_min))
         self._cov_inv = np.ascontiguousarray(np.linalg.inv(cdf.covariance))
         self.prior = prior = cdf.prior
         ego_brake = cdf.ego_brake if cdf.ego_brake is not None else ego.max_brake  # [m/s^2]
@@ -290,7 +298,7 @@ class ParticleFilter:
             system_pose = np.stack([system_pose[0], self.waiting_pose()])
         if system_pose.shape != (2, 4) or not np.all(np.isfinite(system_pose)):
             raise ValueError(f"the first system pose must be finite, of shape (2, 4), got {system_pose.tolist()}")
-        n = self.n
+        n = self.n = self.n_max
         self.pose = _published(np.repeat(system_pose[1][None], n, axis=0))
         self.intent = self._draw_intent(n)
         self.mode = np.full(n, _WAITING, dtype=np.int64)
@@ -626,7 +634,8 @@ class ParticleFilter:
         measured moving (> 0.5 m/s) else waiting, seen the ego with probability 1/2 (its
         belief then the ego's pose with observation noise), and the driver parameters
         from the prior. Without it, the particles keep their discrete hypotheses."""
-        n, rng = self.n, self.rng
+        n = self.n = self.n_max
+        rng = self.rng
         self.reinits += 1
         self.pose = _published(np.repeat(np.asarray(measured, dtype=float)[None], n, axis=0))
         self._uniform()
@@ -648,10 +657,20 @@ class ParticleFilter:
         or yielding) redraw their intent from the prior."""
         s, seg, route, sight = self._caches()
         jitter = self._jitter_std if self.cdf.param_jitter > 0.0 else self._jitter_std[:0]
-        keep, self.theta, self.intent = kernels.resample(
-            self.rng, self.weights, self.theta, self.mode, self.intent, jitter, self._theta_lo, self._theta_hi,
-            float(self.cdf.intent_floor), float(self.prior.p_left))
-        new = [np.empty_like(a) for a in (self.pose, self.belief, self.mode, self.has_belief, s, seg, route, sight)]
+        floor, p_left = float(self.cdf.intent_floor), float(self.prior.p_left)
+        if self._kld is None:
+            keep, self.theta, self.intent = kernels.resample(self.rng, self.weights, self.theta, self.mode,
+                                                             self.intent, jitter, self._theta_lo, self._theta_hi,
+                                                             floor, p_left)
+        else:
+            keep = kernels.kld_resample(self.rng, self.weights, self.pose, self.mode, self.intent, self.has_belief,
+                                        *self._kld, self.n_max)
+            self.theta, self.intent = kernels.rejuvenate(self.rng, keep, self.theta, self.mode, self.intent, jitter,
+                                                         self._theta_lo, self._theta_hi, floor, p_left)
+            self.n = len(keep)
+        rows = len(keep)
+        new = [np.empty((rows, *a.shape[1:]), dtype=a.dtype)
+               for a in (self.pose, self.belief, self.mode, self.has_belief, s, seg, route, sight)]
         kernels.gather(keep, self.pose, self.belief, self.mode, self.has_belief, s, seg, route, sight, *new)
         self.pose, self.belief, self.mode, self.has_belief, self._s, self._seg, self._s_route, self._sight = new
         _published(self.pose)

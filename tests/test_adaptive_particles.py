@@ -1,0 +1,101 @@
+"""The adaptive particle count (KLD-sampling, ``CDFConfig.adaptive``): its bound, its
+resampling, and the filter's count in real MuJoCo episodes, where the measurement pins the
+other car's pose and where an occluded ego's hypotheses spread along a hidden approach."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from cdf_mj.config import AdaptiveConfig, CDFConfig
+from cdf_mj.inference import kernels
+from cdf_mj.planners import CDFPlanner
+from cdf_mj.presets import load_preset
+from cdf_mj.scenario.episode import run_episode
+from cdf_mj.sim.scene import Scene
+
+Z99 = 2.3263478740408408  # the standard normal's 0.99 quantile
+
+
+class Counts:
+    """An episode observer: the filter's particle count after every tick."""
+
+    def __init__(self, planner: CDFPlanner) -> None:
+        self.planner, self.n = planner, []
+
+    def __call__(self, step) -> None:
+        self.n.append(self.planner.filter.n)
+
+
+def test_bound_grows_with_the_bins_and_tightness():
+    """Fox's bound: none for one bin, more particles for more bins and for a smaller epsilon;
+    with 2 bins at epsilon 0.05 and 99 % it asks for the chi-square(1) 0.99 quantile / 0.1
+    (6.63 / 0.1 = 66; Wilson-Hilferty's approximation is within 1 % there)."""
+    assert kernels.kld_bound(1, 0.05, Z99) == 0.0
+    values = [kernels.kld_bound(k, 0.05, Z99) for k in range(2, 200)]
+    assert all(b > a for a, b in itertools.pairwise(values))
+    assert kernels.kld_bound(20, 0.02, Z99) > kernels.kld_bound(20, 0.05, Z99)
+    assert kernels.kld_bound(2, 0.05, Z99) == pytest.approx(6.635 / 0.1, rel=0.01)
+
+
+def test_few_bins_resample_n_min_draw_for_draw():
+    """Where the particles fill few bins, KLD-resampling is stratified resampling of n_min
+    particles with the same uniforms; where they spread over many, it keeps more, up to
+    n_max, drawn from the same weights."""
+    rng = np.random.default_rng(3)
+    n = 800
+    w = rng.random(n)
+    w /= w.sum()
+    mode, intent, has = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64), np.zeros(n, dtype=bool)
+    standing = np.tile([5.0, 2.0, 0.3, 0.0], (n, 1))
+    keep = kernels.kld_resample(np.random.default_rng(9), w, standing, mode, intent, has, 0.5, 0.5, 0.05, Z99,
+                                100, 4000)
+    assert np.array_equal(keep, kernels.resample_to(np.random.default_rng(9), w, 100))
+    spread = standing.copy()
+    spread[:, 0] = np.linspace(0.0, 400.0, n)  # 800 bins of 0.5 m
+    keep = kernels.kld_resample(np.random.default_rng(9), w, spread, mode, intent, has, 0.5, 0.5, 0.05, Z99,
+                                100, 4000)
+    assert 1000 < len(keep) <= 4000 and keep.min() >= 0 and keep.max() < n
+    assert np.array_equal(kernels.resample_to(np.random.default_rng(1), w, n),
+                          kernels.resample_indexes(w, np.random.default_rng(1).random(n)))
+
+
+def test_config_checks_and_reads_back():
+    cdf = CDFConfig(n_particles=2000, adaptive=AdaptiveConfig(n_min=300))
+    assert CDFConfig(**{**cdf.__dict__, "adaptive": cdf.adaptive.to_dict()}) == cdf
+    with pytest.raises(ValueError, match=r"adaptive\.n_min"):
+        CDFConfig(n_particles=200, adaptive=AdaptiveConfig(n_min=300))
+    with pytest.raises(ValueError, match=r"adaptive\.epsilon"):
+        AdaptiveConfig(epsilon=0.0)
+    with pytest.raises(ValueError, match=r"adaptive\.n_min"):
+        AdaptiveConfig(n_min=0)
+    with pytest.raises(ValueError, match="adaptive"):
+        CDFConfig(adaptive="kld")
+
+
+def test_count_follows_the_spread_of_the_hypotheses():
+    """Default world: the prior starts at n_max; after the first resampling the measurement
+    pins the waiting car's pose and the filter keeps n_min. An occluded ego that starts without the other car in sight:
+    its hypotheses spread along the hidden approach and it keeps more, back to n_min once
+    the car is measured. Both runs reproduce record for record."""
+    cdf = CDFConfig(n_particles=3000, adaptive=AdaptiveConfig(n_min=400))
+    planner = CDFPlanner(cdf)
+    counts = Counts(planner)
+    run_episode(None, 5, planner, label=False, observers=[counts])
+    assert counts.n[0] == 3000 and counts.n[1] == 400 and min(counts.n) == 400
+    config = load_preset("stress-occluded-rolling-stop")
+    scene = Scene.load(names=config.names)
+    seeds = []
+    for seed in range(830000, 830012):
+        planner = CDFPlanner(cdf)
+        counts = Counts(planner)
+        record = run_episode(config, seed, planner, scene, label=False, observers=[counts])
+        if record.world.get("occluded", 0) > 0:
+            seeds.append((seed, record, counts.n))
+    assert seeds, "no episode started with the other car out of sight"
+    seed, record, n = seeds[0]
+    assert n[1] > 400 and n[-1] == 400
+    again = run_episode(config, seed, CDFPlanner(cdf), scene, label=False)
+    assert again.to_dict() == record.to_dict()
