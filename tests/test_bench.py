@@ -42,7 +42,8 @@ def _rows(out: str, head: str) -> list[str]:
 
 def test_bench_prints_the_targets_first_then_every_row_against_its_floor(capsys):
     assert main(["bench", "--episodes", "1", "--repeats", "1", "--particles", "100,1000", "--env-seconds", "0.05",
-                 "--reproduce", "--reproduce-episodes", "3", "--workers", "1,2", "--quiet"]) == 0
+                 "--reproduce", "--reproduce-episodes", "3", "--workers", "1,2", "--falsify-episodes", "4",
+                 "--quiet"]) == 0
     out = capsys.readouterr().out
     # The targets come first, one line per target of issue 27, each with its x floor and a verdict.
     assert out.index("| target |") < out.index("| what |")
@@ -57,6 +58,9 @@ def test_bench_prints_the_targets_first_then_every_row_against_its_floor(capsys)
     assert re.search(r"\| CDF episode \(planner cdf\) \| \d+x real time in the fastest pass over 1 seeds", targets[2])
     assert re.search(r"\| memory per worker \| \d+ MB \(\d+ MiB\)", targets[9])
     assert re.search(r"\| parallel efficiency at 2 workers \| \d+ %: T\(1\) / \(2 T\(2\)\)", targets[10])
+    assert re.search(r"\| falsification throughput on 2 workers \| [\d.]+ episodes/s: 4 episodes of cdf on the "
+                     r"space 'default' in [\d.]+ \w+ \(wall\) on 2 worker\(s\) \| ", targets[11]), targets[11]
+    assert "| >= 60 episodes/s |" in targets[11]
     # Every row: least time, median (IQR, repeats) or one run, x floor with the paired ratios.
     rows = _rows(out, "| what |")
     assert rows and all(re.match(rf"\| [^|]+ \| {_TIME} \| ({_TIME} \(\d+ %, n \d+\)|one run) \| {_RATIO} \| ", row)

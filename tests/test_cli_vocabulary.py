@@ -167,14 +167,16 @@ def test_bench_takes_one_number_and_the_scaling_lists_by_their_own_names():
 
 def test_bench_with_a_list_as_earlier_releases_took_it_works_with_a_note(capsys, monkeypatch):
     import cdf_mj.experiments.bench as bench
+    import cdf_mj.falsify.throughput as throughput
 
     seen = {}
     monkeypatch.setattr(bench, "bench_reproduction", lambda episodes, workers, **kw: seen.setdefault("w", workers)
                         and [])
+    monkeypatch.setattr(throughput, "bench_falsification", lambda episodes, **kw: seen.setdefault("f", episodes))
     monkeypatch.setattr(bench, "format_rows", lambda rows, floor: "table")
     monkeypatch.setattr(bench, "FloorProbe", lambda **kw: type("P", (), {"floor": lambda self: None})())
     status, out, err = run_cli(capsys, "bench", "--only-reproduce", "--workers", "1,2", "--quiet")
-    assert status == 0 and seen["w"] == (1, 2) and out == "table\n"
+    assert status == 0 and seen["w"] == (1, 2) and seen["f"] == 400 and out == "table\n"
     assert err.splitlines() == ["cdf-mj: note: bench --workers with a list is now --scale-workers (the old "
                                 "spelling still works)"]
     assert_one_line_error(*run_cli(capsys, "bench", "--workers", "2", "--scale-workers", "1,2"),

@@ -68,6 +68,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         bench_startup,
         format_rows,
     )
+    from cdf_mj.falsify.throughput import bench_falsification
 
     sizes = _scale(args, "particles", "scale_particles", SCALE_PARTICLES)
     workers = _scale(args, "workers", "scale_workers", SCALE_WORKERS)
@@ -84,6 +85,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if args.reproduce or args.only_reproduce:
         rows += bench_reproduction(args.reproduce_episodes, workers, progress=not args.quiet,
                                    probe=probe, **where)
+        rows.append(bench_falsification(args.falsify_episodes, probe=probe, **where))
     print(format_rows(rows, probe.floor()))
     return 0
 
@@ -122,11 +124,14 @@ def add_bench(subparsers: argparse._SubParsersAction) -> None:
                    help="seconds of each of the --repeats timed runs of the Gymnasium env per setting "
                         "(default 1)")
     p.add_argument("--reproduce", action="store_true",
-                   help="also time the paper's reproduction on --workers, or on each --scale-workers count "
-                        "(minutes)")
-    p.add_argument("--only-reproduce", action="store_true", help="only the reproduction rows")
+                   help="also time the paper's reproduction on --workers, or on each --scale-workers count, "
+                        "and a falsification's Monte Carlo estimate on 2 workers (minutes)")
+    p.add_argument("--only-reproduce", action="store_true",
+                   help="only the reproduction rows (and the falsification throughput's)")
     p.add_argument("--reproduce-episodes", type=episode_count, default=1000,
                    help="seeds in the timed reproduction (default 1000)")
+    p.add_argument("--falsify-episodes", type=episode_count, default=400,
+                   help="episodes of the timed falsification estimate (with --reproduce; default 400)")
     p.add_argument("--workers", type=_worker_counts, default=None,
                    help="worker processes of the timed reproduction, 1 to 1024 (several: --scale-workers)")
     p.add_argument("--scale-workers", type=_worker_counts, default=None, metavar="N1,N2,...",

@@ -49,6 +49,9 @@ One module per job, each returning its rows; the names below are re-exported her
 ``reproduction``    :func:`bench_reproduction`: the paper's reproduction on 1 and 2 workers
 ``startup``         :func:`bench_startup`: Numba's first call and a cold start
 ==================  ======================================================================
+
+The falsification throughput (episodes a second of a falsification's estimate on 2
+workers) is a job of the falsifier's layer: :func:`cdf_mj.falsify.throughput.bench_falsification`.
 """
 
 from __future__ import annotations

@@ -77,6 +77,7 @@ _NOT_RUN = {  # how to get a target's row where this run had none
     "env step with the filter": "not run (--only-reproduce, or no Gymnasium)",
     "memory per worker": "not run (--reproduce)",
     "parallel efficiency at 2 workers": "not run (--reproduce with --scale-workers 1,2)",
+    "falsification throughput on 2 workers": "not run (--reproduce)",
 }
 
 
