@@ -106,6 +106,11 @@ def _counts(text: str) -> tuple[str, ...]:
     return counts
 
 
+def _shown(count: str) -> str:
+    """A candidate as the tables name it: ``N = 500``, ``adaptive 500-4000``."""
+    return count.replace("adaptive:", "adaptive ") if count.startswith("adaptive:") else f"N = {count}"
+
+
 def _kind(command: float, hard: float) -> int:
     """A command's class: 0 none (no cap below zero), 1 slowing, 2 a hard brake."""
     return 2 if command <= -hard else 1 if command < 0.0 else 0
@@ -168,7 +173,7 @@ def agreement(presets: Sequence[str], seeds: range, counts: Sequence[str], refer
              f"Every tick of `cdf` episodes (N = {SHIPPED}, the ego obeying it), seeds {seeds.start}-{seeds[-1]}; "
              f"shadow filters of each count beside a reference of N = {reference}, each drawing from its own "
              "stream. Class: none, slowing, hard brake. Errors against the reference.", ""]
-    header = ["N", "ticks, same class", "episodes, same (slowed, braked hard)", "P(cutoff) error: mean / p99 / max",
+    header = ["count", "ticks, same class", "episodes, same (slowed, braked hard)", "P(cutoff) error: mean / p99 / max",
               "emergency risk error: mean / p99 / max", "particles, mean", "tick [us], median"]
     for preset in presets:
         config = load_preset(preset)
@@ -201,7 +206,7 @@ def agreement(presets: Sequence[str], seeds: range, counts: Sequence[str], refer
             e = np.asarray(values)
             return f"{e.mean():.4f} / {np.quantile(e, 0.99):.3f} / {e.max():.3f}"
 
-        rows = [[n, f"{same[i] / ticks:.2%}", f"{episodes[i]}/{len(seeds)}", errors(err_p[i]), errors(err_r[i]),
+        rows = [[_shown(n), f"{same[i] / ticks:.2%}", f"{episodes[i]}/{len(seeds)}", errors(err_p[i]), errors(err_r[i]),
                  f"{statistics.fmean(sizes[i]):.0f}", f"{1e6 * statistics.median(secs[i]):.0f}"]
                 for i, n in enumerate(counts)]
         lines += [f"`{preset}` ({ticks} ticks):", "", *markdown_table(header, rows), ""]
@@ -269,7 +274,8 @@ def closed(presets: Sequence[str], seeds: range, counts: tuple[str, ...],
                 n = name.removeprefix("cdf-")
                 passes[n] = passes[n] and ok
             cells = [f"{c.shown(c.first)} vs {c.shown(c.second)} (p {c.p:.2f})" for c in verdict.criteria]
-            label = "N = " + (f"{SHIPPED}, another stream" if name == "cdf-other-stream" else name.removeprefix("cdf-"))
+            other = name == "cdf-other-stream"
+            label = f"N = {SHIPPED}, another stream" if other else _shown(name.removeprefix("cdf-"))
             rows.append([preset, label, *cells, "yes" if ok else "**no**"])
     lines += [*markdown_table(header, rows), "",
               "Counts that lose nothing on every preset: "
