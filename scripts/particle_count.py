@@ -28,13 +28,15 @@ loses nothing where each of its three p-values is at least 0.5 on every preset (
 "no loss"). The criterion for changing the default, declared before the held-out closed
 loop ran: pooled over the six presets no more collisions than the shipped count and each of
 the three pooled p-values at least 0.5 (per preset, the null shows how often a new stream
-alone falls below 0.5)::
+alone falls below 0.5). ``--streams K`` runs the shipped filter on K - 1 other streams and
+adds a table of their spread beside each candidate's counts, a diagnostic::
 
     python scripts/particle_count.py                         # both parts, Markdown on stdout
     python scripts/particle_count.py --parts agreement --seeds 830000-830009 --presets default
 
-Runs every episode in this process and ``--workers`` others (default one per CPU), none
-written to disk: about 10 minutes on 2 cores for both parts. Bad arguments are one line
+Runs the agreement in this process and the closed loop on ``--workers`` processes (default
+one per CPU), nothing written to disk: about 15 minutes on 2 cores for both parts (and
+about 1.5 minutes more per extra stream). Bad arguments are one line
 ``particle_count: error: ...`` and exit status 2.
 """
 
@@ -62,6 +64,7 @@ from cdf_mj.config import AdaptiveConfig, CDFConfig, ScenarioConfig
 from cdf_mj.planners.base import Planner, PlannerContext, PlannerInput
 from cdf_mj.planners.cdf import CDFPlanner
 from cdf_mj.presets import load_preset
+from cdf_mj.records.counting import hit_obstacle, intervened, is_false_alarm, is_imminent
 from cdf_mj.scenario.episode import run_episode
 from cdf_mj.sim.scene import Scene
 
@@ -214,11 +217,21 @@ def agreement(presets: Sequence[str], seeds: range, counts: Sequence[str], refer
 
 
 class _OtherStream(CDFPlanner):
-    """The shipped ``cdf`` drawing from another stream than the episode's planner stream:
-    the closed loop's null comparison (what a new stream alone changes)."""
+    """The shipped ``cdf`` drawing from another stream than the episode's planner stream
+    (the ``stream``-th child of it, from 1): the closed loop's null comparisons (what a new
+    stream alone changes)."""
+
+    def __init__(self, stream: int) -> None:
+        super().__init__()
+        self.stream = stream
 
     def reset(self, context: PlannerContext, rng: np.random.Generator) -> None:
-        super().reset(context, rng.spawn(1)[0])
+        super().reset(context, rng.spawn(self.stream)[-1])
+
+
+def _stream_name(j: int) -> str:
+    """The planner name of the shipped filter on its ``j``-th other stream."""
+    return "cdf-other-stream" if j == 1 else f"cdf-stream-{j}"
 
 
 @functools.cache
@@ -228,13 +241,14 @@ def _world(preset: str) -> tuple[ScenarioConfig, Scene]:
     return config, Scene.load(names=config.names)
 
 
-def _seed_records(preset: str, seed: int, counts: tuple[str, ...]) -> list[dict[str, Any]]:
+def _seed_records(preset: str, seed: int, counts: tuple[str, ...], streams: int) -> list[dict[str, Any]]:
     """One seed of the closed loop: ``constant`` (labelled: the label and the reference of
-    the time lost), ``cdf`` as shipped, on another stream (``cdf-other-stream``) and with each
-    other count (``cdf-N``), the label copied onto each."""
+    the time lost), ``cdf`` as shipped, on ``streams - 1`` other streams (``cdf-other-stream``,
+    ``cdf-stream-2``, ...) and with each other count (``cdf-N``), the label copied onto each."""
     config, scene = _world(preset)
     reference = run_episode(config, seed, "constant", scene).to_dict()
-    planners: list[tuple[str, Planner]] = [("cdf", CDFPlanner()), ("cdf-other-stream", _OtherStream())]
+    planners: list[tuple[str, Planner]] = [("cdf", CDFPlanner())]
+    planners += [(_stream_name(j), _OtherStream(j)) for j in range(1, streams)]
     planners += [(f"cdf-{n}", CDFPlanner(candidate(n))) for n in counts if n != str(SHIPPED)]
     records = [reference]
     for name, planner in planners:
@@ -243,8 +257,8 @@ def _seed_records(preset: str, seed: int, counts: tuple[str, ...]) -> list[dict[
     return records
 
 
-def closed(presets: Sequence[str], seeds: range, counts: tuple[str, ...],
-           workers: int | None) -> tuple[list[str], dict[str, bool]]:
+def closed(presets: Sequence[str], seeds: range, counts: tuple[str, ...], workers: int | None,
+           streams: int = 2) -> tuple[list[str], dict[str, bool]]:
     """Part ``closed``: the paired comparisons per preset and count, and which counts lose nothing."""
     lines = ["## No loss, closed loop", "",
              f"`cdf` with each count against `cdf` with N = {SHIPPED} on seeds {seeds.start}-{seeds[-1]}, seed by "
@@ -258,8 +272,9 @@ def closed(presets: Sequence[str], seeds: range, counts: tuple[str, ...],
     rows = []
     jobs = [(preset, seed) for preset in presets for seed in seeds]
     with ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1) as pool:
+        chunk = max(1, len(jobs) // (8 * (workers or os.cpu_count() or 1)))
         done = list(pool.map(_seed_records, *zip(*jobs, strict=True), itertools.repeat(counts),
-                             chunksize=max(1, len(jobs) // (8 * (workers or os.cpu_count() or 1)))))
+                             itertools.repeat(streams), chunksize=chunk))
     by_preset = {preset: [r for (p, _), rs in zip(jobs, done, strict=True) if p == preset for r in rs]
                  for preset in presets}
     # All presets together: each preset's seeds moved apart, so that a seed pairs within its preset.
@@ -280,7 +295,36 @@ def closed(presets: Sequence[str], seeds: range, counts: tuple[str, ...],
     lines += [*markdown_table(header, rows), "",
               "Counts that lose nothing on every preset: "
               + (", ".join(n for n, ok in passes.items() if ok) or "none") + ".", ""]
+    if streams > 2:
+        lines += _spread(by_preset, streams, list(passes))
     return lines, passes
+
+
+def _count(records: list[dict[str, Any]], planner: str, rule: Any, quiet: bool) -> int:
+    """How many of ``planner``'s records ``rule`` holds for (``quiet``: of those not labelled Cutoff)."""
+    return sum(bool(rule(r)) for r in records if r.get("planner") == planner and not (quiet and is_imminent(r)))
+
+
+def _spread(by_preset: dict[str, list[dict[str, Any]]], streams: int, counts: list[str]) -> list[str]:
+    """The shipped filter's counts over its ``streams`` streams, least to most, and each
+    candidate's, marked where it lies outside that range: what a new stream alone moves."""
+    shipped = ["cdf", *(_stream_name(j) for j in range(1, streams))]
+    rules = (("collisions", hit_obstacle, False), ("non-Cutoff interventions", intervened, True),
+             ("non-Cutoff hard brakes", is_false_alarm, True))
+    lines = [f"#### Spread over {streams} streams of N = {SHIPPED}", "",
+             f"Each count of `cdf` with N = {SHIPPED} on its episode's planner stream and on {streams - 1} others, "
+             "least to most, and each candidate's (**bold**: outside that range). A diagnostic beside the paired "
+             "tests above, not the declared bar.", ""]
+    header = ["preset", f"N = {SHIPPED}, {streams} streams", *(_shown(n) for n in counts)]
+    rows = []
+    for preset, records in by_preset.items():
+        for what, rule, quiet in rules:
+            ref = [_count(records, name, rule, quiet) for name in shipped]
+            lo, hi = min(ref), max(ref)
+            cells = [str(c) if lo <= c <= hi else f"**{c}**"
+                     for c in (_count(records, f"cdf-{n}", rule, quiet) for n in counts)]
+            rows.append([f"{preset}: {what}", f"{lo}-{hi}", *cells])
+    return [*lines, *markdown_table(header, rows), ""]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -293,10 +337,15 @@ def main(argv: list[str] | None = None) -> int:
                         help="seeds A-B (default 830000-830039 for agreement, 830000-830299 closed loop)")
     parser.add_argument("--presets", default=",".join(PRESETS), help="comma-separated presets")
     parser.add_argument("--workers", type=worker_count, default=None, help="worker processes (closed loop)")
+    parser.add_argument("--streams", type=int, default=2,
+                        help="streams of the shipped filter in the closed loop, 2 or more (default 2: its own and "
+                             "the null's; more adds a table of their spread)")
     args = parser.parse_args(argv)
     parts = args.parts.split(",")
     if not parts or any(p not in ("agreement", "closed") for p in parts):
         parser.error(f"--parts must be agreement, closed or both, got {args.parts!r}")
+    if args.streams < 2:
+        parser.error(f"--streams must be 2 or more, got {args.streams}")
     presets = args.presets.split(",")
     try:
         for preset in presets:
@@ -308,7 +357,7 @@ def main(argv: list[str] | None = None) -> int:
         if "agreement" in parts:
             lines += agreement(presets, args.seeds or range(830000, 830040), args.counts, args.reference[0])
         if "closed" in parts:
-            lines += closed(presets, args.seeds or range(830000, 830300), args.counts, args.workers)[0]
+            lines += closed(presets, args.seeds or range(830000, 830300), args.counts, args.workers, args.streams)[0]
     except (ValueError, OSError) as exc:  # a results directory of other settings, ...
         parser.error(str(exc))
     print("\n".join(lines))
