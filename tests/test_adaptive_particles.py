@@ -5,10 +5,12 @@ other car's pose and where an occluded ego's hypotheses spread along a hidden ap
 from __future__ import annotations
 
 import itertools
+import json
 
 import numpy as np
 import pytest
 
+from cdf_mj.cli import main
 from cdf_mj.config import AdaptiveConfig, CDFConfig
 from cdf_mj.inference import kernels
 from cdf_mj.planners import CDFPlanner
@@ -99,3 +101,18 @@ def test_count_follows_the_spread_of_the_hypotheses():
     assert n[1] > 400 and n[-1] == 400
     again = run_episode(config, seed, CDFPlanner(cdf), scene, label=False)
     assert again.to_dict() == record.to_dict()
+
+
+def test_the_command_line_sets_it_and_refuses_a_floor_above_the_most(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["experiment", "--episodes", "1", "--planner", "cdf", "--particles", "600", "--adaptive-particles",
+                 "150", "--out", str(out), "--workers", "1", "--quiet"]) == 0
+    settings = json.loads((out / "settings.json").read_text())
+    assert settings["cdf"]["n_particles"] == 600 and settings["cdf"]["adaptive"]["n_min"] == 150
+    capsys.readouterr()
+    assert main(["experiment", "--episodes", "1", "--planner", "cdf", "--particles", "600", "--adaptive-particles",
+                 "700", "--out", str(tmp_path / "bad"), "--workers", "1", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["cdf-mj: error: --adaptive-particles 700 is more than --particles 600, the most the adaptive "
+                   "count may reach"]
+    assert not (tmp_path / "bad").exists()

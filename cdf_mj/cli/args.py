@@ -36,6 +36,8 @@ flag                       meaning                                            ol
 ``--quiet``                no progress bar                                    --
 ``--particles N``          the CDF's particle count; bench: the filter rows'  bench ``--particles N1,N2,...``
                            size                                               (now ``--scale-particles``)
+``--adaptive-particles``   an adaptive count (KLD-sampling) from MIN up to    --
+                           ``--particles``
 ``--scale-particles``,     bench: the lists a scaling table runs over         --
 ``--scale-workers``
 =========================  =================================================  ==========================================
@@ -67,6 +69,7 @@ from cdf_mj.config import (
     MAX_SEED,
     MAX_WORKERS,
     SCENARIO_KEYS,
+    AdaptiveConfig,
     CDFConfig,
     RiskConfig,
     ScenarioConfig,
@@ -361,7 +364,11 @@ def add_cdf_arguments(parser: argparse.ArgumentParser, swept: bool = False) -> N
     r = d.risk
     where = " where not swept" if swept else ""
     parser.add_argument("--particles", type=particle_count, default=d.n_particles,
-                        help=f"CDF particle count N{where}, 1 to 10^6 (memory) (default {d.n_particles})")
+                        help=f"CDF particle count N{where}, 1 to 10^6 (memory) (default {d.n_particles}); with "
+                             "--adaptive-particles the most")
+    parser.add_argument("--adaptive-particles", type=particle_count, default=None, metavar="MIN",
+                        help="an adaptive particle count: KLD-sampling from MIN up to --particles at each "
+                             "resampling (docs/PARAMETERS.md, 'How many particles'; default: a fixed count)")
     parser.add_argument("--tau", type=finite_float(0.0, 1.0, "(a probability)", open_low=True), default=None,
                         help=f"braking threshold on P(cutoff) of cdf-threshold, the paper's rule{where} "
                              f"(default {d.tau})")
@@ -411,8 +418,13 @@ def cdf_from_args(args: argparse.Namespace, planners: Sequence[str] | None = Non
     release = args.release_risk if args.release_risk is not None else brake / 2
     latency = args.risk_latency if args.risk_latency is not None else d.risk.latency
     risk = RiskConfig(brake=brake, release=release, latency=latency)
+    adaptive = getattr(args, "adaptive_particles", None)
+    if adaptive is not None and adaptive > args.particles:
+        raise CLIError(f"--adaptive-particles {adaptive} is more than --particles {args.particles}, the most the "
+                       "adaptive count may reach")
     return CDFConfig(n_particles=args.particles, tau=args.tau if args.tau is not None else d.tau,
-                     cutoff_rule=args.cutoff_rule, risk=risk)
+                     cutoff_rule=args.cutoff_rule, risk=risk,
+                     adaptive=None if adaptive is None else AdaptiveConfig(n_min=adaptive))
 
 
 def command(subparsers: argparse._SubParsersAction, name: str, *, summary: str,
