@@ -116,3 +116,81 @@ def test_the_command_line_sets_it_and_refuses_a_floor_above_the_most(tmp_path, c
     assert err == ["cdf-mj: error: --adaptive-particles 700 is more than --particles 600, the most the adaptive "
                    "count may reach"]
     assert not (tmp_path / "bad").exists()
+    assert main(["sweep", "particles", "--values", "100,400", "--episodes", "1", "--planner", "cdf",
+                 "--adaptive-particles", "200", "--out", str(tmp_path / "sweep"), "--workers", "1", "--quiet",
+                 "--no-figure"]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "cdf-mj: error: --adaptive-particles 200 is more than the particle count 100 the sweep of particles "
+        "reaches (it sweeps the most the adaptive count may reach)"]
+
+
+def test_bins_count_signed_positions_speeds_and_the_discrete_state():
+    """Negative coordinates fall in their own bins (floor, not truncation); each of mode,
+    intent and seen splits a bin; a spread of 32 000 bins along one axis is counted fast."""
+    xs = np.array([-1.2, -0.6, -0.1, 0.1, 0.6, 1.2])
+    pose = np.zeros((6, 4))
+    pose[:, 0] = xs
+    z6, f6 = np.zeros(6, dtype=np.int64), np.zeros(6, dtype=bool)
+    keep = np.arange(6)
+    assert kernels.kld_bins(keep, pose, z6, z6, f6, 0.5, 0.5) == 6  # -3, -2, -1, 0, 1, 2
+    same = np.zeros((8, 4))
+    combos = np.array([(m, i, h) for m in (0, 1) for i in (0, 1) for h in (0, 1)])
+    assert kernels.kld_bins(np.arange(8), same, combos[:, 0].copy(), combos[:, 1].copy(), combos[:, 2].astype(bool),
+                            0.5, 0.5) == 8
+    n = 32000
+    line = np.zeros((n, 4))
+    line[:, 1] = np.arange(n) * 0.5 + 0.25
+    zn = np.zeros(n, dtype=np.int64)
+    assert kernels.kld_bins(np.arange(n), line, zn, zn, np.zeros(n, dtype=bool), 0.5, 0.5) == n
+
+
+def test_the_fixed_count_draws_what_it_drew_before():
+    """The fixed count's resampling is the stratified draw then the rejuvenation, the same
+    numbers from the same stream as one call (what the records of every shipped page rest on)."""
+    rng = np.random.default_rng(11)
+    n = 300
+    w = rng.random(n)
+    theta = rng.random((n, 7))
+    mode = rng.integers(0, 4, n)
+    intent = rng.integers(0, 2, n)
+    std, lo, hi = np.full(6, 0.05), np.zeros(6), np.ones(6)
+    a, b = np.random.default_rng(5), np.random.default_rng(5)
+    keep, theta_a, intent_a = kernels.resample(a, w, theta, mode, intent, std, lo, hi, 0.3, 0.75)
+    keep_b = kernels.resample_to(b, w, n)
+    theta_b, intent_b = kernels.rejuvenate(b, keep_b, theta, mode, intent, std, lo, hi, 0.3, 0.75)
+    assert np.array_equal(keep, keep_b) and np.array_equal(theta_a, theta_b) and np.array_equal(intent_a, intent_b)
+    assert a.random() == b.random()  # the streams end in the same state
+
+
+@pytest.mark.parametrize("redraw", [True, False])
+def test_a_lost_track_reinitialises_at_the_right_count(redraw):
+    """Every likelihood vanishes after the count fell to n_min: with the redraw the filter
+    starts again from the prior at the most particles; without it the particles keep their
+    hypotheses and their count. Either way the next tick runs."""
+    from cdf_mj.inference.particle_filter import ParticleFilter
+    from cdf_mj.scenario.episode import run_episode as run
+
+    cdf = CDFConfig(n_particles=1200, adaptive=AdaptiveConfig(n_min=300), reinit_redraw=redraw)
+    scene = Scene.load()
+    poses = np.array(run(None, 1, "constant", scene, label=False, trace=True).trace["poses"])
+    pf = ParticleFilter.from_layout(scene.layout(), cdf, np.random.default_rng(0), 0.1)
+    pf.reset(poses[0])
+    pf.predict(poses[0])
+    pf.update(poses[1])
+    assert pf.n == 300
+    far = poses[2].copy()
+    far[1, :2] += 50.0
+    pf.predict(poses[1])
+    pf.update(far)
+    assert pf.reinits == 1 and pf.n == (1200 if redraw else 300)
+    pf.predict(far)
+    pf.update(far)
+    assert len(pf.pose) == len(pf.theta) == pf.n
+
+
+def test_a_scaled_config_keeps_the_count_and_scales_the_bins():
+    from cdf_mj.config import scaled
+
+    small = scaled(CDFConfig(n_particles=2000, adaptive=AdaptiveConfig()), 0.1)
+    assert small.n_particles == 2000 and small.adaptive.n_min == 500
+    assert small.adaptive.bin_pos == pytest.approx(0.05) and small.adaptive.bin_speed == pytest.approx(0.05)

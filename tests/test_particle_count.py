@@ -35,6 +35,8 @@ def test_both_parts_on_real_episodes(capsys):
     # per preset and pooled: the null (N = 1000 on another stream) and each candidate
     assert [line.split(" | ")[1] for line in paired] == ["N = 1000, another stream", "N = 100", "adaptive 100-400"] * 2
     assert all(line.endswith(("| yes |", "| **no** |")) for line in paired)
+    assert "The declared bar for changing the default (pooled: no more collisions than the shipped count and " \
+           "every p >= 0.5) is met by: " in out
     spread = [line for line in out.splitlines() if line.startswith("| default: ")]
     assert [line.split(" | ")[0] for line in spread] == ["| default: collisions", "| default: non-Cutoff interventions",
                                                          "| default: non-Cutoff hard brakes"]
@@ -45,6 +47,7 @@ def test_both_parts_on_real_episodes(capsys):
     (["--counts", "adaptive:900-100"], "--counts"),
     (["--seeds", "9-3"], "--seeds"),
     (["--streams", "1"], "--streams"),
+    (["--reference", "adaptive:100-400"], "--reference"),
     (["--parts", "open"], "--parts"),
     (["--presets", "no-such-preset"], "no-such-preset"),
 ])

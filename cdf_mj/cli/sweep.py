@@ -54,6 +54,13 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     pool = pool_from_args(args)
     if args.values is not None and len(args.sweeps) > 1:
         raise CLIError("--values applies to one sweep at a time; name a single sweep")
+    if cdf.adaptive is not None and "particles" in args.sweeps:
+        from cdf_mj.experiments.sweep_spec import SWEEPS
+
+        low = min(args.values if args.values is not None else SWEEPS["particles"].values)
+        if low < cdf.adaptive.n_min:
+            raise CLIError(f"--adaptive-particles {cdf.adaptive.n_min} is more than the particle count {low:g} the "
+                           "sweep of particles reaches (it sweeps the most the adaptive count may reach)")
     failed = []
     for name in args.sweeps:
         try:

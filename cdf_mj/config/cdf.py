@@ -210,26 +210,27 @@ class LayeredConfig:
 
 @dataclass(frozen=True)
 class AdaptiveConfig:
-    """An adaptive particle count: KLD-sampling (Fox 2003, "Adapting the sample size in
-    particle filters through KLD-sampling") at each resampling.
+    """An adaptive particle count: KLD-sampling's bound (Fox 2003, "Adapting the sample size
+    in particle filters through KLD-sampling") at each resampling.
 
-    Before each resampling, particles are drawn one at a time from the weights, each in a
-    bin of the obstacle's state (its position on a ``bin_pos`` grid, its speed on a
-    ``bin_speed`` grid, its mode, intent and whether it has seen the ego), until there are
-    enough for the bins they occupy: with probability ``1 - delta`` the Kullback-Leibler
-    divergence between a sample's distribution over the bins and the posterior's is at
-    most ``epsilon``. The filter then resamples that many (stratified). At least
-    ``n_min`` (the driver parameters and beliefs, which no bin resolves, keep that many),
-    at most ``CDFConfig.n_particles``: few where the measurement pins the other car's pose,
-    more where its hypotheses spread out (an occluded sensor's unseen approach, a lost
-    track). ValueError naming the field for a value out of its range.
+    The filter resamples ``n_min`` particles (stratified) and counts the bins of the
+    obstacle's state they occupy (its position on a ``bin_pos`` grid, its speed on a
+    ``bin_speed`` grid, its mode, intent and whether it has seen the ego); while Fox's
+    bound asks for more particles for that many bins (so that, with probability
+    ``1 - delta``, the Kullback-Leibler divergence between the sample's distribution over
+    the bins and the posterior's is at most ``epsilon``), it resamples that many instead
+    and counts again (:func:`cdf_mj.inference.kernels.kld_resample`). At least ``n_min``
+    (the driver parameters and beliefs, which no bin resolves, keep that many), at most
+    ``CDFConfig.n_particles``: few where the measurement pins the other car's pose, more
+    where its hypotheses spread out (an occluded sensor's unseen approach, a lost track).
+    ValueError naming the field for a value out of its range.
     """
 
     epsilon: float = bounded(0.05, 0.0, 1.0, "1", open_low=True)
     delta: float = bounded(0.01, 0.0, 0.5, "1", open_low=True)
     n_min: int = 500
-    bin_pos: float = bounded(0.5, 0.0, MAX_LENGTH, "m", open_low=True)
-    bin_speed: float = bounded(0.5, 0.0, 100.0, "m/s", open_low=True)
+    bin_pos: float = bounded(0.5, 1e-3, MAX_LENGTH, "m")  # [m] (a finer grid overflows the bins' keys)
+    bin_speed: float = bounded(0.5, 1e-3, 100.0, "m/s")
 
     def __post_init__(self) -> None:
         validate(self, "adaptive.")
@@ -316,10 +317,6 @@ class CDFConfig:
         # read back from JSON (settings.json)
         _groups_of_mappings(self, {"prior": DriverPrior, "risk": RiskConfig, "process_noise": ProcessNoise,
                                    "layered": LayeredConfig})
-        if self.adaptive is not None:
-            _groups_of_mappings(self, {"adaptive": AdaptiveConfig})
-            _check(self.adaptive.n_min <= self.n_particles, "adaptive.n_min", self.adaptive.n_min,
-                   f"at most n_particles = {self.n_particles} (the most particles)")
         _check(isinstance(self.decision, str) and self.decision in DECISIONS, "decision",
                self.decision, "'layered', 'risk' or 'threshold' (the paper's)")
         _check(_within(self.mode_jump, 0.0, 0.5), "mode_jump", self.mode_jump, "in [0, 0.5] [1/tick]")
@@ -334,6 +331,10 @@ class CDFConfig:
         _check(isinstance(self.n_particles, numbers.Integral) and not isinstance(self.n_particles, bool)
                and 1 <= self.n_particles <= MAX_PARTICLES, "n_particles", self.n_particles,
                f"an integer in [1, {MAX_PARTICLES:.0e}] (memory: ~0.3 GB per filter at the bound)")
+        if self.adaptive is not None:
+            _groups_of_mappings(self, {"adaptive": AdaptiveConfig})
+            _check(self.adaptive.n_min <= self.n_particles, "adaptive.n_min", self.adaptive.n_min,
+                   f"at most n_particles = {self.n_particles} (the most particles)")
         _check(_within(self.tau, 0.0, 1.0, open_low=True), "tau", self.tau, "in (0, 1]")
         _check(isinstance(self.cutoff_rule, str) and self.cutoff_rule in ("predictive", "paper"),
                "cutoff_rule", self.cutoff_rule, "'predictive' or 'paper'")

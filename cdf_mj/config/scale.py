@@ -29,7 +29,8 @@ UNITS: Mapping[str, Any] = MappingProxyType({
     "CDFConfig.likelihood_std": _POSE_UNITS, "CDFConfig.likelihood_cov": (_POSE_UNITS, _POSE_UNITS),
     "CDFConfig.tau": "1", "CDFConfig.resample_ess_fraction": "1", "CDFConfig.reinit_mahalanobis": "1",
     "CDFConfig.process_noise_scale": "1", "CDFConfig.mode_jump": "1/tick", "CDFConfig.intent_floor": "1",
-    "CDFConfig.param_jitter": "1", "CDFConfig.ego_brake": "m/s^2", "CDFConfig.ego_latency": "s"})
+    "CDFConfig.param_jitter": "1", "CDFConfig.ego_brake": "m/s^2", "CDFConfig.ego_latency": "s",
+    "AdaptiveConfig.n_min": "1"})
 
 
 def unit_of(config: Any, name: str) -> Any:

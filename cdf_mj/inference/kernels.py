@@ -563,9 +563,10 @@ def kld_bins(keep: np.ndarray, pose: np.ndarray, mode: np.ndarray, intent: np.nd
     ``bin_pos`` [m] grid, the speed on a ``bin_speed`` [m/s] grid, the mode, the intent and
     whether it has seen the ego (an open-addressing set of the bins' keys)."""
     m = keep.shape[0]
-    size = 1
+    size, bits = 1, 0
     while size < 4 * m:  # at most a quarter full
         size *= 2
+        bits += 1
     slots = np.zeros(size, dtype=np.int64)  # a key + 1; 0 is an empty slot
     k = 0
     for i in range(m):
@@ -574,7 +575,8 @@ def kld_bins(keep: np.ndarray, pose: np.ndarray, mode: np.ndarray, intent: np.nd
         by = np.int64(math.floor(pose[j, 1] / bin_pos)) & 0xFFFFF
         bv = np.int64(math.floor(pose[j, 3] / bin_speed)) & 0x3FF
         h = (((((((bx << 20) | by) << 10 | bv) << 2 | mode[j]) << 1 | intent[j]) << 1) | np.int64(has_belief[j])) + 1
-        slot = (h * 2654435761) & (size - 1)
+        # Fibonacci hashing: the product's high bits, which every bit of the key moves.
+        slot = np.int64((np.uint64(h) * np.uint64(0x9E3779B97F4A7C15)) >> np.uint64(64 - bits)) if bits else 0
         while slots[slot] != 0 and slots[slot] != h:
             slot = (slot + 1) & (size - 1)
         if slots[slot] == 0:

@@ -633,8 +633,9 @@ class ParticleFilter:
         so that no hypothesis stays dead: intent from the prior, mode going if the car is
         measured moving (> 0.5 m/s) else waiting, seen the ego with probability 1/2 (its
         belief then the ego's pose with observation noise), and the driver parameters
-        from the prior. Without it, the particles keep their discrete hypotheses."""
-        n = self.n = self.n_max
+        from the prior (as many particles as the most, ``n_max``). Without it, the particles
+        keep their discrete hypotheses (and their count)."""
+        n = self.n = self.n_max if self.cdf.reinit_redraw else self.n
         rng = self.rng
         self.reinits += 1
         self.pose = _published(np.repeat(np.asarray(measured, dtype=float)[None], n, axis=0))
