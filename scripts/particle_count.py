@@ -26,10 +26,11 @@ interventions and non-Cutoff hard brakes; the time lost at the fixed point again
 seed's ``constant``, by the sign test), per preset and pooled over the six. A candidate
 loses nothing where each of its three p-values is at least 0.5 on every preset (issue 38's
 "no loss"). The criterion for changing the default, declared after the closed loop of the
-fixed counts had been seen and before that of the adaptive count ran: pooled over the six presets no more collisions than the shipped count and each of
-the three pooled p-values at least 0.5 (per preset, the null shows how often a new stream
-alone falls below 0.5). ``--streams K`` runs the shipped filter on K - 1 other streams and
-adds a table of their spread beside each candidate's counts, a diagnostic::
+fixed counts had been seen and before that of the adaptive count ran: pooled over the six
+presets no more collisions than the shipped count and each of the three pooled p-values
+at least 0.5 (per preset, the null shows how often a new stream alone falls below 0.5).
+``--streams K`` runs the shipped filter on K - 1 other streams and adds a table of their
+spread beside each candidate's counts, a diagnostic::
 
     python scripts/particle_count.py                         # both parts, Markdown on stdout
     python scripts/particle_count.py --parts agreement --seeds 830000-830009 --presets default
