@@ -8,6 +8,7 @@ tick, inclusive of what it calls (nested rows overlap)::
 
     taskset -c 1 python scripts/tick_breakdown.py cdf            # 20 episodes, seeds 2000-2019
     python scripts/tick_breakdown.py imm-layered --episodes 10
+    python scripts/tick_breakdown.py cdf --particles 250         # the CDF with another particle count
 
 The timers add about half a microsecond a call; cProfile's shares are in
 ``scripts/profile_filter.py --planner PLANNER``. Bad arguments are one line
@@ -25,6 +26,8 @@ from collections import defaultdict
 from collections.abc import Callable
 from typing import Any
 
+from cdf_mj.cli.args import particle_count
+from cdf_mj.planners.cdf import CDFPlanner
 from cdf_mj.planners.registry import PLANNERS, make_planner
 from cdf_mj.scenario.episode import run_episode
 from cdf_mj.sim.scene import Scene
@@ -65,20 +68,31 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="tick_breakdown", description=__doc__.split("\n\n")[0])
     parser.add_argument("planner", help="a registered planner, e.g. cdf")
     parser.add_argument("--episodes", type=int, default=20, help="episodes timed, seeds 2000 on (default 20)")
+    parser.add_argument("--particles", type=particle_count, default=None,
+                        help="a CDF planner's particle count (default its own)")
     args = parser.parse_args(argv)
     if args.planner not in PLANNERS:
         parser.error(f"unknown planner {args.planner!r}; one of {', '.join(sorted(PLANNERS))}")
     if args.episodes < 1:
         parser.error("--episodes must be at least 1")
+
+    def planner() -> Any:
+        made = make_planner(args.planner)
+        if args.particles is None:
+            return made
+        if not isinstance(made, CDFPlanner):
+            parser.error(f"--particles: {args.planner!r} is not a CDF planner")
+        return type(made)(made.cdf.replace(n_particles=args.particles))  # each CDF planner keeps its rule
+
     totals: dict[str, float] = defaultdict(float)
     for where in _TIMED:
         _wrap(totals, *where)
     scene = Scene.load()
-    run_episode(None, 1999, make_planner(args.planner), scene, label=False)  # warm-up (and compiling)
+    run_episode(None, 1999, planner(), scene, label=False)  # warm-up (and compiling)
     totals.clear()
     ticks, t0 = 0, time.perf_counter()
     for i in range(args.episodes):
-        record = run_episode(None, 2000 + i, make_planner(args.planner), scene, label=False)
+        record = run_episode(None, 2000 + i, planner(), scene, label=False)
         ticks += max(round(record.end_time / 0.1), 1)
     wall = time.perf_counter() - t0
     print(f"{args.planner}: {1e6 * wall / ticks:.0f} µs a tick over {ticks} ticks of {args.episodes} episodes\n")
