@@ -37,6 +37,7 @@ from pathlib import Path
 
 from cdf_mj.analysis.metrics import PlannerMetrics, planner_metrics
 from cdf_mj.analysis.pages import command_line, write_page
+from cdf_mj.cli.args import episode_count, worker_count
 from cdf_mj.config import CDFConfig, LayeredConfig
 from cdf_mj.experiments.experiment import run_experiment
 from cdf_mj.presets import load_preset
@@ -96,8 +97,8 @@ def _cell(m: PlannerMetrics) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="tune_option", description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=Path("results/tune_option"), help="result directory")
-    parser.add_argument("--episodes", type=int, default=200, help="development seeds from 0 (default 200)")
-    parser.add_argument("--workers", type=int, default=None, help="worker processes (default: one per CPU)")
+    parser.add_argument("--episodes", type=episode_count, default=200, help="development seeds from 0 (default 200)")
+    parser.add_argument("--workers", type=worker_count, default=None, help="worker processes (default: one per CPU)")
     parser.add_argument("--doc", default="docs/TUNING.md",
                         help="Markdown page written (default docs/TUNING.md; '' for none)")
     args = parser.parse_args(argv)
