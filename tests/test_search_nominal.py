@@ -243,6 +243,7 @@ def test_the_mixture_estimator_takes_a_choice_the_nominal_never_draws():
     lat = near.keys.index("sensing.latency")
     est = cross_entropy(_Formula(near, lambda x: 3 - x[lat]), "x", 1000, seed=0, components=8)
     assert est.method == "mixture" and est.p == 0.0
+    assert est.failures > 0 and est.upper_only and "none the nominal can draw" in est.text()  # they were found
 
 
 def test_on_a_narrow_junction_the_pet_guided_search_finds_a_left_turner_collision(tmp_path):
